@@ -1,0 +1,119 @@
+"""The serial part (SM) of the AGEBOT: a linear rail plus a planar 3R arm.
+
+Calibration brief, section 1 (report section 6, Table 2)::
+
+    T_b4 = Rz(theta0) Tx(a0) * Tz(d1') Rz(pi/2 - theta0) * Rz(theta2) Tx(L2)
+           * Rz(theta3) Tx(L3) * Rz(theta4) Tx(L4)
+
+Joint coordinates ``Q = [d1', theta2, theta3, theta4]``, ``Q = K*Qm + Q_off``.
+Generalized coordinates ``X = [x, y, z, phi]`` in the base frame: the rail
+``z_b`` is horizontal, the arm moves in the vertical ``x_b-y_b`` plane and
+``phi`` (angle of the last link from ``x_b``) is what an inclinometer on the
+last link reads as its pitch.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from calibration.chain import Chain, Factor
+from calibration.errors import UnreachablePose
+from calibration.robots.base import RobotModel
+
+PARAM_NAMES = ("q1_off", "q2_off", "q3_off", "q4_off", "k1", "k2", "k3", "k4",
+               "L2", "L3", "L4", "theta0", "a0")
+TRUE = np.array([0.2, 0.3, 0.3, 0.2, 1 / 50, 1 / 110, 1 / 90, 1 / 85,
+                 0.67, 0.44, 0.844, 1.1071, 0.44721])
+NOMINAL = np.array([0.0, 0.0, 0.0, 0.0, 1 / 45, 1 / 100, 1 / 100, 1 / 100,
+                    0.69, 0.46, 0.854, 1.1371, 0.54721])
+# Joint limits (joint coordinates): rail travel in m, arm joints in rad.
+JOINT_LIMITS = np.array([[-2.0, 2.0],
+                         [-math.radians(170), math.radians(170)],
+                         [-math.radians(170), math.radians(170)],
+                         [-math.radians(170), math.radians(170)]])
+
+
+def _chain() -> Chain:
+    i = {n: k for k, n in enumerate(PARAM_NAMES)}
+    f = (Factor("rz", terms=((i["theta0"], 1.0),)),
+         Factor("tx", terms=((i["a0"], 1.0),)),
+         Factor("tz", joint=0),
+         Factor("rz", const=math.pi / 2, terms=((i["theta0"], -1.0),)),
+         Factor("rz", joint=1), Factor("tx", terms=((i["L2"], 1.0),)),
+         Factor("rz", joint=2), Factor("tx", terms=((i["L3"], 1.0),)),
+         Factor("rz", joint=3), Factor("tx", terms=((i["L4"], 1.0),)))
+    return Chain(f, len(PARAM_NAMES), offset_idx=(0, 1, 2, 3), gain_idx=(4, 5, 6, 7))
+
+
+def wrap(a):
+    """Angles wrapped to ``[-pi, pi)``."""
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+class AgebotSM(RobotModel):
+    name = "agebot-sm"
+    param_names = PARAM_NAMES
+    coords = ("x", "y", "z", "phi")
+    n_actuators = 4
+    joint_limits = JOINT_LIMITS
+
+    def __init__(self):
+        self.nominal = NOMINAL.copy()
+        self.true = TRUE.copy()
+        self.chain = _chain()
+
+    # -- forward kinematics and its Jacobian ------------------------------------
+    def fk(self, qm, xi) -> np.ndarray:
+        """``X (m, 4) = [x, y, z, phi]`` for ``qm (m, 4)``; phi is not wrapped."""
+        qm = np.atleast_2d(np.asarray(qm, dtype=float))
+        T = self.chain.fk(qm, xi)
+        q = self.chain.joints(qm, xi)
+        phi = np.pi / 2 + q[:, 1] + q[:, 2] + q[:, 3]
+        return np.column_stack([T[:, :3, 3], phi])
+
+    def fk_jacobian(self, qm, xi):
+        """``(X (m, 4), Psi (m, 4, N))``: rows x, y, z and the rotation about z_b."""
+        qm = np.atleast_2d(np.asarray(qm, dtype=float))
+        T, psi = self.chain.jacobian(qm, xi)
+        q = self.chain.joints(qm, xi)
+        phi = np.pi / 2 + q[:, 1] + q[:, 2] + q[:, 3]
+        X = np.column_stack([T[:, :3, 3], phi])
+        return X, psi[:, [0, 1, 2, 5], :]
+
+    def base_offset(self, xi) -> np.ndarray:
+        """Base offset ``(x0, y0, z0)`` of ``T_0^b`` (eq. 55): ``a0 (cos, sin) theta0``."""
+        th, a = xi[self.index("theta0")], xi[self.index("a0")]
+        return np.array([a * math.cos(th), a * math.sin(th), 0.0])
+
+    # -- inverse kinematics --------------------------------------------------------
+    def ik_joints(self, X, xi, elbow: int = 1) -> np.ndarray:
+        """Joint coordinates ``Q`` for one pose ``X = [x, y, z, phi]``.
+
+        elbow: +1 chooses ``theta3 >= 0``, -1 ``theta3 <= 0``. Raises
+        :class:`UnreachablePose` where the 2R sub-chain cannot reach the wrist or
+        a joint leaves its limits.
+        """
+        x, y, z, phi = (float(v) for v in X)
+        L2, L3, L4 = (xi[self.index(n)] for n in ("L2", "L3", "L4"))
+        x0, y0, _ = self.base_offset(xi)
+        px = x - L4 * math.cos(phi) - x0
+        py = y - L4 * math.sin(phi) - y0
+        c3 = (px * px + py * py - L2 * L2 - L3 * L3) / (2 * L2 * L3)
+        if not -1.0 <= c3 <= 1.0:
+            raise UnreachablePose(f"pose {np.round(X, 4).tolist()} is out of the arm's reach")
+        th3 = math.copysign(math.acos(c3), elbow if elbow else 1)
+        psi1 = math.atan2(py, px) - math.atan2(L3 * math.sin(th3), L2 + L3 * math.cos(th3))
+        th2 = float(wrap(psi1 - math.pi / 2))
+        th4 = float(wrap(phi - math.pi / 2 - th2 - th3))
+        q = np.array([z, th2, th3, th4])
+        lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
+        if np.any(q < lo) or np.any(q > hi):
+            raise UnreachablePose(f"pose {np.round(X, 4).tolist()} needs joints "
+                                  f"{np.round(q, 4).tolist()} outside the joint limits")
+        return q
+
+    def ik(self, X, xi, elbow: int = 1) -> np.ndarray:
+        """Actuator values ``Qm (4,)`` for one pose ``X`` (eq. 57)."""
+        q = self.ik_joints(X, xi, elbow)
+        return self.chain.actuators(q, xi)[0]
