@@ -1,0 +1,97 @@
+"""One simulated actuator axis: position in actuator units, trapezoidal moves.
+
+The simulated drives (CiA 402) command it; the simulated robot reads its
+position to compute every sensor value. Time is ``time.monotonic()``.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+
+class SimAxis:
+    """A position-controlled axis with finite speed and acceleration.
+
+    position:     start position (actuator units).
+    velocity:     default profile velocity (units/s).
+    acceleration: default profile acceleration (units/s^2).
+    """
+
+    def __init__(self, position: float = 0.0, velocity: float = 2000.0,
+                 acceleration: float = 8000.0, clock=time.monotonic):
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._start = float(position)
+        self._target = float(position)
+        self._t0 = clock()
+        self.velocity = float(velocity)
+        self.acceleration = float(acceleration)
+        self._v = self.velocity
+        self._a = self.acceleration
+
+    def command(self, target: float, velocity: float | None = None,
+                acceleration: float | None = None) -> None:
+        """Start a move from wherever the axis is now to ``target``."""
+        with self._lock:
+            now = self._clock()
+            self._start = self._position_at(now)
+            self._target = float(target)
+            self._t0 = now
+            self._v = abs(float(velocity)) if velocity else self.velocity
+            self._a = abs(float(acceleration)) if acceleration else self.acceleration
+
+    def stop(self) -> None:
+        """Stop where the axis is now (quick stop)."""
+        with self._lock:
+            now = self._clock()
+            self._start = self._target = self._position_at(now)
+            self._t0 = now
+
+    def _duration(self) -> float:
+        d = abs(self._target - self._start)
+        v, a = self._v, self._a
+        if d == 0:
+            return 0.0
+        if d < v * v / a:  # triangular profile
+            return 2 * math.sqrt(d / a)
+        return d / v + v / a
+
+    def _position_at(self, now: float) -> float:
+        d = self._target - self._start
+        dist = abs(d)
+        if dist == 0:
+            return self._target
+        t = now - self._t0
+        v, a = self._v, self._a
+        if dist < v * v / a:
+            t_acc = math.sqrt(dist / a)
+            v_peak = a * t_acc
+            t_flat = 0.0
+        else:
+            t_acc = v / a
+            v_peak = v
+            t_flat = (dist - v * t_acc) / v
+        total = 2 * t_acc + t_flat
+        if t >= total:
+            s = dist
+        elif t < t_acc:
+            s = 0.5 * a * t * t
+        elif t < t_acc + t_flat:
+            s = 0.5 * a * t_acc * t_acc + v_peak * (t - t_acc)
+        else:
+            td = total - t
+            s = dist - 0.5 * a * td * td
+        return self._start + math.copysign(s, d)
+
+    def position(self) -> float:
+        with self._lock:
+            return self._position_at(self._clock())
+
+    @property
+    def target(self) -> float:
+        return self._target
+
+    def target_reached(self) -> bool:
+        with self._lock:
+            return self._clock() - self._t0 >= self._duration()

@@ -1,0 +1,68 @@
+"""Fault injection for the simulated devices (a hook of the twin, never a
+branch in the driver, house style 2).
+
+One :class:`FaultPlan` is shared by every simulated device of a simulator
+process. Tests and the simulator's control port set its fields at run time;
+each simulated device consults it where the fault would happen on the wire.
+"""
+from __future__ import annotations
+
+import random
+import threading
+from dataclasses import dataclass, field, fields
+
+
+@dataclass
+class FaultPlan:
+    """What goes wrong, and how often. All off by default.
+
+    drop_prob:        probability that a frame/answer is not sent at all.
+    corrupt_prob:     probability that a frame is sent with a corrupted byte.
+    late_s:           extra delay (s) before each answer (a late device).
+    silent_nodes:     CANopen node ids that stop talking (no PDO, SDO, heartbeat).
+    drive_fault_node: CANopen node id that goes to FAULT (with EMCY) at its next move.
+    modbus_exception: Modbus exception code to answer every request with (0: off).
+    inclinometer_silent: the inclinometer stops sending frames.
+    drawwire_down:    the Modbus server drops its connections and refuses new ones.
+    seed:             seed of the fault random generator.
+    """
+
+    drop_prob: float = 0.0
+    corrupt_prob: float = 0.0
+    late_s: float = 0.0
+    silent_nodes: set[int] = field(default_factory=set)
+    drive_fault_node: int = 0
+    modbus_exception: int = 0
+    inclinometer_silent: bool = False
+    drawwire_down: bool = False
+    seed: int | None = None
+
+    def __post_init__(self):
+        self._lock = threading.Lock()
+        self._rng = random.Random(self.seed)
+
+    def chance(self, p: float) -> bool:
+        if p <= 0:
+            return False
+        with self._lock:
+            return self._rng.random() < p
+
+    def update(self, **changes) -> None:
+        """Change fields by name (from the control port or a test)."""
+        names = {f.name for f in fields(self)}
+        with self._lock:
+            for k, v in changes.items():
+                if k not in names or k == "seed":
+                    raise KeyError(f"unknown fault {k!r} (known: {', '.join(sorted(names - {'seed'}))})")
+                if k == "silent_nodes":
+                    v = set(int(x) for x in v)
+                setattr(self, k, v)
+
+    def clear(self) -> None:
+        self.update(drop_prob=0.0, corrupt_prob=0.0, late_s=0.0, silent_nodes=set(),
+                    drive_fault_node=0, modbus_exception=0, inclinometer_silent=False,
+                    drawwire_down=False)
+
+    def as_dict(self) -> dict:
+        return {f.name: (sorted(getattr(self, f.name)) if f.name == "silent_nodes"
+                         else getattr(self, f.name)) for f in fields(self)}
