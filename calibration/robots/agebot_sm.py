@@ -113,7 +113,20 @@ class AgebotSM(RobotModel):
                                   f"{np.round(q, 4).tolist()} outside the joint limits")
         return q
 
-    def ik(self, X, xi, elbow: int = 1) -> np.ndarray:
-        """Actuator values ``Qm (4,)`` for one pose ``X`` (eq. 57)."""
-        q = self.ik_joints(X, xi, elbow)
+    def elbow_of(self, qm, xi) -> int:
+        """Elbow of the configuration at actuator values ``qm``: +1 where theta3 >= 0."""
+        q = self.chain.joints(np.atleast_2d(qm), xi)[0]
+        return 1 if q[2] >= 0 else -1
+
+    def ik(self, X, xi, elbow: int | None = None) -> np.ndarray:
+        """Actuator values ``Qm (4,)`` for one pose ``X`` (eq. 57).
+
+        elbow: +1 or -1; None tries +1, then -1 where +1 leaves the joint limits."""
+        if elbow is None:
+            try:
+                q = self.ik_joints(X, xi, 1)
+            except UnreachablePose:
+                q = self.ik_joints(X, xi, -1)
+        else:
+            q = self.ik_joints(X, xi, elbow)
         return self.chain.actuators(q, xi)[0]

@@ -1,0 +1,61 @@
+"""sm-distance-tilt (report 7.5): distance from a chosen base origin plus the
+tilt ``phi`` of the last link.
+
+The operator first brings the end effector to a point and records ``Qm_b``;
+that point becomes the origin of a new base frame. The nominal ``theta0, a0,
+q1_off`` are re-estimated for it (eqs. 76-77) before iterating, and the
+calibrated values refer to it. Rows per pose: the distance residual (``plain``
+``D_M - |X[1:3]|`` by default, or the report's ``D_M^2 - D^2``, eq. 83) and
+``phi_M - phi``. All 13 parameters are identifiable.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from calibration.errors import CalibrationError
+from calibration.methods.base import RobotMethod, channel
+from calibration.methods.sm_distance import RESIDUALS, distance_rows
+from calibration.robots.agebot_sm import wrap
+
+
+def reframe_nominal(robot, nominal: np.ndarray, origin_qm) -> np.ndarray:
+    """Eqs. 76-77 and 55: the nominal ``theta0, a0, q1_off`` of the base frame
+    whose origin is where the nominal model puts the end effector at ``origin_qm``."""
+    x = np.array(nominal, dtype=float)
+    p_b = robot.fk(np.atleast_2d(origin_qm), x)[0, :3]
+    x0, y0, z0 = robot.base_offset(x) - p_b
+    x[robot.index("theta0")] = math.atan2(y0, x0)
+    x[robot.index("a0")] = math.hypot(x0, y0)
+    x[robot.index("q1_off")] += z0
+    return x
+
+
+class DistanceTilt(RobotMethod):
+    method = "sm-distance-tilt"
+    default_damping = 1e-2
+
+    def __init__(self, robot, qm, measured: dict, nominal, *, reference_qm,
+                 residual="plain", reframe: bool = True):
+        super().__init__(robot, qm, nominal)
+        if residual not in RESIDUALS:
+            raise CalibrationError(f"residual must be one of {RESIDUALS}, not {residual!r}")
+        if reference_qm is None:
+            raise CalibrationError("sm-distance-tilt needs the base origin's actuator values "
+                                   "(a 'reference' record with role 'base-origin')")
+        self.reference_qm = np.asarray(reference_qm, dtype=float).reshape(-1)
+        self.D_m = channel(measured, "distance", self.method).reshape(-1)
+        self.phi_m = channel(measured, "tilt", self.method).reshape(-1)
+        self.residual = residual
+        if reframe:
+            self.x0 = reframe_nominal(robot, self.nominal, self.reference_qm)
+        self._channels(("distance", "tilt"), [0, 1])
+
+    def evaluate(self, x):
+        rd, Wd = distance_rows(self.robot, self.qm, x, None, self.D_m, self.residual)
+        X, psi = self.robot.fk_jacobian(self.qm, x)
+        rt = wrap(self.phi_m - X[:, 3])
+        r = np.column_stack([rd, rt]).reshape(-1)
+        W = np.stack([Wd, psi[:, 3, :]], axis=1).reshape(-1, self.nr)
+        return r, W

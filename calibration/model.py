@@ -1,0 +1,96 @@
+"""A calibration method is a measurement model (house style 4).
+
+A measurement model knows, for one data set and one kinematic model, how to
+predict the measured quantities from the calibrated parameters ``x`` and how
+those predictions change with ``x``:
+
+* ``evaluate(x) -> (r, W)``: the residual ``r = measured - predicted`` (the
+  report's ``Delta X_ag``, shape ``(rows,)``) and the observation matrix
+  ``W = d predicted / d x`` (shape ``(rows, N)``), so that ``r ~ W dx`` (eq. 28).
+* ``row_channel``: the channel each row belongs to (index into ``channels``),
+  for the per-channel error weighting L and the per-channel sigma.
+
+One solver (:mod:`calibration.solver`) runs Algorithm 2 on any of them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calibration.errors import CalibrationError
+
+
+class MeasurementModel:
+    """Base class of every calibration method.
+
+    Subclasses set in ``__init__``: ``names`` (parameter names), ``x0`` (start
+    values: the nominal, possibly re-estimated), ``nominal`` (the nominal as
+    given), ``channels``, ``row_channel`` and ``n_poses``; and implement
+    :meth:`evaluate`.
+    """
+
+    method: str = ""
+    names: tuple[str, ...]
+    x0: np.ndarray
+    nominal: np.ndarray
+    channels: tuple[str, ...]
+    row_channel: np.ndarray
+    n_poses: int
+    default_damping: float = 1e-4
+    notes: tuple[str, ...] = ()
+
+    @property
+    def n_params(self) -> int:
+        return len(self.names)
+
+    @property
+    def p(self) -> int:
+        """Rows per pose (the report's p)."""
+        return len(self.row_channel) // max(self.n_poses, 1)
+
+    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+        raise NotImplementedError
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self.evaluate(x)[0]
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        return self.evaluate(x)[1]
+
+    def consistent_twin(self, x: np.ndarray) -> "MeasurementModel":
+        """The same method on data that the parameters ``x`` explain exactly.
+
+        The solver judges structural identifiability on it before iterating.
+        Where the readings enter only the residual (reading minus prediction),
+        ``W`` does not depend on them and the model is its own twin. Methods
+        whose rows are constraints among predictions (self-calibration, a
+        plane) move their poses so that ``x`` satisfies the constraints."""
+        return self
+
+    def residual_noise_gain(self, x: np.ndarray) -> np.ndarray:
+        """How much one unit of reading noise moves each residual row: 1 for a
+        residual that is a reading minus a prediction (override otherwise)."""
+        return np.ones(len(self.row_channel))
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Measured data of the poses, as arrays (no I/O here).
+
+    qm:       ``(m, n)`` actuator values.
+    channels: channel name -> ``(m,)`` or ``(m, k)`` readings.
+    group:    ``(m,)`` integer group of each pose (sm-self-redundancy) or None.
+    """
+
+    qm: np.ndarray
+    channels: dict
+    group: np.ndarray | None = None
+
+
+def require_finite(name: str, a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    if not np.all(np.isfinite(a)):
+        bad = np.argwhere(~np.isfinite(a))[0]
+        raise CalibrationError(f"{name} has a non-finite value at pose {int(bad[0])}")
+    return a

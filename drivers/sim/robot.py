@@ -1,0 +1,244 @@
+"""The simulated AGEBOT behind the simulated devices (devices.md, last section).
+
+:class:`SimulatedAgebot` holds the true parameters (a :class:`~drivers.sim.truth.SimTruth`)
+and one :class:`~drivers.sim.axis.SimAxis` per actuator; the simulated drives move
+the axes, and every sensor value is computed from the axes' current positions
+with the robot model at the true parameters, plus Gaussian noise of the truth
+file's standard deviations. Thread-safe: the device simulators call it from
+their own threads.
+
+Inclinometer conventions (the calibration's measurement model builds on these):
+
+* **SM** -- the sensor sits on the last link, whose angle ``phi`` (from ``x_b``
+  in the vertical arm plane) it reads as its **pitch**; roll reads 0 and yaw 0,
+  each plus noise. Angles are wrapped to ``[-180, 180)`` degrees.
+* **PM** -- a physical dual-axis inclinometer on the platform measures the
+  direction of gravity in its own frame. With the platform orientation
+  ``R = Rx(alpha) Ry(beta) Rz(gamma)`` (``rot_xyz``) and the sensor's mounting
+  rotation ``R_mount = Rx(mx) Ry(my)`` on the platform (truth file, default 0)::
+
+      g_s   = R_mount^T R^T (0, 0, -1)              # unit gravity, sensor frame
+      roll  = atan2(-g_y, -g_z)                     # rotation about the sensor x axis
+      pitch = atan2( g_x, sqrt(g_y^2 + g_z^2))      # rotation about the sensor y axis
+
+  so that ``R = Rx(a)`` reads ``roll = a, pitch = 0`` and ``R = Ry(b)`` reads
+  ``roll = 0, pitch = b`` (|a|, |b| < 90 deg); in general ``R = Ry(b) Rx(a) Rz(c)``
+  reads exactly ``(a, b)`` for any c (not ``Rx(a) Ry(b)``: there the two couple),
+  and ``gamma`` of ``rot_xyz`` shows only through its coupling with the tilt.
+  Yaw is not measured: reported as 0.
+  :func:`gravity_tilt` is this function, pure and vectorized.
+
+The draw-wire reads ``|p - anchor|`` (m) where ``p`` is the end-effector
+position (SM: ``X[:3]``; PM: the fixed platform centre ``(0, 0, v)``) and the
+anchor is the true ``p`` when :meth:`SimulatedAgebot.zero_drawwire` was called
+(the operator attaches the cable at the reference point and zeroes the sensor);
+before the first zero the anchor is the home position.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+
+import numpy as np
+
+from calibration.errors import CalibrationError, ConfigError, UnreachablePose
+from calibration.robots import get_robot
+from calibration.robots.agebot_pm import rot_xyz
+from drivers.sim.axis import SimAxis
+from drivers.sim.faults import FaultPlan
+from drivers.sim.truth import SimTruth
+
+log = logging.getLogger("drivers.sim")
+
+HOME = {"agebot-sm": (1.2, 1.4, 0.0, 0.0), "agebot-pm": (0.0, 0.0, 0.0)}
+# default axis speeds (actuator units/s) and accelerations (units/s^2)
+VELOCITY = {"agebot-sm": (50.0, 200.0, 200.0, 200.0), "agebot-pm": (3000.0,) * 3}
+ACCELERATION = {"agebot-sm": (400.0, 2000.0, 2000.0, 2000.0), "agebot-pm": (30000.0,) * 3}
+
+
+def _rx(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _ry(b: float) -> np.ndarray:
+    c, s = math.cos(b), math.sin(b)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def gravity_tilt(R, mount=(0.0, 0.0)):
+    """``(roll, pitch)`` in rad that a dual-axis inclinometer reads (module docstring).
+
+    R:     platform orientation, ``(3, 3)`` or ``(m, 3, 3)``.
+    mount: ``(mx, my)`` rad, sensor mounting rotation ``Rx(mx) Ry(my)`` on the platform.
+    Returns two floats for one R, else two ``(m,)`` arrays.
+    """
+    R = np.asarray(R, dtype=float)
+    single = R.ndim == 2
+    R = R.reshape(-1, 3, 3)
+    Rm = _rx(float(mount[0])) @ _ry(float(mount[1]))
+    g = -np.einsum("ji,mj->mi", Rm, R[:, 2, :])  # R_mount^T R^T (0, 0, -1)
+    roll = np.arctan2(-g[:, 1], -g[:, 2])
+    pitch = np.arctan2(g[:, 0], np.hypot(g[:, 1], g[:, 2]))
+    return (float(roll[0]), float(pitch[0])) if single else (roll, pitch)
+
+
+def pose_tilt(X, mount=(0.0, 0.0)):
+    """:func:`gravity_tilt` of PM orientations ``X = [alpha, beta, gamma]`` ((3,) or (m, 3))."""
+    X = np.asarray(X, dtype=float)
+    roll, pitch = gravity_tilt(rot_xyz(X), mount)
+    return (float(roll[0]), float(pitch[0])) if X.ndim == 1 else (roll, pitch)
+
+
+def _wrap_deg(a: float) -> float:
+    return (a + 180.0) % 360.0 - 180.0
+
+
+class SimulatedAgebot:
+    """One simulated AGEBOT (SM or PM).
+
+    truth:   the true robot (parameters, noise std per channel, seed, PM mount).
+    faults:  the fault plan shared with the device simulators (held here for them).
+    seed:    seed of the noise generator (default: ``truth.seed``).
+    home:    start pose X (default SM ``(1.2, 1.4, 0, 0)``, PM ``(0, 0, 0)``); the axes
+             start at its actuator values by IK at the true parameters.
+    velocity, acceleration: per-axis defaults of the axes (actuator units/s, /s^2).
+    clock:   time source of the axes (tests may pass a fake one).
+    """
+
+    def __init__(self, truth: SimTruth, *, faults: FaultPlan | None = None,
+                 seed: int | None = None, home=None, velocity=None, acceleration=None,
+                 clock=time.monotonic):
+        self.truth = truth
+        self.model = get_robot(truth.robot)
+        self._xi = truth.xi()
+        self.faults = faults if faults is not None else FaultPlan()
+        self._rng = np.random.default_rng(truth.seed if seed is None else seed)
+        self._lock = threading.RLock()
+        self.home_pose = np.array(HOME[truth.robot] if home is None else home, dtype=float)
+        try:
+            self.home_qm = np.asarray(self.model.ik(self.home_pose, self._xi), dtype=float)
+        except UnreachablePose as e:
+            raise ConfigError(f"the home pose {self.home_pose.tolist()} is unreachable with "
+                              f"these parameters: {e}", source=truth.source,
+                              key="parameters") from e
+        n = self.model.n_actuators
+        vel = np.broadcast_to(VELOCITY[truth.robot] if velocity is None else velocity, (n,))
+        acc = np.broadcast_to(ACCELERATION[truth.robot] if acceleration is None
+                              else acceleration, (n,))
+        self.axes = tuple(SimAxis(float(p), float(v), float(a), clock=clock)
+                          for p, v, a in zip(self.home_qm, vel, acc))
+        self._last_pose = self.home_pose.copy()  # PM: keeps the FK's assembly mode
+        self._anchor = self.ee_position()
+
+    # -- state -----------------------------------------------------------------------------
+    @property
+    def xi(self) -> np.ndarray:
+        """The true parameter vector (a copy)."""
+        return self._xi.copy()
+
+    def qm(self) -> np.ndarray:
+        """True actuator values ``(n,)`` now (actuator units)."""
+        return np.array([a.position() for a in self.axes])
+
+    def ee_pose(self) -> np.ndarray:
+        """True generalized coordinates now: SM ``[x, y, z, phi]`` (m, rad), PM
+        ``[alpha, beta, gamma]`` (rad)."""
+        qm = self.qm()
+        if self.model.name == "agebot-sm":
+            return self.model.fk(qm, self._xi)[0]
+        with self._lock:
+            try:
+                self._last_pose = self.model.fk(qm, self._xi, guess=self._last_pose)[0]
+            except CalibrationError as e:  # cannot happen on a real robot: keep the last pose
+                log.warning("simulated PM: %s; keeping the last pose", e)
+            return self._last_pose.copy()
+
+    def ee_position(self) -> np.ndarray:
+        """End-effector point ``(3,)`` in the base frame, m (PM: the platform centre)."""
+        if self.model.name == "agebot-sm":
+            return self.ee_pose()[:3]
+        return np.array([0.0, 0.0, self._xi[self.model.index("v")]])
+
+    def _noise(self, channel: str, size=None):
+        sigma = self.truth.sigma(channel)
+        if sigma == 0.0:
+            return 0.0 if size is None else np.zeros(size)
+        with self._lock:
+            return self._rng.normal(0.0, sigma, size)
+
+    # -- motion ------------------------------------------------------------------------------
+    def move_to(self, qm, velocity=None, acceleration=None) -> None:
+        """Command every axis to ``qm (n,)`` (what the simulated drives do per axis)."""
+        for axis, target in zip(self.axes, np.asarray(qm, dtype=float)):
+            axis.command(float(target), velocity, acceleration)
+
+    def move_to_pose(self, X, elbow: int = 1) -> np.ndarray:
+        """Command the pose ``X`` (IK at the true parameters); returns the target ``qm``."""
+        qm = (self.model.ik(X, self._xi, elbow=elbow) if self.model.name == "agebot-sm"
+              else self.model.ik(X, self._xi))
+        self.move_to(qm)
+        return qm
+
+    def target_reached(self) -> bool:
+        return all(a.target_reached() for a in self.axes)
+
+    def wait(self, timeout: float = 30.0, poll: float = 0.005) -> bool:
+        """Block until every axis reached its target (True) or ``timeout`` s passed (False)."""
+        end = time.monotonic() + timeout
+        while not self.target_reached():
+            if time.monotonic() > end:
+                return False
+            time.sleep(poll)
+        return True
+
+    # -- sensors ----------------------------------------------------------------------------
+    def encoder_increments(self, i: int, resolution: float) -> int:
+        """Encoder value of axis ``i`` (0-based): ``round((qm_i + noise) * resolution)``;
+        ``resolution`` in increments per actuator unit, noise channel ``qm``."""
+        return int(round((self.axes[i].position() + self._noise("qm")) * resolution))
+
+    def inclinometer_angles(self) -> tuple[float, float, float]:
+        """Noise-free ``(roll, pitch, yaw)`` in rad (module docstring)."""
+        X = self.ee_pose()
+        if self.model.name == "agebot-sm":
+            return 0.0, float(X[3]), 0.0
+        roll, pitch = pose_tilt(X, self.truth.inclinometer_mount)
+        return roll, pitch, 0.0
+
+    def inclinometer_angles_deg(self) -> tuple[float, float, float]:
+        """``(roll, pitch, yaw)`` in degrees as the sensor reports them, with noise
+        (SM: pitch ``tilt``, roll ``roll``; PM: ``roll``, ``pitch``), wrapped to [-180, 180)."""
+        roll, pitch, yaw = self.inclinometer_angles()
+        sm = self.model.name == "agebot-sm"
+        roll += self._noise("roll")
+        pitch += self._noise("tilt" if sm else "pitch")
+        return tuple(_wrap_deg(math.degrees(a)) for a in (roll, pitch, yaw))
+
+    def zero_drawwire(self) -> None:
+        """The draw-wire's zero command: the anchor becomes the end effector's true
+        position now, so the next readings are ~0."""
+        p = self.ee_position()
+        with self._lock:
+            self._anchor = p
+
+    @property
+    def anchor(self) -> np.ndarray:
+        """Draw-wire anchor ``(3,)`` in the base frame, m."""
+        with self._lock:
+            return self._anchor.copy()
+
+    def drawwire_length(self) -> float:
+        """Cable length from the anchor, m: ``|p - anchor| + noise('distance')``."""
+        d = float(np.linalg.norm(self.ee_position() - self.anchor))
+        return d + float(self._noise("distance"))
+
+    def plane_residual(self) -> float:
+        """``a x + b y + c z + 1`` of the truth's sm-plane plane at the end effector
+        (0 when it touches the plane); ConfigError if the truth has no plane."""
+        if self.truth.plane is None:
+            raise ConfigError("the truth file gives no plane (plane_a, plane_b, plane_c)",
+                              source=self.truth.source, key="parameters.plane_a")
+        return float(np.dot(self.truth.plane, self.ee_position()) + 1.0)

@@ -1,0 +1,167 @@
+"""The simulator truth file: what the simulated robot really is (file-formats.md).
+
+A JSON object, so that a test can hand the simulator values the code has never
+seen::
+
+    {"robot": "agebot-sm" | "agebot-pm",
+     "parameters": {name: value, ...},   # every parameter of the robot model,
+                                         # names as in calibration-brief.md;
+                                         # agebot-sm may add plane_a, plane_b, plane_c
+                                         # (all three): the plane a x + b y + c z + 1 = 0
+     "noise": {channel: std, ...},       # optional, std of ONE reading:
+                                         #   distance [m], tilt/roll/pitch [rad],
+                                         #   qm [actuator units]; absent = 0
+     "seed": 7,                          # optional, seed of the simulator's noise
+     "inclinometer_mount": [rx, ry],     # optional, agebot-pm only: the inclinometer's
+                                         # mounting rotation on the platform,
+                                         # R_mount = Rx(rx) Ry(ry), rad (default 0, 0)
+     "comment": "..."}                   # optional, free text
+
+Unknown keys are errors; every error is a :class:`ConfigError` naming the file
+and the key path (``truth.json: parameters.k3: missing required key``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from calibration.errors import ConfigError
+from calibration.robots import ROBOTS, get_robot
+from drivers.config import KeyReader, frozen_map
+
+NOISE_CHANNELS = ("distance", "tilt", "roll", "pitch", "qm")
+PLANE_KEYS = ("plane_a", "plane_b", "plane_c")
+
+
+@dataclass(frozen=True)
+class SimTruth:
+    """The true robot behind the simulated devices.
+
+    robot:       ``"agebot-sm"`` or ``"agebot-pm"``.
+    parameters:  name -> true value of every model parameter (model order).
+    plane:       ``(a, b, c)`` of the sm-plane plane ``a x + b y + c z + 1 = 0`` (1/m), or None.
+    noise:       channel -> std of one reading (see module docstring); absent = 0.
+    seed:        seed of the noise generator, or None (fresh entropy).
+    inclinometer_mount: ``(rx, ry)`` rad, PM inclinometer mounting rotation ``Rx(rx) Ry(ry)``.
+    comment:     free text from the file.
+    source:      file it was read from (for messages), or None.
+    """
+
+    robot: str
+    parameters: Mapping[str, float]
+    noise: Mapping[str, float] = dataclasses.field(default_factory=lambda: frozen_map({}))
+    seed: int | None = None
+    plane: tuple[float, float, float] | None = None
+    inclinometer_mount: tuple[float, float] = (0.0, 0.0)
+    comment: str | None = None
+    source: str | None = None
+
+    def xi(self) -> np.ndarray:
+        """The true parameter vector ``(N,)`` in the model's order."""
+        names = get_robot(self.robot).param_names
+        return np.array([self.parameters[n] for n in names], dtype=float)
+
+    def sigma(self, channel: str) -> float:
+        """Std of one reading of ``channel`` (0 where the file gives none)."""
+        return float(self.noise.get(channel, 0.0))
+
+    def without_noise(self) -> "SimTruth":
+        """The same robot with every channel noise-free."""
+        return dataclasses.replace(self, noise=frozen_map({}))
+
+
+def report_truth(robot: str) -> SimTruth:
+    """The report's true values for ``robot`` (calibration-brief.md), noise-free."""
+    model = get_robot(robot)
+    return SimTruth(robot=robot, parameters=frozen_map(model.as_dict(model.true)))
+
+
+def parse_truth(data: Any, source: str | None = None) -> SimTruth:
+    """Parse a decoded truth JSON object; errors name ``source`` and the key path."""
+    top = KeyReader(data, "", source)
+    robot = top.choice("robot", ROBOTS)
+    model = get_robot(robot)
+    pr = top.table("parameters")
+    params = {n: pr.float(n) for n in model.param_names}
+    plane = None
+    if robot == "agebot-sm" and any(k in pr.data for k in PLANE_KEYS):
+        plane = tuple(pr.float(k) for k in PLANE_KEYS)
+        if plane == (0.0, 0.0, 0.0):
+            pr.fail("plane_a", "a plane a x + b y + c z + 1 = 0 needs (a, b, c) != 0")
+    for k in pr.keys():
+        if k not in params and k not in PLANE_KEYS:
+            pr.fail(k, f"unknown parameter for {robot} (known: {', '.join(model.param_names)}"
+                    + (", plane_a, plane_b, plane_c)" if robot == "agebot-sm" else ")"))
+    pr.finish()
+    noise = {}
+    nr = top.table("noise", required=False)
+    if nr is not None:
+        for ch in nr.keys():
+            if ch not in NOISE_CHANNELS:
+                nr.fail(ch, f"unknown channel (known: {', '.join(NOISE_CHANNELS)})")
+            noise[ch] = nr.float(ch, lo=0.0)
+    seed = top.int("seed", default=None, lo=0)
+    mount = (0.0, 0.0)
+    if "inclinometer_mount" in top.data:
+        if robot != "agebot-pm":
+            top.fail("inclinometer_mount", "only the agebot-pm has a platform inclinometer mount")
+        mount = top.float_list("inclinometer_mount", length=2)
+        if max(abs(m) for m in mount) > math.pi / 4:
+            top.fail("inclinometer_mount", "a mounting rotation is small: |rx|, |ry| <= pi/4")
+    comment = top.str("comment", default=None)
+    top.finish()
+    return SimTruth(robot=robot, parameters=frozen_map(params), noise=frozen_map(noise),
+                    seed=seed, plane=plane, inclinometer_mount=tuple(mount),
+                    comment=comment, source=source)
+
+
+def load_truth(path: str | Path) -> SimTruth:
+    """Read a truth file; errors name the file and the key."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as e:
+        raise ConfigError(f"cannot read: {e.strerror or e}", source=str(path)) from e
+    except json.JSONDecodeError as e:
+        raise ConfigError(f"not valid JSON: {e}", source=str(path)) from e
+    return parse_truth(data, str(path))
+
+
+def truth_to_dict(truth: SimTruth) -> dict:
+    """The JSON object of ``truth`` (inverse of :func:`parse_truth`)."""
+    params = dict(truth.parameters)
+    if truth.plane is not None:
+        params.update(zip(PLANE_KEYS, truth.plane))
+    out: dict[str, Any] = {"robot": truth.robot, "parameters": params}
+    if truth.noise:
+        out["noise"] = dict(truth.noise)
+    if truth.seed is not None:
+        out["seed"] = truth.seed
+    if truth.robot == "agebot-pm" and any(truth.inclinometer_mount):
+        out["inclinometer_mount"] = list(truth.inclinometer_mount)
+    if truth.comment:
+        out["comment"] = truth.comment
+    return out
+
+
+def save_truth(truth: SimTruth, path: str | Path) -> None:
+    """Write ``truth`` as JSON atomically (temporary file + rename)."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(truth_to_dict(truth), f, indent=2)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
