@@ -9,7 +9,7 @@ from calibration.errors import CalibrationError
 
 
 def measure(method: str, robot, xi_true, qm, *, reference_qm=None, noise=None,
-            rng: np.random.Generator | None = None, guess=None) -> dict:
+            rng: np.random.Generator | None = None, guess=None, mount=(0.0, 0.0)) -> dict:
     """Readings of the channels ``method`` uses at actuator values ``qm (m, n)``.
 
     noise: channel -> std of one reading (``pose`` takes a number or 4 values).
@@ -39,4 +39,10 @@ def measure(method: str, robot, xi_true, qm, *, reference_qm=None, noise=None,
     if method in ("pm-ik", "pm-fk"):
         X = robot.fk(qm, xi_true, guess=guess)
         return {"orientation": X + n("orientation", (m, 3))}
+    if method == "pm-tilt":
+        from calibration.robots.agebot_pm import gravity_tilt, rot_xyz
+
+        X = robot.fk(qm, xi_true, guess=guess)
+        roll, pitch = gravity_tilt(rot_xyz(X), mount)
+        return {"tilt": np.column_stack([roll, pitch]) + n("tilt", (m, 2))}
     raise CalibrationError(f"unknown method {method!r}")

@@ -432,8 +432,9 @@ def with_endpoints(config: StationConfig, endpoints: Mapping[str, Any],
     """A copy of ``config`` whose device addresses are those of the running simulator.
 
     ``endpoints`` as in cli.md: ``canopen`` {interface, host, port, channel, nodes},
-    ``inclinometer`` {port, baudrate}, ``drawwire`` {host, port, device_id} or
-    {mode: "rtu", port: "/dev/pts/N", baudrate}. Given values replace the config's
+    ``inclinometer`` {port, baudrate}, ``drawwire`` {host, port, device_id} (TCP) or
+    {mode: "rtu", port: "/dev/pts/N", baudrate}; mode defaults to TCP where a host
+    is given, else to the config's. Given values replace the config's
     (placeholder or not); keys this station does not know are ignored.
     """
     top = KeyReader(endpoints, "", source)
@@ -459,7 +460,8 @@ def with_endpoints(config: StationConfig, endpoints: Mapping[str, Any],
         take(r, "baudrate", lambda k: r.int(k, lo=1), "inclinometer")
     r = top.table("drawwire", required=False)
     if r is not None and config.drawwire is not None:
-        if r.choice("mode", ("tcp", "rtu"), default=config.drawwire.mode) == "rtu":
+        guess = "tcp" if "host" in r.data else config.drawwire.mode
+        if r.choice("mode", ("tcp", "rtu"), default=guess) == "rtu":
             changes["drawwire"] = {"mode": "rtu", "host": None, "port": None}
             unresolved -= {"drawwire.host", "drawwire.port"}
             take(r, "port", r.str, "drawwire", field="serial_port")
@@ -471,5 +473,10 @@ def with_endpoints(config: StationConfig, endpoints: Mapping[str, Any],
             take(r, "port", lambda k: r.int(k, lo=1, hi=65535), "drawwire")
         take(r, "device_id", lambda k: r.int(k, lo=0, hi=247), "drawwire")
     sections = {k: dataclasses.replace(getattr(config, k), **v) for k, v in changes.items()}
+    dw = sections.get("drawwire")
+    for key in (("host", "port") if dw and dw.mode == "tcp" else ("serial_port",) if dw else ()):
+        if getattr(dw, key) is None and f"drawwire.{key}" not in unresolved:
+            raise ConfigError("missing required key (the drawwire mode changed)",
+                              source=source, key=f"drawwire.{'port' if key == 'serial_port' else key}")
     return dataclasses.replace(config, **sections,
                                unresolved=tuple(k for k in config.unresolved if k in unresolved))

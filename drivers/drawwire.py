@@ -117,7 +117,8 @@ class DrawWire(Device):
     # -- hooks ----------------------------------------------------------------------
     def _open_internal(self) -> None:
         if not self._client.connect():
-            raise DeviceError(f"cannot connect to {self.where}", device=self.name)
+            what = "connect to Modbus TCP server" if self._tcp else "open serial port"
+            raise DeviceError(f"cannot {what} {self.where}", device=self.name)
 
     def _close_internal(self) -> None:
         self._client.close()
@@ -145,7 +146,7 @@ class DrawWire(Device):
                 if not self._client.connect():
                     raise ConnectionException(f"cannot connect to {self.where}")
                 resp = getattr(self._client, method)(address, *args, device_id=self.device_id, **kw)
-            except ConnectionException as e:
+            except (ConnectionException, OSError) as e:   # OSError: reset while receiving
                 self._client.close()
                 self._link_lost = True
                 last = e

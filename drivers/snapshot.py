@@ -178,11 +178,12 @@ def take_snapshot(devices: Sequence[Device], *, samples: int = 10, period: float
         floor = limit_for(noise_floor, ch)
         if floor and len(v) >= FROZEN_MIN_SAMPLES and np.all(v == v[0]):
             raise FrozenReading(
-                f"channel {ch!r} is frozen: {len(v)} bit-identical readings {v[0]!r}, "
+                f"channel {ch!r} is frozen: {len(v)} bit-identical readings {float(v[0])!r}, "
                 f"but its noise floor is {floor:.3g}", device=owner[ch], channel=ch,
                 value=float(v[0]), noise_floor=floor)
-        mean[ch] = float(v.mean())
-        std[ch] = float(v.std(ddof=1)) if len(v) > 1 else 0.0
+        dv = v - v[0]  # exact 0 for a constant channel, fewer rounding errors otherwise
+        mean[ch] = float(v[0] + dv.mean())
+        std[ch] = float(dv.std(ddof=1)) if len(v) > 1 else 0.0
         drift[ch] = _drift(t, v)
         for kind, value, limits in (("std", std[ch], std_limits),
                                     ("drift", abs(drift[ch]), drift_limits)):

@@ -166,3 +166,150 @@ class AgebotPM(RobotModel):
             return X
         raise CalibrationError("the PM forward kinematics did not converge: the model "
                                "cannot assemble at these actuator values")
+
+    # -- calibration model (report section 9) -----------------------------------------
+    def chain_jacobians(self, X, xi):
+        """Per PUS chain (report Table 4, eq. 98): the DH joint angles and ``J_i3``.
+
+        Returns ``(theta (m, 3, 2), J (m, 3, 3, 3), u (m, 3, 3))``: ``theta[..., 0:2] =
+        (theta_i1, theta_i2)``, ``J[:, i]`` the chain Jacobian ``dD_i/d(l_i1, theta_i1,
+        theta_i2)`` in F_i0 (axes of F_b, origin B_i) and ``u[:, i]`` the unit rod
+        direction ``(D_i - C_i)/l = (c1 c2, s1 c2, s2)`` (= ``Psi_l^{i0}``, eq. 94).
+        """
+        B, De, l, v = self._geometry(xi)
+        _, D = self.platform_points(X, xi)
+        d = D - B[None]
+        s = np.sqrt(l * l - d[..., 0] ** 2 - d[..., 1] ** 2)
+        u = np.stack([d[..., 0] / l, d[..., 1] / l, s / l], axis=-1)
+        t1 = np.arctan2(u[..., 1], u[..., 0])
+        t2 = np.arctan2(u[..., 2], np.hypot(u[..., 0], u[..., 1]))
+        s1, c1, s2, c2 = np.sin(t1), np.cos(t1), np.sin(t2), np.cos(t2)
+        z = np.zeros_like(s1)
+        J = np.stack([np.stack([z, -s1 * l * c2, -c1 * l * s2], -1),
+                      np.stack([z, c1 * l * c2, -s1 * l * s2], -1),
+                      np.stack([z + 1.0, z, l * c2], -1)], axis=-2)
+        return np.stack([t1, t2], -1), J, u
+
+    def psi_iku(self, X, xi, qm=None) -> np.ndarray:
+        """Generalized Jacobian ``Psi^IKU (m, 3, 10)`` of eq. 106 at orientations ``X (m, 3)``.
+
+        Row i is eq. 105: ``(J_i3)^-1[1,:] [Psi_a1 Psi_a2 -Psi_l Psi_v]`` (the change of
+        the IK slider position ``q_i`` per change of ``a1, a2, l, v``), then ``-1`` for
+        ``q_i_off`` and ``-qm_i`` for ``k_i``: the derivative of the joint-space closure
+        ``Fbar^-1(X, a1, a2, l, v) - (K Qm + Q_off)`` with respect to xi. Without ``qm``
+        the ``k_i`` columns hold ``-(q_i - q_i_off)/k_i`` (the actuator value the model
+        ``xi`` itself gives at X, i.e. ``Qm = F^-1(X, xi)``).
+
+        The first row of ``J_i3^-1`` is ``u_i^T / u_iz`` (the other two columns of
+        ``J_i3`` are orthogonal to the rod direction u_i); it is computed so and
+        checked against the explicit inverse in the tests.
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        m = X.shape[0]
+        R = rot_xyz(X)
+        _, _, u = self.chain_jacobians(X, xi)
+        jrow = u / u[..., 2:3]  # (J_i3)^-1 [1, :]   (m, 3, 3)
+        psi_a1 = -np.broadcast_to(BU, (m, 3, 3))  # d O_e^{i0} / d a1 = -B_i / a1
+        psi_a2 = np.einsum("mij,kj->mki", R, DU)  # d (R D_i^e) / d a2
+        psi_v = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (m, 3, 3))
+        cols = np.stack([psi_a1, psi_a2, -u, psi_v], axis=-1)  # (m, 3 chains, 3 xyz, 4)
+        P = np.zeros((m, 3, 10))
+        P[..., :4] = np.einsum("mkj,mkjp->mkp", jrow, cols)
+        idx = np.arange(3)
+        P[:, idx, 4 + idx] = -1.0
+        if qm is None:
+            q, _ = self.ik_joints(X, xi, strict=False)
+            qm = (q - np.asarray(xi[4:7])) / np.asarray(xi[7:10])
+        P[:, idx, 7 + idx] = -np.atleast_2d(np.asarray(qm, dtype=float))
+        return P
+
+    def psi_pku(self, X, xi, qm=None) -> np.ndarray:
+        """Generalized Jacobian ``Psi^PKU = -J_e^b Psi^IKU (m, 3, 10)`` (eq. 123):
+        change of the FK orientation ``X = F(Qm, xi)`` per change of xi, at the
+        FK solution ``X (m, 3)`` of ``qm``. ``J_e^b = (dq/dX)^-1`` (eq. 119)."""
+        A = self.ik_x_jacobian(X, xi)  # dq/dX = (J_e^b)^-1
+        return -np.linalg.solve(A, self.psi_iku(X, xi, qm))
+
+    def ik_actuators(self, X, xi, *, strict: bool = True) -> np.ndarray:
+        """Actuator values ``Qm (m, 3)`` for orientations ``X (m, 3)`` (eq. 88)."""
+        q, _ = self.ik_joints(np.atleast_2d(X), xi, strict=strict)
+        return (q - np.asarray(xi[4:7])) / np.asarray(xi[7:10])
+
+
+# -- physical dual-axis inclinometer -----------------------------------------------------
+def _rx(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _ry(b: float) -> np.ndarray:
+    c, s = math.cos(b), math.sin(b)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def mount_rotation(mount) -> np.ndarray:
+    """``R_mount = Rx(mx) Ry(my)`` (3, 3) of the inclinometer on the platform."""
+    return _rx(float(mount[0])) @ _ry(float(mount[1]))
+
+
+def gravity_tilt(R, mount=(0.0, 0.0)):
+    """``(roll, pitch)`` in rad that a dual-axis inclinometer reads.
+
+    Identical to :func:`drivers.sim.robot.gravity_tilt` (the simulator's convention):
+    gravity ``(0, 0, -1)`` in F_b, in the sensor frame ``g_s = R_mount^T R^T (0, 0, -1)``
+    with ``R_mount = Rx(mx) Ry(my)``; ``roll = atan2(-g_y, -g_z)``,
+    ``pitch = atan2(g_x, sqrt(g_y^2 + g_z^2))``. Yaw about the vertical is not seen.
+
+    R:     platform orientation, ``(3, 3)`` or ``(m, 3, 3)``.
+    mount: ``(mx, my)`` rad.
+    Returns two floats for one R, else two ``(m,)`` arrays.
+    """
+    R = np.asarray(R, dtype=float)
+    single = R.ndim == 2
+    R = R.reshape(-1, 3, 3)
+    Rm = mount_rotation(mount)
+    g = -np.einsum("ji,mj->mi", Rm, R[:, 2, :])  # R_mount^T R^T (0, 0, -1)
+    roll = np.arctan2(-g[:, 1], -g[:, 2])
+    pitch = np.arctan2(g[:, 0], np.hypot(g[:, 1], g[:, 2]))
+    return (float(roll[0]), float(pitch[0])) if single else (roll, pitch)
+
+
+def _tilt_of_gravity(g):
+    """``(tilt (m, 2), d tilt / d g_s (m, 2, 3))`` for sensor-frame gravity ``g (m, 3)``."""
+    gx, gy, gz = g[:, 0], g[:, 1], g[:, 2]
+    rho2 = gy * gy + gz * gz
+    rho = np.sqrt(rho2)
+    n2 = gx * gx + rho2
+    tilt = np.column_stack([np.arctan2(-gy, -gz), np.arctan2(gx, rho)])
+    D = np.zeros((g.shape[0], 2, 3))
+    D[:, 0, 1] = gz / rho2
+    D[:, 0, 2] = -gy / rho2
+    D[:, 1, 0] = rho / n2
+    D[:, 1, 1] = -gx * gy / (rho * n2)
+    D[:, 1, 2] = -gx * gz / (rho * n2)
+    return tilt, D
+
+
+def tilt_jacobian(X, mount=(0.0, 0.0)):
+    """Inclinometer reading of PM orientations and its derivatives.
+
+    X: ``(m, 3)`` Euler angles. Returns ``(tilt (m, 2), dT/dX (m, 2, 3),
+    dT/dmount (m, 2, 2))`` with ``tilt = (roll, pitch)`` of :func:`gravity_tilt`.
+    Chain rule: ``dR = [H dX]x R`` (eq. 118), so ``d(R^T e_z) = R^T [e_z]x H dX``.
+    """
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    R = rot_xyz(X)
+    mx, my = float(mount[0]), float(mount[1])
+    Rm = mount_rotation(mount)
+    gb = R[:, 2, :]  # R^T e_z, platform frame
+    g = -gb @ Rm  # (Rm^T gb)^T, with the minus of gravity
+    tilt, D = _tilt_of_gravity(g)
+    ez = _skew(np.array([0.0, 0.0, 1.0]))
+    dgb_dX = np.einsum("mji,jk,mkl->mil", R, ez, euler_rates(X))  # R^T [e_z]x H
+    dg_dX = -np.einsum("ji,mjl->mil", Rm, dgb_dX)
+    c, s = math.cos(mx), math.sin(mx)
+    dRx = np.array([[0.0, 0.0, 0.0], [0.0, -s, -c], [0.0, c, -s]])
+    c, s = math.cos(my), math.sin(my)
+    dRy = np.array([[-s, 0.0, c], [0.0, 0.0, 0.0], [-c, 0.0, -s]])
+    dg_dm = np.stack([-gb @ (dRx @ _ry(my)), -gb @ (_rx(mx) @ dRy)], axis=-1)  # (m, 3, 2)
+    return tilt, D @ dg_dX, D @ dg_dm

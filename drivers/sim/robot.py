@@ -22,10 +22,11 @@ Inclinometer conventions (the calibration's measurement model builds on these):
       pitch = atan2( g_x, sqrt(g_y^2 + g_z^2))      # rotation about the sensor y axis
 
   so that ``R = Rx(a)`` reads ``roll = a, pitch = 0`` and ``R = Ry(b)`` reads
-  ``roll = 0, pitch = b`` (|a|, |b| < 90 deg); in general ``R = Ry(b) Rx(a) Rz(c)``
-  reads exactly ``(a, b)`` for any c (not ``Rx(a) Ry(b)``: there the two couple),
-  and ``gamma`` of ``rot_xyz`` shows only through its coupling with the tilt.
-  Yaw is not measured: reported as 0.
+  ``roll = 0, pitch = b`` (|a|, |b| < 90 deg); in general the yaw-pitch-roll
+  orientation ``R = Rz(c) Ry(b) Rx(a)`` reads exactly ``(a, b)`` for any heading
+  ``c`` (a rotation about gravity changes nothing). The report's
+  ``Rx(alpha) Ry(beta) Rz(gamma)`` couples them: ``gamma`` turns the sensor about
+  its own z and so mixes roll and pitch. Yaw is not measured: reported as 0.
   :func:`gravity_tilt` is this function, pure and vectorized.
 
 The draw-wire reads ``|p - anchor|`` (m) where ``p`` is the end-effector

@@ -97,7 +97,7 @@ def parse_truth(data: Any, source: str | None = None) -> SimTruth:
         if plane == (0.0, 0.0, 0.0):
             pr.fail("plane_a", "a plane a x + b y + c z + 1 = 0 needs (a, b, c) != 0")
     for k in pr.keys():
-        if k not in params and k not in PLANE_KEYS:
+        if k not in params and not (plane and k in PLANE_KEYS):
             pr.fail(k, f"unknown parameter for {robot} (known: {', '.join(model.param_names)}"
                     + (", plane_a, plane_b, plane_c)" if robot == "agebot-sm" else ")"))
     pr.finish()

@@ -110,7 +110,7 @@ def test_server_down_gives_a_clear_error_then_recovers(server):
         assert dw.read().values["distance"] == pytest.approx(1.0, abs=MPC)
         assert dw.reconnects == 1
     server.call(faults={"drawwire_down": True})
-    with pytest.raises(DeviceError, match="cannot connect"):
+    with pytest.raises(DeviceError, match="cannot connect to Modbus TCP server"):
         tcp(server).open()
 
 

@@ -1,0 +1,212 @@
+#!/usr/bin/env python3
+"""The calibration station's one entry point (docs/cli.md).
+
+    python app.py                      the operator's Qt wizard
+    python app.py batch TRACE --out PARAMS.json
+    python app.py params verify PARAMS.json
+    python app.py trace generate --method M --out TRACE [--truth FILE] [--noise ...]
+    python app.py simulate --robot R [--truth FILE] [--endpoints FILE]
+    python app.py devices check [--config FILE]
+    python app.py run --simulate --robot R --method M [--truth FILE] --out DIR
+
+Every command exits 0 on success and non-zero with a one-line reason on stderr
+otherwise; no command leaves a partial output file behind.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+import warnings
+
+
+def _cmd_batch(args) -> int:
+    from calibration.solver import SolverOptions
+    from station.batch import calibrate_trace, format_table
+
+    opts = SolverOptions(max_iter=args.max_iter)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outcome = calibrate_trace(args.trace, out=args.out, method=args.method,
+                                  residual=args.residual, options=opts)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    print(format_table(outcome))
+    if args.report:
+        from station.report import write_report
+
+        write_report(args.report, outcome)
+        print(f"report written to {args.report}")
+    print(f"parameter file written to {args.out} ({outcome.document['checksum']})")
+    return 0
+
+
+def _cmd_params_verify(args) -> int:
+    from station.params_file import read_params
+
+    doc = read_params(args.file)
+    n_id = sum(p["identifiable"] for p in doc["parameters"].values())
+    print(f"{args.file}: OK ({doc['format']} v{doc['version']}, robot {doc['robot']}, method "
+          f"{doc['method']}, {n_id} of {len(doc['parameters'])} parameters calibrated, "
+          f"{doc['checksum']})")
+    return 0
+
+
+def _cmd_trace_generate(args) -> int:
+    import numpy as np
+
+    from calibration.methods import METHODS
+    from calibration.robots import get_robot
+    from station.tracegen import generate_trace
+
+    mi = METHODS.get(args.method)
+    if mi is None:
+        raise SystemExit(f"unknown method {args.method!r} (known: {', '.join(METHODS)})")
+    robot = get_robot(mi.robot)
+    plane = None
+    noise = {}
+    mount = (0.0, 0.0)
+    if args.truth:
+        from drivers.sim.truth import load_truth
+
+        truth = load_truth(args.truth)
+        if truth.robot != robot.name:
+            raise SystemExit(f"{args.truth}: truth is for {truth.robot}, method {args.method} "
+                             f"needs {robot.name}")
+        xi = truth.xi()
+        plane = truth.plane
+        noise = dict(truth.noise)
+        mount = tuple(truth.inclinometer_mount)
+    else:
+        xi = robot.true
+    for item in args.noise or ():
+        k, _, v = item.partition("=")
+        noise[k] = float(v)
+    if "roll" in noise or "pitch" in noise:
+        noise.setdefault("tilt", [noise.get("roll", 0.0), noise.get("pitch", 0.0)])
+    if args.method == "pm-tilt" and isinstance(noise.get("tilt"), float):
+        noise["tilt"] = [noise["tilt"], noise["tilt"]]
+    comps = tuple(args.components.split(",")) if args.components else None
+    tmp = args.out + ".part"
+    if os.path.exists(tmp):
+        os.unlink(tmp)
+    try:
+        generate_trace(tmp, args.method, np.asarray(xi), noise=noise, seed=args.seed,
+                       count=args.count, components=comps, plane=plane, mount=mount,
+                       known=tuple(k for k in (args.known or "").split(",") if k))
+        os.replace(tmp, args.out)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    print(f"trace written to {args.out}")
+    return 0
+
+
+def _delegate(module: str, func: str):
+    def run(args) -> int:
+        from importlib import import_module
+
+        try:
+            mod = import_module(module)
+        except ModuleNotFoundError as e:
+            if e.name and e.name.startswith(module.split(".")[0]):
+                raise SystemExit(f"this command is not available in this build ({module})")
+            raise
+        return getattr(mod, func)(args)
+    return run
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="app.py", description="Robot calibration station")
+    p.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
+    sub = p.add_subparsers(dest="command")
+
+    b = sub.add_parser("batch", help="calibrate a recorded trace headless")
+    b.add_argument("trace")
+    b.add_argument("--out", required=True, help="parameter file to write")
+    b.add_argument("--method", help="override the trace's method")
+    b.add_argument("--report", help="also write an HTML report")
+    b.add_argument("--residual", choices=("plain", "squared"),
+                   help="distance residual D_M - D (plain, default) or D_M^2 - D^2 (report)")
+    b.add_argument("--max-iter", type=int, default=1000)
+    b.set_defaults(func=_cmd_batch)
+
+    pa = sub.add_parser("params", help="parameter files")
+    psub = pa.add_subparsers(dest="params_command", required=True)
+    v = psub.add_parser("verify", help="check format, version and checksum")
+    v.add_argument("file")
+    v.set_defaults(func=_cmd_params_verify)
+
+    t = sub.add_parser("trace", help="traces")
+    tsub = t.add_subparsers(dest="trace_command", required=True)
+    g = tsub.add_parser("generate", help="simulate a trace from a truth file plus noise")
+    g.add_argument("--method", required=True)
+    g.add_argument("--out", required=True)
+    g.add_argument("--truth", help="simulator truth file (default: the report's true values)")
+    g.add_argument("--noise", action="append", metavar="CHANNEL=STD",
+                   help="reading noise, e.g. distance=1e-4 tilt=1e-3 (repeatable)")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--count", type=int, help="number of poses (default: eq. 60)")
+    g.add_argument("--components", help="pm-fk: measured components, e.g. alpha,beta")
+    g.add_argument("--known", help="parameters whose true values go into the nominal, e.g. "
+                                   "L4 (sm-self-redundancy) or L4,theta0,a0,plane_a,plane_b,plane_c")
+    g.set_defaults(func=_cmd_trace_generate)
+
+    s = sub.add_parser("simulate", help="run the simulated devices until stopped")
+    s.add_argument("--robot", required=True, choices=("agebot-sm", "agebot-pm"))
+    s.add_argument("--truth")
+    s.add_argument("--config")
+    s.add_argument("--endpoints", help="write the devices' endpoints (JSON) here")
+    s.set_defaults(func=_delegate("drivers.sim.server", "main"))
+
+    d = sub.add_parser("devices", help="devices")
+    dsub = d.add_subparsers(dest="devices_command", required=True)
+    dc = dsub.add_parser("check", help="connect and print live readings")
+    dc.add_argument("--config")
+    dc.add_argument("--endpoints", help="simulator endpoints file to fill the config from")
+    dc.add_argument("--seconds", type=float, default=3.0)
+    dc.set_defaults(func=_delegate("drivers.check", "main"))
+
+    r = sub.add_parser("run", help="a whole station session, headless")
+    r.add_argument("--simulate", action="store_true")
+    r.add_argument("--robot", required=True, choices=("agebot-sm", "agebot-pm"))
+    r.add_argument("--method", required=True)
+    r.add_argument("--truth")
+    r.add_argument("--config")
+    r.add_argument("--out", required=True)
+    r.set_defaults(func=_delegate("station.headless", "main"))
+
+    gui = sub.add_parser("gui", help="the operator's Qt wizard")
+    gui.add_argument("--simulate", action="store_true")
+    gui.add_argument("--config")
+    gui.set_defaults(func=_delegate("station.gui.app", "main"))
+    return p
+
+
+def main(argv=None) -> int:
+    from calibration.errors import StationError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    if args.command is None:
+        args = parser.parse_args(["gui", *(argv or [])])
+    try:
+        return int(args.func(args) or 0)
+    except StationError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except SystemExit as e:
+        if isinstance(e.code, str):
+            print(f"error: {e.code}", file=sys.stderr)
+            return 2
+        raise
+
+
+if __name__ == "__main__":
+    sys.exit(main())

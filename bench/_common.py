@@ -1,0 +1,149 @@
+"""Shared pieces of the benches: reproducible problems, timing, table output.
+
+Nothing here is imported by the package; the benches run from the repository
+root (``python bench/bench_solver.py``).
+"""
+from __future__ import annotations
+
+import os
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if ROOT not in sys.path:
+    sys.path.insert(0, ROOT)
+
+from calibration import planning, simulate  # noqa: E402
+from calibration.methods.sm_distance import Distance  # noqa: E402
+from calibration.methods.sm_distance_tilt import DistanceTilt, reframe_nominal  # noqa: E402
+from calibration.methods.sm_full_pose import FullPose  # noqa: E402
+from calibration.robots import get_robot  # noqa: E402
+from calibration.robots.agebot_sm import wrap  # noqa: E402
+
+# Reading noise of the noisy variants (std of one reading).
+NOISE = {
+    "sm-full-pose": {"pose": np.array([1e-4, 1e-4, 1e-4, 1e-3])},  # m, m, m, rad
+    "sm-distance": {"distance": 1e-4},  # m
+    "sm-distance-tilt": {"distance": 1e-4, "tilt": 1e-3},  # m, rad
+}
+METHODS = tuple(NOISE)
+
+
+@dataclass
+class Problem:
+    """One calibration problem: the model, the truth (in the model's frame) and
+    ``residual(x)``: the model's residual ``r(x)`` computed by forward
+    kinematics only (no observation matrix), identical to
+    ``model.evaluate(x)[0]`` (checked at construction). Finite-difference
+    runners use it so that they do not pay for a Jacobian they throw away."""
+
+    name: str
+    method: str
+    noisy: bool
+    model: object
+    truth: np.ndarray
+    residual: object
+
+
+def _fk_residual(method, robot, model):
+    """``r(x)`` of ``model`` by ``robot.fk`` only (same formula as the method)."""
+    qm = model.qm
+    if method == "sm-full-pose":
+        X_m = model.X_m
+
+        def res(x):
+            r = X_m - robot.fk(qm, x)
+            r[:, 3] = wrap(r[:, 3])
+            return r.reshape(-1)
+    elif method == "sm-distance":
+        assert model.residual == "plain"
+        ref_qm, D_m = model.reference_qm, model.D_m
+
+        def res(x):
+            X = robot.fk(np.vstack([qm, ref_qm]), x)
+            return D_m - np.linalg.norm(X[:-1, :3] - X[-1, :3], axis=1)
+    elif method == "sm-distance-tilt":
+        assert model.residual == "plain"
+        D_m, phi_m = model.D_m, model.phi_m
+
+        def res(x):
+            X = robot.fk(qm, x)
+            rd = D_m - np.linalg.norm(X[:, :3], axis=1)
+            return np.column_stack([rd, wrap(phi_m - X[:, 3])]).reshape(-1)
+    else:  # pragma: no cover
+        raise ValueError(method)
+    return res
+
+
+def make_problems(seed: int = 1, methods=METHODS, variants=("noise-free", "noisy")):
+    """The bench problems: per method the same poses (same seed), read without
+    noise and with the reading noise of :data:`NOISE`."""
+    sm = get_robot("agebot-sm")
+    T, N = sm.true, sm.nominal
+    off = np.r_[sm.base_offset(T), 0.0]
+    out = []
+    for mi, method in enumerate(methods):
+        rng = np.random.default_rng([seed, mi])
+        if method == "sm-full-pose":  # report 7.1
+            plan = planning.sample_poses(sm, N, planning.box_array(sm, planning.SM_BOX_7_1, off),
+                                         17, rng)
+            ref, truth = None, T.copy()
+            build = lambda meas: FullPose(sm, plan.qm, meas, N)  # noqa: E731
+        elif method == "sm-distance":  # report 7.2, plain residual
+            ref = sm.ik(np.array([1.0, 1.0, 0.0, 0.2]) + off, T)
+            plan = planning.sample_poses(sm, N, planning.box_array(sm, planning.SM_BOX_7_1, off),
+                                         45, rng)
+            truth = T.copy()
+            build = lambda meas: Distance(sm, plan.qm, meas, N, reference_qm=ref)  # noqa: E731
+        elif method == "sm-distance-tilt":  # report 7.5, re-framed nominal
+            ref = sm.ik(np.array([0.5, 1.0, 0.8, 0.0]), T)
+            x0 = DistanceTilt(sm, np.zeros((1, 4)), {"distance": [1.0], "tilt": [0.0]}, N,
+                              reference_qm=ref).x0
+            plan = planning.sample_poses(sm, x0, planning.box_array(sm, planning.SM_BOX_7_5),
+                                         33, rng, ik_options={"elbow": -1})
+            truth = reframe_nominal(sm, T, ref)
+            build = lambda meas: DistanceTilt(sm, plan.qm, meas, N, reference_qm=ref)  # noqa: E731
+        else:
+            raise ValueError(f"unknown bench method {method!r}")
+        for variant in variants:
+            noisy = variant == "noisy"
+            meas = simulate.measure(method, sm, T, plan.qm, reference_qm=ref,
+                                    noise=NOISE[method] if noisy else None,
+                                    rng=np.random.default_rng([seed, mi, 7]))
+            model = build(meas)
+            res = _fk_residual(method, sm, model)
+            for x in (model.x0, truth):
+                r_full = model.evaluate(x)[0]
+                assert np.allclose(res(x), r_full, rtol=0, atol=1e-13), "fk residual mismatch"
+            out.append(Problem(f"{method} {variant} ({model.n_poses} poses, "
+                               f"{len(model.row_channel)} rows)",
+                               method, noisy, model, truth, res))
+    return out
+
+
+def median_time(fn, repeats: int, warmup: int = 1):
+    """``(median seconds, last return value)`` of ``fn()`` over ``repeats`` calls."""
+    for _ in range(warmup):
+        val = fn()
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        val = fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times), val
+
+
+def table(rows, headers, aligns=None) -> str:
+    """Plain-text table (``aligns``: '<' or '>' per column)."""
+    cells = [[str(c) for c in r] for r in rows]
+    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h)
+              for i, h in enumerate(headers)]
+    aligns = aligns or ["<"] + [">"] * (len(headers) - 1)
+    fmt = lambda r: "  ".join(f"{c:{a}{w}}" for c, a, w in zip(r, aligns, widths))  # noqa: E731
+    lines = [fmt(headers), "  ".join("-" * w for w in widths)]
+    lines += [fmt(r) for r in cells]
+    return "\n".join(lines)

@@ -1,0 +1,325 @@
+"""Bench: calibration.solver.solve (Algorithm 2) against scipy.optimize.least_squares.
+
+Per problem (sm-full-pose, sm-distance with the plain residual, sm-distance-tilt;
+each noise-free and noisy, the same poses for both) it runs
+
+* ``ours``       ``solve(model)`` with the default ``SolverOptions``;
+* ``lm-jac``     ``least_squares(method='lm')``, analytic Jacobian ``-W``;
+* ``lm-2pt``     ``least_squares(method='lm')``, finite differences ('2-point');
+* ``trf-jac``, ``trf-2pt``  the same with ``method='trf'``;
+* ``lm-jac-w``, ``trf-jac-w``  (noisy multi-channel problems only) the analytic
+  runs on the residual weighted per channel with the sigma *our* solver
+  estimated at its solution: the weighted least-squares problem our solver
+  ends on, so the optimum is the same one (the plain runs converge to the
+  unweighted optimum, which differs by O(std) when the channels' noise differs).
+
+All scipy runs start from the method's ``x0``, move only the parameters our
+solver found identifiable (the others stay at ``x0``), use
+``xtol = ftol = gtol = 1e-12`` and ``x_scale='jac'`` by default (the analogue of
+the column scaling H; ``--x-scale 1`` for none). The analytic runs share one
+``model.evaluate`` between ``fun`` and ``jac`` at the same point; the
+finite-difference runs evaluate the residual by forward kinematics only (no
+observation matrix), a residual identical to ``model.evaluate(x)[0]``.
+
+Columns: see bench/README.md. Run from the repository root::
+
+    python bench/bench_solver.py            # full bench (< 2 min)
+    python bench/bench_solver.py --quick    # fewer repeats
+    python bench/bench_solver.py --profile all
+"""
+from __future__ import annotations
+
+import argparse
+import cProfile
+import os
+import pstats
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+from scipy.optimize import least_squares  # noqa: E402
+
+from _common import METHODS, make_problems, median_time, table  # noqa: E402
+from calibration.solver import SolverOptions, solve  # noqa: E402
+
+TOL = 1e-12
+SAME_ABS, SAME_STD = 1e-9, 1e-3
+
+
+# -- runners --------------------------------------------------------------------
+class Counted:
+    """The problem's functions for scipy over the identifiable parameters, with
+    counters: ``model`` (model.evaluate calls, r and W), ``fk`` (residual-only
+    calls) and ``fd`` (calls that differ from the last non-FD point in exactly
+    one component: finite-difference probes)."""
+
+    def __init__(self, prob, active, g):
+        self.prob, self.active, self.g = prob, active, g
+        self.x0 = np.array(prob.model.x0, dtype=float)
+        self.n = int(active.sum())
+        self.reset()
+
+    def reset(self):
+        self.model_calls = self.fk_calls = self.fd_calls = 0
+        self._key = None
+        self._rW = None
+        self._base = None
+
+    def full(self, z):
+        x = self.x0.copy()
+        x[self.active] = z
+        return x
+
+    def _eval(self, z):
+        key = z.tobytes()
+        if key != self._key:
+            self.model_calls += 1
+            self._key, self._rW = key, self.prob.model.evaluate(self.full(z))
+        return self._rW
+
+    def fun_jac(self, z):  # fun of the analytic runs
+        return self.g * self._eval(z)[0]
+
+    def jac(self, z):
+        return -(self.g[:, None] * self._eval(z)[1][:, self.active])
+
+    def fun_fk(self, z):  # fun of the finite-difference runs
+        self.fk_calls += 1
+        if self._base is not None and np.count_nonzero(z != self._base) == 1:
+            self.fd_calls += 1
+        else:
+            self._base = z.copy()
+        return self.g * self.prob.residual(self.full(z))
+
+
+def run_scipy(prob, active, g, method, analytic, x_scale):
+    c = Counted(prob, active, g)
+    z0 = c.x0[active]
+
+    def once():
+        c.reset()
+        if analytic:
+            return least_squares(c.fun_jac, z0, jac=c.jac, method=method, x_scale=x_scale,
+                                 xtol=TOL, ftol=TOL, gtol=TOL)
+        return least_squares(c.fun_fk, z0, jac="2-point", method=method, x_scale=x_scale,
+                             xtol=TOL, ftol=TOL, gtol=TOL)
+
+    return c, once
+
+
+def summarize_scipy(c, res, analytic, method):
+    if analytic:
+        iters, nfev, calls = res.njev, res.nfev, c.model_calls
+    else:
+        iters = res.njev if res.njev is not None else int(round(c.fd_calls / max(c.n, 1)))
+        # lm (MINPACK) counts the FD probes in nfev, trf does not
+        nfev = c.fk_calls - c.fd_calls
+        calls = c.fk_calls
+    return iters, nfev, calls, c.full(res.x), bool(res.success), res.status
+
+
+# -- profile ----------------------------------------------------------------------
+def profile_ours(prob, n):
+    """Where one ``solve`` spends its time: cProfile over ``n`` solves, grouped."""
+    pr = cProfile.Profile()
+    pr.enable()
+    for _ in range(n):
+        solve(prob.model)
+    pr.disable()
+    stats = pstats.Stats(pr).stats  # (file, line, func) -> (cc, nc, tt, ct, callers)
+
+    def find(pred):
+        return [(k, v) for k, v in stats.items() if pred(k)]
+
+    def cum(pred, caller_pred=None):
+        t = 0.0
+        calls = 0
+        for _k, v in find(pred):
+            if caller_pred is None:
+                t += v[3]
+                calls += v[1]
+            else:
+                for ck, cv in v[4].items():
+                    if caller_pred(ck):
+                        t += cv[3]
+                        calls += cv[1]
+        return t, calls
+
+    in_solver = lambda k: k[0].endswith(os.path.join("calibration", "solver.py"))  # noqa: E731
+    groups = [
+        ("model.evaluate (r and W)", cum(lambda k: k[2] == "evaluate"
+                                         and "calibration" in k[0] and "methods" in k[0])),
+        ("identifiability.analyze (3 per solve)", cum(lambda k: k[2] == "analyze"
+                                                      and k[0].endswith("identifiability.py"))),
+        ("np.linalg.lstsq (step, augmented)", cum(lambda k: k[2] == "lstsq", in_solver)),
+        ("np.linalg.svd (cond. number)", cum(lambda k: k[2] == "svd", in_solver)),
+        ("np.linalg.pinv (variance, eq. 52)", cum(lambda k: k[2] == "pinv", in_solver)),
+        ("_channel_sigma / _weights", cum(lambda k: k[2] in ("_channel_sigma", "_weights"),
+                                          in_solver)),
+        ("np.linalg.norm (in solver.py)", cum(lambda k: k[2] == "norm", in_solver)),
+    ]
+    solve_t = cum(lambda k: k[2] == "solve" and in_solver(k))[0]
+    parts = [(name, calls / n, 1e3 * t / n) for name, (t, calls) in groups]
+    rest = solve_t - sum(t for _name, (t, _c) in groups)
+    parts.append(("rest (vstack/eye, records, dataclasses, ...)", None, 1e3 * rest / n))
+    parts.append(("total solve (under cProfile)", None, 1e3 * solve_t / n))
+    top = sorted(stats.items(), key=lambda kv: -kv[1][2])[:12]
+    trows = [(f"{os.path.basename(k[0])}:{k[1]}({k[2]})", f"{v[1] / n:.1f}",
+              f"{1e3 * v[2] / n:.3f}", f"{1e3 * v[3] / n:.3f}") for k, v in top]
+    return parts, table(trows, ["function", "calls/solve", "tottime ms", "cumtime ms"],
+                        ["<", ">", ">", ">"])
+
+
+def profile_report(probs, n):
+    """One table, a column per problem: ms per solve (calls per solve) of each part."""
+    cols, tops = [], []
+    for prob in probs:
+        parts, top = profile_ours(prob, n)
+        cols.append(parts)
+        tops.append(top)
+    rows = []
+    for i, (name, _c, _t) in enumerate(cols[0]):
+        row = [name]
+        for parts in cols:
+            _n, calls, t = parts[i]
+            tot = parts[-1][2]
+            row.append(f"{t:.2f} ({100 * t / tot:.0f}%)" + (f" x{calls:.0f}" if calls else ""))
+        rows.append(row)
+    heads = ["part of solve(): ms/solve (%) x calls"] + [
+        p.name.split(" (")[0].replace("sm-", "") for p in probs]
+    out = table(rows, heads, ["<"] + [">"] * len(probs))
+    k = int(np.argmax([c[-1][2] for c in cols]))
+    out += (f"\n\ntop functions by own time, {probs[k].name} (the slowest):\n" + tops[k])
+    return out
+
+
+# -- bench ------------------------------------------------------------------------
+def bench_problem(prob, repeats, x_scale):
+    model = prob.model
+    t_ours, res = median_time(lambda: solve(model), repeats)
+    active = np.array([s.identifiable for s in res.status])
+    std = res.std[active]
+    x_ours = res.x
+
+    def plain_cost(x):
+        r = model.evaluate(x)[0]
+        return 0.5 * float(r @ r)
+
+    def same(x):
+        # same optimum: every calibrated parameter within max(1e-9, 1e-3 std) of ours
+        # (std: ours, eq. 52; ~1e-14 noise-free, so the absolute 1e-9 decides there)
+        dx = np.abs(x - x_ours)
+        ok = bool(np.all(dx[active] <= np.maximum(SAME_ABS, SAME_STD * std))
+                  and np.all(dx[~active] == 0))
+        return dx.max(), float(np.nanmax(dx[active] / std)), ok
+
+    # cost of one residual evaluation: model.evaluate (r and W) and r by fk only
+    t_model = _per_call(lambda: model.evaluate(model.x0))
+    t_fk = _per_call(lambda: prob.residual(model.x0))
+
+    rows = [dict(runner="ours", conv=res.converged, iters=res.iterations, nfev=res.nfev,
+                 calls=res.nfev, t=t_ours, t_eval=res.nfev * t_model, cost=plain_cost(x_ours),
+                 dx=0.0, dxs=0.0,
+                 same=True, scipy=False)]
+    ones = np.ones(len(model.row_channel))
+    runs = [(f"{m}-{'jac' if a else '2pt'}", m, a, ones) for m in ("lm", "trf")
+            for a in (True, False)]
+    if prob.noisy and len(model.channels) > 1:
+        # the weights of ours' last round (history[-1].sigma); res.sigma is the
+        # estimate re-made at the final x, which differs by up to the 5 % that
+        # ends the reweighting loop
+        last = res.history[-1].sigma
+        sig = np.array([last[ch] for ch in model.channels])[model.row_channel]
+        runs += [(f"{m}-jac-w", m, True, 1.0 / sig) for m in ("lm", "trf")]
+    for name, method, analytic, g in runs:
+        c, once = run_scipy(prob, active, g, method, analytic, x_scale)
+        t, sres = median_time(once, repeats)
+        iters, nfev, calls, x, ok, status = summarize_scipy(c, sres, analytic, method)
+        dx, dxs, is_same = same(x)
+        rows.append(dict(runner=name, conv=f"{ok} ({status})", iters=iters, nfev=nfev,
+                         calls=calls, t=t, t_eval=calls * (t_model if analytic else t_fk),
+                         cost=plain_cost(x), dx=dx, dxs=dxs, same=is_same,
+                         scipy=True))
+    return res, rows, (t_model, t_fk)
+
+
+def _per_call(fn, n=200):
+    fn()
+    best = []
+    for _ in range(5):
+        t = time.perf_counter()
+        for _ in range(n):
+            fn()
+        best.append((time.perf_counter() - t) / n)
+    return float(np.median(best))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--repeats", type=int, default=9, help="timed runs per runner (median)")
+    ap.add_argument("--quick", action="store_true", help="3 repeats")
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    ap.add_argument("--x-scale", default="jac", help="least_squares x_scale: 'jac' or 1")
+    ap.add_argument("--profile", choices=("auto", "all", "none"), default="auto",
+                    help="cProfile our solver: where it is slower than scipy (auto), always, never")
+    ap.add_argument("--profile-runs", type=int, default=20)
+    args = ap.parse_args(argv)
+    repeats = 3 if args.quick else args.repeats
+    x_scale = args.x_scale if args.x_scale == "jac" else float(args.x_scale)
+    t_start = time.perf_counter()
+    print(f"numpy {np.__version__}, scipy {scipy.__version__}, python {sys.version.split()[0]}; "
+          f"seed {args.seed}; wall = median of {repeats} runs; x_scale={args.x_scale!r}; "
+          f"tol {TOL:g}; ours: default SolverOptions() = {SolverOptions()}")
+    problems = make_problems(args.seed, tuple(args.methods))
+    summary = []
+    to_profile = []
+    for prob in problems:
+        res, rows, (t_model, t_fk) = bench_problem(prob, repeats, x_scale)
+        t_ours = rows[0]["t"]
+        st = [s for s in res.status if not s.identifiable]
+        print(f"\n=== {prob.name}: {res.n_identifiable} identifiable"
+              + (f"; fixed at x0: {', '.join(s.name for s in st)}" if st else "")
+              + f"; ours: {res.message}; max|x_ours - truth| = "
+              f"{np.abs(res.x - prob.truth)[[s.identifiable for s in res.status]].max():.2e}"
+              f"\n    one call: model.evaluate (r, W) {1e3 * t_model:.3f} ms, "
+              f"r by fk only {1e3 * t_fk:.3f} ms")
+        out = []
+        for r in rows:
+            out.append((r["runner"], r["conv"], r["iters"], r["nfev"], r["calls"],
+                        f"{1e3 * r['t']:.3f}", f"{1e3 * r['t_eval']:.2f}",
+                        f"{1e3 * (r['t'] - r['t_eval']):.2f}", f"{r['cost']:.6e}", f"{r['dx']:.2e}",
+                        f"{r['dxs']:.1e}", "yes" if r["same"] else "NO",
+                        f"{r['t'] / t_ours:.2f}"))
+        print(table(out, ["runner", "converged (status)", "iter", "nfev", "calls", "wall ms",
+                          "eval ms", "rest ms", "cost 0.5|r|^2", "max|x-x_ours|", "/std", "same opt", "t/t_ours"]))
+        sc = [r for r in rows if r["scipy"] and r["same"] and r["conv"].startswith("True")]
+        anyb = min((r for r in rows if r["scipy"]), key=lambda r: r["t"])
+        if sc:
+            best = min(sc, key=lambda r: r["t"])
+            ratio = best["t"] / t_ours
+            print(f"--> best scipy at the same optimum: {best['runner']} {1e3 * best['t']:.3f} ms; "
+                  f"ratio wall(best scipy)/wall(ours) = {ratio:.2f} "
+                  f"({'ours faster' if ratio > 1 else 'SCIPY FASTER'}); fastest scipy of all: "
+                  f"{anyb['runner']} ({anyb['t'] / t_ours:.2f})")
+        else:
+            best, ratio = None, float("nan")
+            print("--> no scipy run reached our optimum")
+        summary.append((prob.name, f"{1e3 * t_ours:.3f}", best["runner"] if best else "-",
+                        f"{1e3 * best['t']:.3f}" if best else "-", f"{ratio:.2f}"))
+        if args.profile == "all" or (args.profile == "auto" and not ratio > 1):
+            to_profile.append(prob)
+    print("\n=== summary: ratio = wall(best scipy at the same optimum) / wall(ours); > 1: ours faster")
+    print(table(summary, ["problem", "ours ms", "best scipy", "scipy ms", "ratio"]))
+    if to_profile:
+        print(f"\n=== cProfile of ours ({args.profile_runs} solves per problem; the profiler "
+              f"inflates many small Python calls, read the shares)")
+        print(profile_report(to_profile, args.profile_runs))
+    print(f"\nbench wall time {time.perf_counter() - t_start:.1f} s")
+
+
+if __name__ == "__main__":
+    main()

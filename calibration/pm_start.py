@@ -1,0 +1,170 @@
+"""Robust start values for the PM calibration (report section 10).
+
+The report's nominal PM is far from the real one (a2 60 % off, gear ratios
+10-15 %): at the nominal geometry the rods cannot even reach their platform
+points at ``X = 0``, so neither the IK nor the FK of the nominal model is
+defined for the measured poses, and Gauss-Newton on FK residuals from there
+has nothing to start from. The start is found in three steps:
+
+1. **Reachable geometry** (:func:`feasible_start`): the rod length ``l`` is
+   moved to the value that best explains the measured actuator values at the
+   guessed orientations, ``l^2 = mean(h^2 + (D_z - q)^2)`` (h: horizontal
+   distance from base point to platform point), and at least 2 % above the
+   largest h, so that the IK exists for every pose.
+2. **Joint-space fit with unknown orientations** (:class:`ImplicitPoses`): the
+   closure equations ``Fbar^-1(X_j, xi) = K Qm_j + Q_off`` (3 rows per pose,
+   eq. 106) plus the readings (measured Euler components, or inclinometer
+   roll and pitch), with every pose's full orientation ``X_j`` an unknown
+   next to xi. Only the IK is needed, which is defined wherever the rods
+   reach; there is no assembly mode to lose. The same solver runs it.
+3. The method's own (FK-based) refinement starts from that ``xi`` with each
+   pose's FK started at its fitted ``X_j`` (the caller does this).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calibration.errors import CalibrationError
+from calibration.methods.pm_common import (COMPONENTS, orientation_channel, parse_components,
+                                           wrap)
+from calibration.model import MeasurementModel
+from calibration.robots.agebot_pm import tilt_jacobian
+
+REACH_MARGIN = 1.02
+
+
+@dataclass(frozen=True)
+class StartResult:
+    """x: ``(N,)`` start values (robot parameters, then mount for tilt);
+    X: ``(m, 3)`` fitted orientation of each pose; result: the joint-space fit."""
+
+    x: np.ndarray
+    X: np.ndarray
+    result: object
+
+
+def feasible_start(robot, qm, X_guess, nominal) -> np.ndarray:
+    """``nominal`` with the rod length ``l`` moved so that the IK reaches every
+    pose at orientations ``X_guess (m, 3)`` (step 1 of the module doc)."""
+    xi = np.array(nominal, dtype=float)
+    B, _, _, _ = robot._geometry(xi)
+    _, D = robot.platform_points(X_guess, xi)
+    d = D - B[None]
+    h2 = d[..., 0] ** 2 + d[..., 1] ** 2
+    q = robot.joints(qm, xi)
+    l_fit = np.sqrt(np.mean(h2 + (D[..., 2] - q) ** 2))
+    xi[robot.index("l")] = max(l_fit, REACH_MARGIN * np.sqrt(h2.max()))
+    return xi
+
+
+def guess_orientations(readings: np.ndarray, comps) -> np.ndarray:
+    """Start orientations ``(m, 3)`` from the readings ``(m, k)``: the measured
+    components, 0 for the others; for an inclinometer (``comps`` None),
+    ``alpha ~ roll``, ``beta ~ pitch``, ``gamma = 0``."""
+    readings = np.asarray(readings, dtype=float)
+    X = np.zeros((readings.shape[0], 3))
+    if comps is None:
+        X[:, :2] = readings[:, :2]
+    else:
+        for j, c in enumerate(comps):
+            X[:, COMPONENTS.index(c)] = readings[:, j]
+    return X
+
+
+class ImplicitPoses(MeasurementModel):
+    """Joint-space closure with unknown orientations (step 2 of the module doc).
+
+    Parameters: the robot's 10 (then ``mount_x, mount_y`` for an inclinometer),
+    then ``alpha_j, beta_j, gamma_j`` of every pose. Rows per pose: ``q1, q2, q3``
+    (``0 - (Fbar^-1(X_j) - K Qm_j - Q_off)``, metres) then the readings (rad).
+    """
+
+    method = "pm-start"
+    default_damping = 1e-4
+
+    def __init__(self, robot, qm, x_robot, X_guess, *, readings, comps=None, tilt=False):
+        self.robot, self.qm, self.tilt = robot, np.asarray(qm, dtype=float), tilt
+        m = self.qm.shape[0]
+        self.n_poses, self.nr = m, robot.n_params
+        self.ne = len(x_robot)  # robot parameters (+ mount)
+        self.readings = np.asarray(readings, dtype=float)
+        self.comp_idx = [COMPONENTS.index(c) for c in comps] if not tilt else []
+        pose_names = tuple(f"{c}_{j}" for j in range(m) for c in COMPONENTS)
+        extra = ("mount_x", "mount_y") if tilt else ()
+        self.names = tuple(robot.param_names) + extra + pose_names
+        self.x0 = np.concatenate([x_robot, np.asarray(X_guess, dtype=float).reshape(-1)])
+        self.nominal = self.x0.copy()
+        meas = ("roll", "pitch") if tilt else tuple(comps)
+        self.channels = ("q1", "q2", "q3") + meas
+        self.row_channel = np.tile(np.arange(len(self.channels)), m)
+
+    def split(self, x):
+        return x[:self.ne], x[self.ne:].reshape(-1, 3)
+
+    def evaluate(self, x):
+        xe, X = self.split(x)
+        xi = xe[:self.nr]
+        m, nr, ne = self.n_poses, self.nr, self.ne
+        q, _ = self.robot.ik_joints(X, xi)  # UnreachablePose (a CalibrationError) outside
+        rq = self.robot.joints(self.qm, xi) - q
+        Wq_xi = self.robot.psi_iku(X, xi, self.qm)
+        Wq_X = self.robot.ik_x_jacobian(X, xi)
+        if self.tilt:
+            t, dT_dX, dT_dm = tilt_jacobian(X, xe[nr:ne])
+            rm = wrap(self.readings - t)
+            Wm_e = np.concatenate([np.zeros((m, 2, nr)), dT_dm], axis=2)
+            Wm_X = dT_dX
+        else:
+            rm = wrap(self.readings - X[:, self.comp_idx])
+            Wm_e = np.zeros((m, len(self.comp_idx), ne))
+            Wm_X = np.broadcast_to(np.eye(3)[self.comp_idx], (m, len(self.comp_idx), 3))
+        p = 3 + rm.shape[1]
+        W = np.zeros((m, p, ne + 3 * m))
+        W[:, :3, :nr] = Wq_xi
+        W[:, 3:, :ne] = Wm_e
+        j = np.arange(m)
+        for c in range(3):
+            W[j, :3, ne + 3 * j + c] = Wq_X[:, :, c]
+            W[j, 3:, ne + 3 * j + c] = Wm_X[:, :, c]
+        r = np.concatenate([rq, rm], axis=1)
+        return r.reshape(-1), W.reshape(m * p, -1)
+
+
+def robust_start_detail(robot, method_data, nominal, components=None, *,
+                        options=None) -> StartResult:
+    """Start values and per-pose orientations (module doc). ``method_data`` is a
+    :class:`calibration.methods.MethodData` with channel ``orientation`` (components
+    ``components``) or ``tilt`` (roll, pitch; then ``nominal`` has 12 values)."""
+    from calibration.solver import SolverOptions, solve
+
+    qm = np.atleast_2d(np.asarray(method_data.qm, dtype=float))
+    m = qm.shape[0]
+    tilt = "tilt" in method_data.channels and "orientation" not in method_data.channels
+    nominal = np.asarray(nominal, dtype=float)
+    if tilt:
+        readings = np.asarray(method_data.channels["tilt"], dtype=float).reshape(m, 2)
+        comps = None
+        X0 = guess_orientations(readings, None)
+    else:
+        comps = parse_components(components if components is not None
+                                 else method_data.components)
+        readings = orientation_channel(method_data.channels, comps, "pm start")
+        X0 = guess_orientations(readings, comps)
+    nr = robot.n_params
+    xe = nominal.copy()
+    xe[:nr] = feasible_start(robot, qm, X0, nominal[:nr])
+    model = ImplicitPoses(robot, qm, xe, X0, readings=readings, comps=comps, tilt=tilt)
+    opts = options or SolverOptions(epsilon=1e-9, max_iter=300)
+    res = solve(model, opts)
+    if not np.all(np.isfinite(res.x)):
+        raise CalibrationError("the PM start-value fit failed: " + res.message)
+    xe, X = model.split(res.x)
+    return StartResult(xe.copy(), X.copy(), res)
+
+
+def robust_start(robot, method_data, nominal, components=None) -> np.ndarray:
+    """Start values ``x_start`` of the PM parameters (module doc), from the report's
+    (possibly far) nominal values: 10 robot parameters, plus the mount for tilt data."""
+    return robust_start_detail(robot, method_data, nominal, components).x

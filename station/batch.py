@@ -1,0 +1,139 @@
+"""Headless batch calibration of a recorded trace (``app.py batch``).
+
+Trace -> measurement model -> Algorithm 2 -> table and parameter file. No
+parameter file is written unless the fit converged.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from calibration import identifiability as ident
+from calibration.errors import CalibrationError
+from calibration.methods import METHODS, build
+from calibration.robots import get_robot
+from calibration.solver import CalibrationResult, SolverOptions, solve
+from station.params_file import params_document, write_params
+from station.trace import Trace, read_trace
+
+# vector channels of a trace and the solver's row channels they map to
+VECTOR_CHANNELS = {"pose": ("x", "y", "z", "phi"),
+                   "orientation": ("alpha", "beta", "gamma"),
+                   "tilt": ("roll", "pitch")}
+
+
+@dataclass(frozen=True)
+class BatchOutcome:
+    trace: Trace
+    model: object
+    result: CalibrationResult
+    nominal: np.ndarray
+    document: dict | None
+
+
+def solver_sigma(model, trace: Trace) -> dict | None:
+    """The trace's ``sigma`` (per reading) as sigma per solver row channel,
+    where the residual is a reading minus a prediction."""
+    sig = trace.header.get("sigma") or {}
+    comps = trace.header.get("components")
+    out = {}
+    for key, v in sig.items():
+        if key == "distance" and getattr(model, "residual", "plain") == "squared":
+            continue  # D^2 residual: its noise 2 D sigma differs per pose; estimate instead
+        if key in model.channels and not isinstance(v, list):
+            out[key] = float(v)
+        elif key in VECTOR_CHANNELS:
+            names = tuple(comps) if key == "orientation" and comps else VECTOR_CHANNELS[key]
+            vals = v if isinstance(v, list) else [v] * len(names)
+            out.update({n: float(x) for n, x in zip(names, vals) if n in model.channels})
+    return out or None
+
+
+def make_model(trace: Trace, *, method: str | None = None, residual: str | None = None):
+    """The measurement model of a trace and its nominal vector."""
+    method = method or trace.method
+    mi = METHODS[method]
+    robot = get_robot(trace.robot)
+    nominal = trace.nominal_vector(robot, mi.extra_params)
+    options = {}
+    if residual:
+        if method not in ("sm-distance", "sm-distance-tilt"):
+            raise CalibrationError(f"--residual applies to the distance methods, not {method}")
+        options["residual"] = residual
+    if method == "sm-plane":
+        given = all(k in (trace.header.get("nominal") or {}) for k in mi.extra_params)
+        options["plane_given"] = given
+    return build(method, robot, trace.method_data(method), nominal, **options), nominal
+
+
+def frame_statement(trace: Trace) -> dict | None:
+    if trace.method != "sm-distance-tilt" or trace.reference is None:
+        return None
+    return {"origin_qm": trace.reference["qm"],
+            "statement": ("theta0, a0 and q1_off refer to the base frame whose origin is the "
+                          "end-effector position captured as the reference (origin_qm), with "
+                          "axes parallel to the robot's base frame")}
+
+
+def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | None = None,
+                    residual: str | None = None, options: SolverOptions | None = None,
+                    callback=None) -> BatchOutcome:
+    trace = read_trace(trace_path, method_override=method)
+    model, nominal = make_model(trace, method=method, residual=residual)
+    opts = options or SolverOptions()
+    if opts.sigma is None:
+        sig = solver_sigma(model, trace)
+        if sig:
+            opts = SolverOptions(**{**opts.__dict__, "sigma": sig})
+    result = solve(model, opts, callback=callback)
+    if not result.converged:
+        infl = [s.name for s in result.status if not s.identifiable and s.influences_model]
+        hint = (f"; not identifiable and influencing the model: {', '.join(infl)} (their start "
+                f"values must be right)" if infl else "")
+        raise CalibrationError(f"the calibration did not converge: {result.message}{hint}")
+    need = ident.minimum_poses(result.n_identifiable, model.p)
+    doc = None
+    notes = list(getattr(model, "notes", ()) or ())
+    if model.n_poses < need:
+        notes.append(f"only {model.n_poses} poses for {result.n_identifiable} identifiable "
+                     f"parameters; eq. 60 recommends at least {need}")
+    if out:
+        doc = params_document(result, robot=trace.robot, nominal=model.x0, trace_path=trace_path,
+                              frame=frame_statement(trace), notes=notes)
+        doc = write_params(out, doc)
+    return BatchOutcome(trace, model, result, model.x0, doc)
+
+
+def _fmt(v, width=13):
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-".rjust(width)
+    return f"{v:{width}.6g}"
+
+
+def format_table(outcome: BatchOutcome) -> str:
+    """The parameter table (nominal, calibrated, std, identifiability) and fit figures."""
+    res, model = outcome.result, outcome.model
+    lines = [f"{'parameter':<10}{'start':>13}{'calibrated':>13}{'std':>13}  identifiability",
+             "-" * 72]
+    for j, (name, st) in enumerate(zip(res.names, res.status)):
+        std = res.std[j] if st.identifiable else None
+        label = "identifiable" if st.identifiable else (
+            "not identifiable, influences the model" if st.influences_model
+            else "not identifiable, no influence")
+        lines.append(f"{name:<10}{_fmt(outcome.nominal[j])}{_fmt(res.x[j])}{_fmt(std)}  {label}")
+    need = ident.minimum_poses(res.n_identifiable, model.p)
+    lines.append("-" * 72)
+    lines.append(f"method {res.method}: {res.message}")
+    lines.append(f"identifiable {res.n_identifiable} of {len(res.names)}; poses {model.n_poses} "
+                 f"(eq. 60 recommends >= {need}); condition number {res.condition_number:.4g}")
+    sig = ", ".join(f"{k} {v:.4g}" for k, v in res.sigma.items())
+    rms = ", ".join(f"{k} {v:.4g}" for k, v in res.residual_rms.items())
+    lines.append(f"sigma ({'from the trace' if res.sigma_known else 'estimated, eq. 51'}): {sig}")
+    lines.append(f"residual RMS: {rms}")
+    for note in getattr(model, "notes", ()) or ():
+        lines.append(f"note: {note}")
+    if outcome.trace.method == "sm-distance-tilt":
+        lines.append("note: theta0, a0 and q1_off refer to the captured base origin")
+    return "\n".join(lines)

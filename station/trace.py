@@ -1,0 +1,323 @@
+"""Calibration traces: JSON Lines, ``format = "calstation-trace"``, ``version = 1``
+(docs/file-formats.md).
+
+The writer appends one record per line and flushes + fsyncs each, so a crash
+loses at most the line being written. The reader skips a truncated last line
+with a warning and refuses anything else that is malformed, naming the line.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calibration.errors import CalibrationError, ConfigError, TraceFormatError
+from calibration.methods import METHODS, MethodData
+from calibration.robots import ROBOTS, get_robot
+
+FORMAT = "calstation-trace"
+VERSION = 1
+RECORDS = ("header", "reference", "pose", "event")
+ROLES = ("base-origin", "reference-point")
+# channel -> (shape per pose, methods); shape None = scalar
+CHANNELS = {
+    "pose": 4,
+    "distance": None,
+    "tilt": None,  # phi (sm-distance-tilt); [roll, pitch] for pm-tilt
+    "orientation": 3,
+}
+COMPONENTS = ("alpha", "beta", "gamma")
+
+
+class TruncatedLineWarning(UserWarning):
+    pass
+
+
+def utc_now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+@dataclass
+class Trace:
+    """A parsed trace. ``poses`` keep their records (dicts) as read."""
+
+    path: str
+    header: dict
+    reference: dict | None = None
+    poses: list[dict] = field(default_factory=list)
+    events: list[dict] = field(default_factory=list)
+    truncated_tail: bool = False
+
+    @property
+    def robot(self) -> str:
+        return self.header["robot"]
+
+    @property
+    def method(self) -> str:
+        return self.header["method"]
+
+    def nominal_vector(self, robot=None, extra: tuple[str, ...] = (),
+                       extra_default=None) -> np.ndarray:
+        """Start values: the header's ``nominal`` over the robot model's nominal."""
+        robot = robot or get_robot(self.robot)
+        nom = dict(self.header.get("nominal") or {})
+        ext = {k: nom.pop(k) for k in list(nom) if k in extra}
+        xi = robot.params(nom, source=f"{self.path}:1: nominal")
+        tail = [float(ext.get(k, (extra_default or {}).get(k, 0.0))) for k in extra]
+        return np.concatenate([xi, tail])
+
+    def method_data(self, method: str | None = None) -> MethodData:
+        """Arrays for :func:`calibration.methods.build`."""
+        method = method or self.method
+        if not self.poses:
+            raise CalibrationError(f"{self.path}: the trace has no poses")
+        qm = np.array([p["qm"] for p in self.poses], dtype=float)
+        mi = METHODS[method]
+        channels = {}
+        for ch in mi.channels:
+            channels[ch] = np.array([p[ch] for p in self.poses], dtype=float)
+        group = None
+        if any("group" in p for p in self.poses):
+            group = np.array([p.get("group", -1) for p in self.poses])
+        ref = None if self.reference is None else np.array(self.reference["qm"], dtype=float)
+        comps = self.header.get("components")
+        return MethodData(qm=qm, channels=channels, group=group, reference_qm=ref,
+                          components=tuple(comps) if comps else None)
+
+
+# -- reading ------------------------------------------------------------------------
+def _num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_vector(v, n, what, fail):
+    if not isinstance(v, list) or len(v) != n:
+        fail(f"{what} must be a list of {n} numbers")
+    for x in v:
+        if not _num(x):
+            fail(f"{what} has a value that is not a finite number: {x!r}")
+
+
+def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -> Trace:
+    """Parse and validate a trace file (see module doc)."""
+    path = str(path)
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as e:
+        raise TraceFormatError(f"cannot read the trace: {e.strerror}", file=path) from None
+    lines = raw.split(b"\n")
+    ends_with_newline = raw.endswith(b"\n")
+    if ends_with_newline:
+        lines = lines[:-1]
+    trace: Trace | None = None
+    n_act = 0
+    last_index = -1
+    for lineno, bline in enumerate(lines, start=1):
+        def fail(msg, _ln=lineno):
+            raise TraceFormatError(msg, file=path, line=_ln)
+
+        if not bline.strip():
+            fail("empty line")
+        try:
+            rec = json.loads(bline.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            if lineno == len(lines) and not ends_with_newline:
+                warnings.warn(f"{path}:{lineno}: skipped a truncated last line "
+                              f"(the recording was interrupted)", TruncatedLineWarning, stacklevel=2)
+                if trace is not None:
+                    trace.truncated_tail = True
+                break
+            fail(f"not valid JSON ({e.__class__.__name__}: {e})")
+        if not isinstance(rec, dict):
+            fail("a record must be a JSON object")
+        kind = rec.get("record")
+        if kind not in RECORDS:
+            fail(f"unknown record kind {kind!r} (known: {', '.join(RECORDS)})")
+        if lineno == 1:
+            if kind != "header":
+                fail("the first line must be the header record")
+            trace = Trace(path, _check_header(rec, fail, method_override))
+            n_act = get_robot(trace.robot).n_actuators
+            continue
+        assert trace is not None
+        if kind == "header":
+            fail("a second header record")
+        if kind == "event":
+            trace.events.append(rec)
+            continue
+        if "qm" not in rec:
+            fail(f"{kind} record has no 'qm'")
+        _check_vector(rec["qm"], n_act, "qm", fail)
+        if kind == "reference":
+            if trace.reference is not None:
+                fail("a second reference record")
+            if trace.poses:
+                fail("the reference record must come before the poses")
+            if rec.get("role") not in ROLES:
+                fail(f"reference role must be one of {', '.join(ROLES)}, not {rec.get('role')!r}")
+            trace.reference = rec
+            continue
+        # pose
+        idx = rec.get("index")
+        if not isinstance(idx, int) or isinstance(idx, bool) or idx <= last_index:
+            fail(f"pose index must be an integer greater than {last_index}, not {idx!r}")
+        last_index = idx
+        _check_pose_channels(rec, trace, fail)
+        if "group" in rec and (not isinstance(rec["group"], int) or isinstance(rec["group"], bool)):
+            fail(f"group must be an integer, not {rec['group']!r}")
+        trace.poses.append(rec)
+    if trace is None:
+        raise TraceFormatError("the trace is empty (no header)", file=path, line=1)
+    _check_method_needs(trace)
+    return trace
+
+
+def _check_header(rec, fail, method_override):
+    if rec.get("format") != FORMAT:
+        fail(f"format must be {FORMAT!r}, not {rec.get('format')!r}")
+    if rec.get("version") != VERSION:
+        fail(f"unsupported trace version {rec.get('version')!r} (this reader knows version {VERSION})")
+    robot = rec.get("robot")
+    if robot not in ROBOTS:
+        fail(f"unknown robot {robot!r} (known: {', '.join(ROBOTS)})")
+    method = method_override or rec.get("method")
+    if method not in METHODS:
+        fail(f"unknown method {method!r} (known: {', '.join(METHODS)})")
+    if METHODS[method].robot != robot:
+        fail(f"method {method} is for robot {METHODS[method].robot}, not {robot}")
+    rec = dict(rec, method=method)
+    nominal = rec.get("nominal", {})
+    if not isinstance(nominal, dict):
+        fail("nominal must be an object: parameter name -> value")
+    model = get_robot(robot)
+    known = set(model.param_names) | set(METHODS[method].extra_params)
+    for k, v in nominal.items():
+        if k not in known:
+            fail(f"nominal: unknown parameter {k!r} for {robot}/{method}")
+        if not _num(v):
+            fail(f"nominal: {k} must be a finite number, not {v!r}")
+    sigma = rec.get("sigma")
+    if sigma is not None:
+        if not isinstance(sigma, dict):
+            fail("sigma must be an object: channel -> standard deviation")
+        for k, v in sigma.items():
+            vals = v if isinstance(v, list) else [v]
+            if not vals or not all(_num(x) and x > 0 for x in vals):
+                fail(f"sigma: {k} must be a positive number (or list of them), not {v!r}")
+    comps = rec.get("components")
+    if comps is not None:
+        if (not isinstance(comps, list) or not comps or any(c not in COMPONENTS for c in comps)
+                or list(comps) != [c for c in COMPONENTS if c in comps]):
+            fail(f"components must be a non-empty ordered subset of {list(COMPONENTS)}, not {comps!r}")
+    return rec
+
+
+def _check_pose_channels(rec, trace, fail):
+    method = trace.method
+    comps = trace.header.get("components") or list(COMPONENTS)
+    for ch in METHODS[method].channels:
+        if ch not in rec:
+            fail(f"pose has no {ch!r} reading, which method {method} needs")
+        v = rec[ch]
+        if ch == "pose":
+            _check_vector(v, 4, ch, fail)
+        elif ch == "orientation":
+            _check_vector(v, len(comps) if method == "pm-fk" else 3, ch, fail)
+        elif ch == "tilt" and method == "pm-tilt":
+            _check_vector(v, 2, "tilt ([roll, pitch])", fail)
+        elif not _num(v):
+            fail(f"{ch} must be a finite number, not {v!r}")
+
+
+def _check_method_needs(trace):
+    mi = METHODS[trace.method]
+    if mi.reference and (trace.reference is None or trace.reference.get("role") != mi.reference):
+        raise TraceFormatError(f"method {trace.method} needs a reference record with role "
+                               f"{mi.reference!r} before the poses", file=trace.path)
+    if trace.method == "sm-self-redundancy":
+        for p in trace.poses:
+            if "group" not in p:
+                raise TraceFormatError(f"pose {p['index']} has no 'group' (sm-self-redundancy "
+                                       f"pairs poses at the same x, y)", file=trace.path)
+
+
+# -- writing ------------------------------------------------------------------------
+def _line(rec: dict) -> bytes:
+    return (json.dumps(rec, separators=(",", ":"), allow_nan=False) + "\n").encode("utf-8")
+
+
+class TraceWriter:
+    """Appends records to a trace: one line each, flushed and fsynced.
+
+    ``TraceWriter.create(path, header)`` starts a new trace (refuses to
+    overwrite); ``TraceWriter.resume(path)`` reopens one, cutting a truncated
+    last line, and reports what is already recorded.
+    """
+
+    def __init__(self, path: str, fh, trace: Trace | None = None):
+        self.path = path
+        self._fh = fh
+        self.trace = trace
+
+    @classmethod
+    def create(cls, path, header: dict) -> "TraceWriter":
+        path = str(path)
+        rec = {"record": "header", "format": FORMAT, "version": VERSION, "created": utc_now()}
+        rec.update(header)
+        try:
+            fh = open(path, "xb")
+        except FileExistsError:
+            raise ConfigError(f"{path} exists already: resume it or choose another file") from None
+        w = cls(path, fh)
+        w.append(rec)
+        return w
+
+    @classmethod
+    def resume(cls, path) -> "TraceWriter":
+        path = str(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", TruncatedLineWarning)
+            trace = read_trace(path)
+        raw = Path(path).read_bytes()
+        if not raw.endswith(b"\n"):  # cut the partial line the crash left
+            with open(path, "r+b") as f:
+                f.truncate(raw.rfind(b"\n") + 1)
+                f.flush()
+                os.fsync(f.fileno())
+        return cls(path, open(path, "ab"), trace)
+
+    def append(self, rec: dict) -> None:
+        self._fh.write(_line(rec))
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+
+    def event(self, kind: str, message: str, **extra) -> None:
+        self.append({"record": "event", "t": utc_now(), "kind": kind, "message": message, **extra})
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self._fh.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def write_trace(path, header: dict, reference: dict | None, poses: list[dict],
+                events: list[dict] = ()) -> None:
+    """Write a whole trace (generator, tests): same line format as the recorder."""
+    with TraceWriter.create(path, header) as w:
+        if reference is not None:
+            w.append({"record": "reference", **reference})
+        for p in poses:
+            w.append({"record": "pose", **p})
+        for e in events:
+            w.append({"record": "event", **e})

@@ -1,0 +1,170 @@
+"""Simulated traces from a truth file plus noise (fixtures, tests, demos).
+
+The poses are planned as the station plans them (IK of the nominal model in the
+report's workspace boxes, one elbow configuration); the readings come from the
+true robot at the commanded actuator values. Physical constraints (the touched
+points of sm-self-redundancy and sm-plane, the reference points) are where the
+true robot really is.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from calibration import planning, simulate
+from calibration.errors import CalibrationError, UnreachablePose
+from calibration.methods import METHODS
+from calibration.methods.sm_distance_tilt import reframe_nominal
+from calibration.robots import get_robot
+from station.trace import write_trace
+
+# N_R and p of each method (brief section 3), for the default pose count (eq. 60)
+DEFAULT_NR_P = {"sm-full-pose": (13, 4), "sm-distance": (9, 1), "sm-self-redundancy": (7, 2),
+                "sm-plane": (10, 1), "sm-distance-tilt": (13, 2), "pm-ik": (8, 3),
+                "pm-fk": (8, 3), "pm-tilt": (8, 2)}
+SM_REFERENCE_POINT = np.array([1.0, 1.0, 0.0, 0.2])  # report 7.2, relative to the base offset
+SM_BASE_ORIGIN = np.array([0.5, 1.0, 0.8, 0.0])  # report 7.5 (phi chosen reachable)
+DEFAULT_PLANE_NORMAL = np.array([1.0, 0.3, 0.2])
+
+
+def default_count(method: str, components=None) -> int:
+    nr, p = DEFAULT_NR_P[method]
+    if method == "pm-fk" and components:
+        p = len(components)
+    return planning.recommended_count(nr, p)
+
+
+def default_plane(xi_true, robot) -> np.ndarray:
+    """A tilted plane through the middle of the report's 7.1 box."""
+    n = DEFAULT_PLANE_NORMAL / np.linalg.norm(DEFAULT_PLANE_NORMAL)
+    c = robot.base_offset(xi_true) + np.array([1.25, 0.75, 0.0])
+    return -n / float(n @ c)
+
+
+def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, seed=0,
+             count=None, components=None, mount=(0.0, 0.0), known=()):
+    """Plan and simulate a data set. Returns ``(header, reference, poses)`` records.
+
+    known: parameter names whose true values are written into the header's
+    nominal (what the report assumes known for the methods whose
+    non-identifiable parameters influence the model; plane_a/b/c for sm-plane)."""
+    mi = METHODS[method]
+    robot = get_robot(mi.robot)
+    xi_true = np.asarray(truth_xi, dtype=float)
+    nom = robot.nominal.copy() if nominal is None else np.asarray(nominal, dtype=float)
+    rng = np.random.default_rng(seed)
+    noise = dict(noise or {})
+    count = count or default_count(method, components)
+    reference = None
+    group = None
+    header = {"robot": robot.name, "method": method,
+              "nominal": robot.as_dict(nom),
+              "station": {"generator": "station.tracegen", "seed": seed}}
+    meas_noise = {k: v for k, v in noise.items() if k in ("pose", "distance", "tilt", "orientation")}
+    if meas_noise:
+        header["sigma"] = {k: (list(v) if isinstance(v, (list, tuple)) else v)
+                           for k, v in meas_noise.items() if k in mi.channels}
+    if mi.robot == "agebot-sm":
+        off = np.r_[robot.base_offset(nom), 0.0]
+        box = planning.box_array(robot, planning.SM_BOX_7_1, off)
+        if method == "sm-full-pose":
+            plan = planning.sample_poses(robot, nom, box, count, rng)
+            qm = plan.qm
+        elif method == "sm-distance":
+            qref = robot.ik(SM_REFERENCE_POINT + off, nom)
+            reference = {"role": "reference-point", "qm": qref.tolist()}
+            plan = planning.sample_poses(robot, nom, box, count, rng)
+            qm = plan.qm
+        elif method == "sm-distance-tilt":
+            qb = robot.ik(SM_BASE_ORIGIN, nom, elbow=-1)
+            reference = {"role": "base-origin", "qm": qb.tolist()}
+            framed = reframe_nominal(robot, nom, qb)
+            elbow = robot.elbow_of(qb, nom)
+            plan = planning.sample_poses(robot, framed, planning.box_array(robot, planning.SM_BOX_7_5),
+                                         count, rng, ik_options={"elbow": elbow})
+            qm = plan.qm
+        elif method == "sm-self-redundancy":
+            qm, group = _pairs(robot, xi_true, box, count, rng)
+        elif method == "sm-plane":
+            plane = default_plane(xi_true, robot) if plane is None else np.asarray(plane, float)
+            qm = _plane_contacts(robot, xi_true, plane, box, count, rng)
+        else:  # pragma: no cover
+            raise CalibrationError(method)
+    else:
+        bounds = planning.box_array(robot, planning.PM_BOX)
+        plan = planning.sample_poses(robot, nom, bounds, count, rng)
+        qm = plan.qm
+        if method == "pm-fk" and components:
+            header["components"] = list(components)
+    for name in known:
+        if name in ("plane_a", "plane_b", "plane_c"):
+            if method != "sm-plane":
+                raise CalibrationError(f"{name} is a parameter of sm-plane only")
+            header["nominal"][name] = float(plane[("plane_a", "plane_b", "plane_c").index(name)])
+        else:
+            header["nominal"][name] = float(xi_true[robot.index(name)])
+    ref_qm = None if reference is None else np.array(reference["qm"])
+    meas = simulate.measure(method, robot, xi_true, qm, reference_qm=ref_qm,
+                            noise=meas_noise, rng=rng, mount=mount)
+    poses = []
+    for i in range(len(qm)):
+        rec = {"index": i, "qm": [float(v) for v in qm[i]]}
+        if group is not None:
+            rec["group"] = int(group[i])
+        for ch, arr in meas.items():
+            v = arr[i]
+            if method == "pm-fk" and ch == "orientation" and components:
+                idx = [("alpha", "beta", "gamma").index(c) for c in components]
+                v = v[idx]
+            rec[ch] = v.tolist() if np.ndim(v) else float(v)
+        poses.append(rec)
+    return header, reference, poses
+
+
+def _pairs(robot, xi_true, box, count, rng):
+    """sm-self-redundancy: ``count`` pairs touching one (x, y) with phi about
+    -12 and +12 degrees (the true robot really touches the same point)."""
+    qm, group = [], []
+    draws = 0
+    while len(group) < 2 * count:
+        draws += 1
+        if draws > 400 * count:
+            raise CalibrationError("cannot find enough reachable pose pairs")
+        X = rng.uniform(box[:, 0], box[:, 1])
+        X1, X2 = X.copy(), X.copy()
+        X1[3] = rng.uniform(math.radians(-20), math.radians(-5))
+        X2[3] = rng.uniform(math.radians(5), math.radians(20))
+        try:
+            q1, q2 = robot.ik(X1, xi_true, elbow=1), robot.ik(X2, xi_true, elbow=1)
+        except UnreachablePose:
+            continue
+        g = len(group) // 2
+        qm += [q1, q2]
+        group += [g, g]
+    return np.array(qm), np.array(group)
+
+
+def _plane_contacts(robot, xi_true, plane, box, count, rng):
+    """sm-plane: points of the true robot on the plane inside the box."""
+    a = np.asarray(plane, dtype=float)
+    k = int(np.argmax(np.abs(a)))
+    qm = []
+    draws = 0
+    while len(qm) < count:
+        draws += 1
+        if draws > 400 * count:
+            raise CalibrationError("the plane crosses too little of the reachable workspace")
+        X = rng.uniform(box[:, 0], box[:, 1])
+        rest = [i for i in range(3) if i != k]
+        X[k] = -(1.0 + a[rest] @ X[rest]) / a[k]
+        try:
+            qm.append(robot.ik(X, xi_true, elbow=1))
+        except UnreachablePose:
+            continue
+    return np.array(qm)
+
+
+def generate_trace(path, method: str, truth_xi, **kw) -> None:
+    header, reference, poses = generate(method, truth_xi, **kw)
+    write_trace(path, header, reference, poses)

@@ -1,0 +1,256 @@
+"""CANopen drivers against the simulated nodes, over the wire.
+
+The socketcand hub and the simulated drives run in a separate process
+(``drivers.sim.cia402_drive.run_sim_process``); the drivers under test connect
+through python-can's ``socketcand`` client. Faults are switched through the
+simulator's control pipe. Correctness only, no timing assertions.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import time
+
+import can
+import canopen
+import pytest
+
+from calibration.errors import ConfigError
+from drivers.canopen_drives import CanopenActuators, CanopenEncoders, emcy_text
+from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
+from drivers.sim.cia402_drive import EDS_PATH, run_sim_process
+from drivers.sim.socketcand_hub import SocketcandHub
+
+RES = 10000.0                      # increments per actuator unit
+NODES = [1, 2, 3, 4]
+START = [0.0, 0.25, -0.5, 1.0]
+
+
+class SimProcess:
+    """The simulator process and its control pipe."""
+
+    def __init__(self, **kwargs):
+        ctx = multiprocessing.get_context("spawn")
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=run_sim_process, args=(child,), kwargs=kwargs, daemon=True)
+        self.proc.start()
+        child.close()
+        if not self.conn.poll(30):
+            self.close()
+            raise RuntimeError("simulator process did not start")
+        status, self.endpoint = self.conn.recv()
+        assert status == "ready"
+
+    def call(self, *request):
+        self.conn.send(request)
+        if not self.conn.poll(30):
+            raise RuntimeError(f"simulator did not answer {request!r}")
+        status, result = self.conn.recv()
+        if status != "ok":
+            raise RuntimeError(result)
+        return result
+
+    def close(self):
+        if self.proc.is_alive():
+            try:
+                self.call("stop")
+            except (RuntimeError, OSError, EOFError):
+                pass
+            self.proc.join(10)
+        if self.proc.is_alive():
+            self.proc.terminate()
+            self.proc.join(5)
+        self.conn.close()
+
+
+def eventually(fn, timeout=5.0):
+    """Retry ``fn`` until it stops raising DeviceError (a recorded recovery)."""
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            return fn()
+        except DeviceError:
+            if time.monotonic() > end:
+                raise
+            time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def sim():
+    proc = SimProcess(nodes=NODES, positions=START, resolution=RES, velocity=4.0, acceleration=20.0)
+    yield proc
+    proc.close()
+    assert not proc.proc.is_alive()
+
+
+@pytest.fixture(autouse=True)
+def _clean_faults(request):
+    yield
+    if "sim" in request.fixturenames:
+        sim = request.getfixturevalue("sim")
+        sim.call("clear")
+        assert sim.call("drain")
+
+
+@pytest.fixture
+def drives(sim):
+    drv = CanopenActuators.from_endpoint(sim.endpoint, RES, timeout=1.0)
+    with drv:
+        yield drv
+    assert not drv.is_open
+
+
+def test_enable_move_wait_read_cycle(drives, sim):
+    drives.enable()
+    targets = [0.5, -0.125, 0.75, 0.0]
+    drives.move_to(targets)
+    sample = drives.wait_target_reached(timeout=10)
+    assert sample.values == {f"qm{i + 1}": pytest.approx(t, abs=1 / RES) for i, t in enumerate(targets)}
+    assert all(sw & 0x0400 for sw in sample.info["statusword"].values())
+    assert set(sample.info["state"].values()) == {"OPERATION ENABLED"}
+    assert [sim.call("position", i) for i in range(4)] == pytest.approx(targets, abs=1e-9)
+    drives.move_to(START)
+    drives.wait_target_reached(timeout=10)
+
+
+def test_tpdo_on_sync_matches_sdo_read(drives):
+    a = drives.read()
+    b = drives.read_sdo()
+    c = drives.read()
+    assert a.info["source"] == "tpdo" and b.info["source"] == "sdo"
+    assert a.values == b.values == c.values
+    assert a.info["increments"] == b.info["increments"]
+    assert a.seq < b.seq < c.seq
+
+
+def test_silent_node_is_heartbeat_lost_then_recovers(drives, sim):
+    sim.call("faults", {"silent_nodes": [3]})
+    with pytest.raises(DeviceTimeout, match="heartbeat lost") as err:
+        drives.read()
+    assert err.value.device == "canopen node 3"
+    assert str(err.value).startswith("canopen node 3: ")
+    sim.call("faults", {"silent_nodes": []})
+    assert eventually(drives.read).values["qm3"] == pytest.approx(START[2])
+
+
+def test_drive_fault_gives_emcy_then_reset_and_move(drives, sim):
+    drives.enable()
+    sim.call("faults", {"drive_fault_node": 2})
+    with pytest.raises(ProtocolError) as err:
+        drives.move_to([0.0, 0.5, -0.5, 1.0])
+    assert err.value.device == "canopen node 2"
+    assert err.value.code == 0x8611 and err.value.text == "following error"
+    assert "0x8611" in str(err.value)
+    assert sim.call("plan")["drive_fault_node"] == 0          # fired once
+    assert drives.read().info["state"][2] == "FAULT"
+    with pytest.raises(ProtocolError, match="following error"):
+        drives.move_to(START)
+    drives.fault_reset()
+    drives.move_to([0.0, 0.5, -0.5, 1.0])
+    assert drives.wait_target_reached(10).values["qm2"] == pytest.approx(0.5)
+    drives.move_to(START)
+    drives.wait_target_reached(10)
+
+
+def test_dropped_tpdo_is_timeout_never_old_value(drives, sim):
+    before = drives.read()
+    sim.call("faults", {"drop_prob": 1.0})
+    with pytest.raises(DeviceTimeout, match="stale sample refused") as err:
+        drives.read(timeout=0.3)
+    assert err.value.device == "canopen node 1"
+    assert drives.read_sdo().values == before.values          # SDO fallback still answers
+    sim.call("clear")
+    after = drives.read()
+    assert after.seq > before.seq and after.values == before.values
+
+
+def test_late_answers_within_timeout_are_fine(drives, sim):
+    expected = drives.read().values
+    sim.call("faults", {"late_s": 0.15})
+    assert drives.read(timeout=1.0).values == expected
+    assert drives.read_sdo(timeout=1.0).values == expected
+
+
+def test_late_answers_beyond_timeout_are_timeouts(drives, sim):
+    expected = drives.read().values
+    sim.call("faults", {"late_s": 0.8})
+    with pytest.raises(DeviceTimeout) as err:
+        drives.read(timeout=0.2)
+    assert err.value.device.startswith("canopen node ")
+    with pytest.raises(DeviceTimeout) as err:
+        drives.read_sdo(timeout=0.2)
+    assert err.value.device.startswith("canopen node ")
+    sim.call("clear")
+    assert sim.call("drain")
+    assert eventually(drives.read_sdo).values == expected      # barrier: late frames are through
+    assert eventually(drives.read).values == expected
+
+
+def test_plain_canopen_master_talks_to_simulated_drive(sim):
+    ep = dict(sim.endpoint)
+    ep.pop("nodes")
+    network = canopen.Network()
+    network.connect(**ep)
+    try:
+        node = network.add_node(2, str(EDS_PATH))
+        assert node.sdo[0x1000].raw == 0x00020192
+        assert node.sdo.upload(0x6064, 0) == round(START[1] * RES).to_bytes(4, "little", signed=True)
+        assert node.sdo["Position actual value"].raw == round(START[1] * RES)
+    finally:
+        network.disconnect()
+
+
+def test_wrong_profile_and_bad_config_are_named(sim):
+    enc = CanopenEncoders.from_endpoint(sim.endpoint, RES, timeout=1.0)
+    with pytest.raises(DeviceError, match="canopen node 1: device type 0x00020192 is not CiA"):
+        enc.open()
+    assert not enc.is_open
+    with pytest.raises(ConfigError, match="nodes"):
+        CanopenActuators([1, 1], RES)
+    with pytest.raises(ConfigError, match="resolution"):
+        CanopenActuators([1, 2], [RES])
+    drv = CanopenActuators.from_endpoint(sim.endpoint, RES)
+    drv.close()
+    with drv:
+        with pytest.raises(ValueError, match="qm_targets"):
+            drv.move_to([0.0])
+    drv.close()                                                # idempotent
+    assert emcy_text(0x5530).startswith("non-volatile") and emcy_text(0x1234).startswith("unknown EMCY 0x1234")
+
+
+def test_cia406_encoders_read_and_preset():
+    sim = SimProcess(nodes=[5, 6], positions=[0.25, -0.5], resolution=4096.0, profile="cia406")
+    try:
+        with CanopenEncoders.from_endpoint(sim.endpoint, 4096.0, timeout=1.0) as enc:
+            sample = enc.read()
+            assert sample.values == {"qm1": 0.25, "qm2": -0.5}
+            assert enc.read_sdo().values == sample.values
+            sim.call("move", 0, 0.5)
+            eventually(lambda: _require(sim.call("position", 0) == 0.5))
+            assert enc.read().values["qm1"] == 0.5
+            enc.preset([1.0, 2.0])
+            assert enc.read().values == {"qm1": 1.0, "qm2": 2.0}
+    finally:
+        sim.close()
+
+
+def _require(condition):
+    if not condition:
+        raise DeviceError("not yet")
+
+
+def test_hub_forwards_to_others_and_survives_disconnects():
+    with SocketcandHub() as hub:
+        a, b, c = (can.Bus(**hub.endpoint) for _ in range(3))
+        try:
+            a.send(can.Message(arbitration_id=0x181, data=[1, 2, 0xFF], is_extended_id=False))
+            a.send(can.Message(arbitration_id=0x1ABCDEF, data=[], is_extended_id=True))
+            for bus in (b, c):
+                first, second = bus.recv(2), bus.recv(2)
+                assert (first.arbitration_id, bytes(first.data), first.is_extended_id) == (0x181, b"\x01\x02\xff", False)
+                assert (second.arbitration_id, second.dlc, second.is_extended_id) == (0x1ABCDEF, 0, True)
+            assert a.recv(0.2) is None                          # no echo
+            b.shutdown()
+            c.send(can.Message(arbitration_id=0x80, data=[], is_extended_id=False))
+            assert a.recv(2).arbitration_id == 0x80
+        finally:
+            a.shutdown(), c.shutdown()
