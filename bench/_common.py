@@ -137,6 +137,22 @@ def median_time(fn, repeats: int, warmup: int = 1):
     return statistics.median(times), val
 
 
+def median_times(fns, repeats: int, warmup: int = 1):
+    """Median seconds of each of ``fns`` over ``repeats`` rounds; each round
+    calls every function once, in turn (interleaved, so that a burst of load
+    on the machine affects all of them alike)."""
+    for _ in range(warmup):
+        for fn in fns:
+            fn()
+    times = [[] for _ in fns]
+    for _ in range(repeats):
+        for i, fn in enumerate(fns):
+            t = time.perf_counter()
+            fn()
+            times[i].append(time.perf_counter() - t)
+    return [statistics.median(t) for t in times]
+
+
 def table(rows, headers, aligns=None) -> str:
     """Plain-text table (``aligns``: '<' or '>' per column)."""
     cells = [[str(c) for c in r] for r in rows]

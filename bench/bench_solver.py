@@ -42,11 +42,12 @@ import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
-from _common import METHODS, make_problems, median_time, table  # noqa: E402
+from _common import METHODS, make_problems, median_times, table  # noqa: E402
 from calibration.solver import SolverOptions, solve  # noqa: E402
 
 TOL = 1e-12
 SAME_ABS, SAME_STD = 1e-9, 1e-3
+EVAL_BATCH = 5
 
 
 # -- runners --------------------------------------------------------------------
@@ -199,7 +200,7 @@ def profile_report(probs, n):
 # -- bench ------------------------------------------------------------------------
 def bench_problem(prob, repeats, x_scale):
     model = prob.model
-    t_ours, res = median_time(lambda: solve(model), repeats)
+    res = solve(model)
     active = np.array([s.identifiable for s in res.status])
     std = res.std[active]
     x_ours = res.x
@@ -216,14 +217,14 @@ def bench_problem(prob, repeats, x_scale):
                   and np.all(dx[~active] == 0))
         return dx.max(), float(np.nanmax(dx[active] / std)), ok
 
-    # cost of one residual evaluation: model.evaluate (r and W) and r by fk only
-    t_model = _per_call(lambda: model.evaluate(model.x0))
-    t_fk = _per_call(lambda: prob.residual(model.x0))
+    # cost of one residual evaluation, model.evaluate (r and W) and r by fk
+    # only: timed in the same interleaved rounds as the runners (below)
+    t_model = t_fk = 0.0
 
     rows = [dict(runner="ours", conv=res.converged, iters=res.iterations, nfev=res.nfev,
-                 calls=res.nfev, t=t_ours, t_eval=res.nfev * t_model, cost=plain_cost(x_ours),
-                 dx=0.0, dxs=0.0,
-                 same=True, scipy=False)]
+                 calls=res.nfev, analytic=True, cost=plain_cost(x_ours),
+                 dx=0.0, dxs=0.0, same=True, scipy=False)]
+    timed = [lambda: solve(model)]
     ones = np.ones(len(model.row_channel))
     runs = [(f"{m}-{'jac' if a else '2pt'}", m, a, ones) for m in ("lm", "trf")
             for a in (True, False)]
@@ -236,31 +237,31 @@ def bench_problem(prob, repeats, x_scale):
         runs += [(f"{m}-jac-w", m, True, 1.0 / sig) for m in ("lm", "trf")]
     for name, method, analytic, g in runs:
         c, once = run_scipy(prob, active, g, method, analytic, x_scale)
-        t, sres = median_time(once, repeats)
+        sres = once()
         iters, nfev, calls, x, ok, status = summarize_scipy(c, sres, analytic, method)
         dx, dxs, is_same = same(x)
+        timed.append(once)
         rows.append(dict(runner=name, conv=f"{ok} ({status})", iters=iters, nfev=nfev,
-                         calls=calls, t=t, t_eval=calls * (t_model if analytic else t_fk),
+                         calls=calls, analytic=analytic,
                          cost=plain_cost(x), dx=dx, dxs=dxs, same=is_same,
                          scipy=True))
+    # timing: the runners interleaved repeat by repeat, so that load on the
+    # machine hits all of them alike
+    x0 = model.x0
+    timed += [lambda: [model.evaluate(x0) for _ in range(EVAL_BATCH)],
+              lambda: [prob.residual(x0) for _ in range(EVAL_BATCH)]]
+    times = median_times(timed, repeats)
+    t_model, t_fk = times[-2] / EVAL_BATCH, times[-1] / EVAL_BATCH
+    for r, t in zip(rows, times):
+        r["t"] = t
+        r["t_eval"] = r["calls"] * (t_model if r.pop("analytic") else t_fk)
     return res, rows, (t_model, t_fk)
-
-
-def _per_call(fn, n=200):
-    fn()
-    best = []
-    for _ in range(5):
-        t = time.perf_counter()
-        for _ in range(n):
-            fn()
-        best.append((time.perf_counter() - t) / n)
-    return float(np.median(best))
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--repeats", type=int, default=9, help="timed runs per runner (median)")
+    ap.add_argument("--repeats", type=int, default=15, help="timed runs per runner (median)")
     ap.add_argument("--quick", action="store_true", help="3 repeats")
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--x-scale", default="jac", help="least_squares x_scale: 'jac' or 1")
@@ -295,7 +296,8 @@ def main(argv=None):
                         f"{r['dxs']:.1e}", "yes" if r["same"] else "NO",
                         f"{r['t'] / t_ours:.2f}"))
         print(table(out, ["runner", "converged (status)", "iter", "nfev", "calls", "wall ms",
-                          "eval ms", "rest ms", "cost 0.5|r|^2", "max|x-x_ours|", "/std", "same opt", "t/t_ours"]))
+                          "eval ms", "rest ms", "cost 0.5|r|^2", "max|x-x_ours|", "/std",
+                          "same opt", "t/t_ours"]))
         sc = [r for r in rows if r["scipy"] and r["same"] and r["conv"].startswith("True")]
         anyb = min((r for r in rows if r["scipy"]), key=lambda r: r["t"])
         if sc:

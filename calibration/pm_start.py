@@ -12,8 +12,9 @@ has nothing to start from. The start is found in three steps:
    distance from base point to platform point), and at least 2 % above the
    largest h, so that the IK exists for every pose.
 2. **Joint-space fit with unknown orientations** (:class:`ImplicitPoses`): the
-   closure equations ``Fbar^-1(X_j, xi) = K Qm_j + Q_off`` (3 rows per pose,
-   eq. 106) plus the readings (measured Euler components, or inclinometer
+   closure equations ``F^-1(X_j, xi) = Qm_j`` in actuator units (3 rows per
+   pose, eq. 106 divided by K: see :mod:`calibration.methods.pm_ik` for why not
+   in joint space) plus the readings (measured Euler components, or inclinometer
    roll and pitch), with every pose's full orientation ``X_j`` an unknown
    next to xi. Only the IK is needed, which is defined wherever the rods
    reach; there is no assembly mode to lose. The same solver runs it.
@@ -78,7 +79,11 @@ class ImplicitPoses(MeasurementModel):
 
     Parameters: the robot's 10 (then ``mount_x, mount_y`` for an inclinometer),
     then ``alpha_j, beta_j, gamma_j`` of every pose. Rows per pose: ``q1, q2, q3``
-    (``0 - (Fbar^-1(X_j) - K Qm_j - Q_off)``, metres) then the readings (rad).
+    (``c * (Qm_j - F^-1(X_j, xi))``) then the readings (rad). The constant
+    ``c = k_start / lever`` (``lever``: mean slider travel per radian at the start)
+    expresses the actuator rows in radian-equivalents, so that the solver's single
+    pooled sigma (eq. 51) weighs both kinds of rows alike; being constant, it keeps
+    the scale and height invariance of the actuator rows.
     """
 
     method = "pm-start"
@@ -96,6 +101,9 @@ class ImplicitPoses(MeasurementModel):
         self.names = tuple(robot.param_names) + extra + pose_names
         self.x0 = np.concatenate([x_robot, np.asarray(X_guess, dtype=float).reshape(-1)])
         self.nominal = self.x0.copy()
+        xi0 = np.asarray(x_robot[:self.nr], dtype=float)
+        lever = np.mean(np.linalg.norm(robot.ik_x_jacobian(X_guess, xi0), axis=2))
+        self.row_scale = np.abs(xi0[7:10]) / lever  # (3,)
         meas = ("roll", "pitch") if tilt else tuple(comps)
         self.channels = ("q1", "q2", "q3") + meas
         self.row_channel = np.tile(np.arange(len(self.channels)), m)
@@ -107,10 +115,12 @@ class ImplicitPoses(MeasurementModel):
         xe, X = self.split(x)
         xi = xe[:self.nr]
         m, nr, ne = self.n_poses, self.nr, self.ne
-        q, _ = self.robot.ik_joints(X, xi)  # UnreachablePose (a CalibrationError) outside
-        rq = self.robot.joints(self.qm, xi) - q
-        Wq_xi = self.robot.psi_iku(X, xi, self.qm)
-        Wq_X = self.robot.ik_x_jacobian(X, xi)
+        k = xi[7:10][None, :, None]
+        qm_pred = self.robot.ik_actuators(X, xi)  # UnreachablePose (a CalibrationError) outside
+        c = self.row_scale[None, :, None]
+        rq = (self.qm - qm_pred) * self.row_scale
+        Wq_xi = self.robot.psi_iku(X, xi, qm_pred) / k * c
+        Wq_X = self.robot.ik_x_jacobian(X, xi) / k * c
         if self.tilt:
             t, dT_dX, dT_dm = tilt_jacobian(X, xe[nr:ne])
             rm = wrap(self.readings - t)
@@ -156,7 +166,10 @@ def robust_start_detail(robot, method_data, nominal, components=None, *,
     xe = nominal.copy()
     xe[:nr] = feasible_start(robot, qm, X0, nominal[:nr])
     model = ImplicitPoses(robot, qm, xe, X0, readings=readings, comps=comps, tilt=tilt)
-    opts = options or SolverOptions(epsilon=1e-9, max_iter=300)
+    # recheck=False: the per-pose angles must not meet the statistical test at the
+    # solution (a weakly seen gamma_j reset to its guess can leave the reachable set);
+    # q3_off, k3 are structurally dependent and dropped before iterating
+    opts = options or SolverOptions(epsilon=1e-9, max_iter=300, recheck=False)
     res = solve(model, opts)
     if not np.all(np.isfinite(res.x)):
         raise CalibrationError("the PM start-value fit failed: " + res.message)

@@ -214,11 +214,16 @@ class _Algorithm2:
         na = int(self.active.sum())
         if na == 0:
             raise CalibrationError("no parameter can be identified from these measurements")
-        if self.rows < na:
+        # parameters the measurements depend on at all; with too few rows the
+        # rank is limited by the data, not by the method, and sigma (eq. 51)
+        # needs at least one degree of freedom
+        n_dep = sum(1 for s in status if s.identifiable or s.influences_model)
+        if self.rows <= n_dep:
+            p = max(model.p, 1)
             raise CalibrationError(
-                f"{model.n_poses} poses give {self.rows} equations for {na} identifiable "
-                f"parameters; at least {int(np.ceil(na / max(model.p, 1)))} poses are needed "
-                f"(recommended {ident.minimum_poses(na, model.p)}, eq. 60)")
+                f"{model.n_poses} poses give {self.rows} equations for up to {n_dep} parameters; "
+                f"at least {int(np.ceil((n_dep + 1) / p))} poses are needed "
+                f"(recommended {ident.minimum_poses(n_dep, p)}, eq. 60)")
 
     def solution_weights(self):
         """Per-channel weights from the residual at the current parameters."""
@@ -294,7 +299,9 @@ class _Algorithm2:
                     ok = bool(np.all(np.isfinite(r_try)) and np.all(np.isfinite(W_try)))
                 except CalibrationError:  # e.g. the PM cannot assemble there
                     ok = False
-            if opt.adaptive and (not ok or 0.5 * float(np.sum(self.weights * r_try ** 2)) > cost):
+            small = bool(d.size) and float(np.max(np.abs(d))) < opt.epsilon
+            worse = not ok or 0.5 * float(np.sum(self.weights * r_try ** 2)) > cost * (1 + 1e-12)
+            if opt.adaptive and worse and not small:
                 rejected += 1
                 if rejected > 30:
                     return False, f"no step lowers the cost any more (iteration {self.k + 1})"

@@ -132,6 +132,8 @@ class CanopenNodes(Device):
         self.resolution = res
         self.channels = tuple(f"qm{i + 1}" for i in range(len(self.nodes)))
         self.bus_config = dict(bus_options or {}, interface=interface, channel=channel)
+        if interface == "socketcand":   # TCP_NODELAY/QUICKACK: else Nagle holds frames ~40 ms
+            self.bus_config.setdefault("tcp_tune", True)
         self.heartbeat_ms = int(heartbeat_ms)
         self.heartbeat_timeout = heartbeat_timeout or 5 * self.heartbeat_ms / 1000.0
         self.read_via = read_via
@@ -153,6 +155,19 @@ class CanopenNodes(Device):
         nodes = ep.pop("nodes")
         return cls(nodes, resolution, interface=ep.pop("interface"), channel=ep.pop("channel", "can0"),
                    bus_options=ep, **options)
+
+    @classmethod
+    def from_config(cls, cfg, **options):
+        """Build from a :class:`drivers.config.CanopenConfig` (its bus, nodes, resolutions,
+        timeouts, heartbeat; profile velocity/acceleration for drives)."""
+        bus = cfg.bus_kwargs()
+        kw = dict(interface=bus.pop("interface"), channel=bus.pop("channel"), bus_options=bus,
+                  timeout=cfg.sdo_timeout, heartbeat_ms=round(cfg.heartbeat_period * 1000),
+                  heartbeat_timeout=cfg.heartbeat_timeout)
+        if cls is CanopenActuators:
+            kw.update(velocity=tuple(cfg.profile_velocity) or None,
+                      acceleration=tuple(cfg.profile_acceleration) or None)
+        return cls(cfg.nodes, cfg.increments_per_unit, **dict(kw, **options))
 
     def node_name(self, nid: int) -> str:
         return f"canopen node {nid}"
@@ -202,13 +217,14 @@ class CanopenNodes(Device):
             tpdo.add_callback(functools.partial(self._on_tpdo, nid))
 
     def _await_operational(self) -> None:
-        end = time.monotonic() + self.timeout + 3 * self.heartbeat_ms / 1000.0
+        limit = self.timeout + 3 * self.heartbeat_ms / 1000.0
+        end = time.monotonic() + limit
         with self._cv:
             while any(self._hb_state.get(n) != NMT_OPERATIONAL for n in self.nodes):
                 if not self._cv.wait(max(0.0, end - time.monotonic())):
                     late = [n for n in self.nodes if self._hb_state.get(n) != NMT_OPERATIONAL][0]
-                    raise DeviceTimeout(f"no OPERATIONAL heartbeat within {end - time.monotonic() + self.timeout:.2g} s"
-                                        f" after NMT start", device=self.node_name(late))
+                    raise DeviceTimeout(f"no OPERATIONAL heartbeat within {limit:.2g} s after NMT start",
+                                        device=self.node_name(late))
 
     def _close_internal(self) -> None:
         network, self.network = self.network, None
@@ -361,14 +377,22 @@ class CanopenActuators(CanopenNodes):
     """CiA 402 drives in profile position mode (0x6060 = 1), one per actuator.
 
     Arguments as :class:`CanopenNodes`, plus ``velocity`` (units/s) and
-    ``acceleration`` (units/s^2) written to 0x6081/0x6083 (in increments) at open
-    when given. ``read()`` info carries each node's statusword and CiA 402 state.
+    ``acceleration`` (units/s^2), one number or one per node, written to
+    0x6081/0x6083 (in increments) at open when given. ``read()`` info carries each
+    node's statusword and CiA 402 state. ``close()`` leaves the drives enabled
+    (holding position): disabling could let an unbraked axis fall; call
+    :meth:`disable` explicitly.
     """
 
-    def __init__(self, nodes, resolution, *, velocity: float | None = None,
-                 acceleration: float | None = None, **options):
+    def __init__(self, nodes, resolution, *, velocity=None, acceleration=None, **options):
         super().__init__(nodes, resolution, **options)
-        self.velocity, self.acceleration = velocity, acceleration
+        n = len(self.nodes)
+        self.velocity, self.acceleration = (
+            None if v is None else [float(v)] * n if isinstance(v, (int, float)) else [float(x) for x in v]
+            for v in (velocity, acceleration))
+        for key, v in (("velocity", self.velocity), ("acceleration", self.acceleration)):
+            if v is not None and (len(v) != n or not all(math.isfinite(x) and x > 0 for x in v)):
+                raise ConfigError(f"need one positive value (or one per node), got {v!r}", key=key)
 
     def _configure(self, nid: int) -> None:
         super()._configure(nid)
@@ -376,7 +400,7 @@ class CanopenActuators(CanopenNodes):
         self.sdo_write(nid, 0x6060, 1)
         for index, value in ((0x6081, self.velocity), (0x6083, self.acceleration)):
             if value is not None:
-                self.sdo_write(nid, index, round(abs(value * self.resolution[i])))
+                self.sdo_write(nid, index, round(abs(value[i] * self.resolution[i])))
 
     def _info(self, fresh, source):
         info = super()._info(fresh, source)
@@ -504,3 +528,9 @@ class CanopenEncoders(CanopenNodes):
             raise ValueError(f"qm_values: need {len(self.nodes)} finite values, got {list(qm_values)!r}")
         for i, nid in enumerate(self.nodes):
             self.sdo_write(nid, 0x6003, round(values[i] * self.resolution[i]) & 0xFFFFFFFF)
+
+
+def canopen_device(cfg, **options) -> CanopenNodes:
+    """The device a :class:`drivers.config.CanopenConfig` describes: drives (``mode="cia402"``)
+    or encoders (``"cia406"``); not opened."""
+    return (CanopenEncoders if cfg.mode == "cia406" else CanopenActuators).from_config(cfg, **options)

@@ -14,6 +14,8 @@ STARTS = ("robust", "nominal")
 # a pose whose FK solution moves more than this (rad) from its previous solution
 # in one evaluation is suspected of having changed assembly mode
 MODE_JUMP = 0.5
+# FK closure tolerance (m): near round-off, so that noise-free fits end smoothly
+FK_TOL = 1e-14
 
 COMPENSATION_NOTE = (
     "q3_off and k3 (offset and gear ratio of actuator 3) cannot be identified from "
@@ -99,10 +101,10 @@ class ModeKeepingFK:
         self.last = self.reference.copy()
 
     def __call__(self, x) -> np.ndarray:
-        X = self.robot.fk(self.qm, x, guess=self.last)
+        X = self.robot.fk(self.qm, x, guess=self.last, tol=FK_TOL)
         jump = np.max(np.abs(X - self.last), axis=1) > MODE_JUMP
         if np.any(jump):
-            Xr = self.robot.fk(self.qm[jump], x, guess=self.reference[jump])
+            Xr = self.robot.fk(self.qm[jump], x, guess=self.reference[jump], tol=FK_TOL)
             if np.any(np.max(np.abs(Xr - self.reference[jump]), axis=1) > 2 * MODE_JUMP):
                 raise CalibrationError("the PM model changed assembly mode at "
                                        f"{int(jump.sum())} pose(s)")

@@ -1,17 +1,21 @@
 """pm-ik (report 10.1): calibration through the PM's inverse kinematics.
 
 All three Euler angles ``X_M`` are measured (channel ``orientation``) together
-with the actuator values ``Qm_M``. Rows per pose, channels ``q1, q2, q3``: the
-report's joint-space error (eqs. 107, 110)
+with the actuator values ``Qm_M``. Rows per pose, channels ``q1, q2, q3``, in
+actuator units:
 
-    Delta Q = Q_M - Q = (K Qm_M + Q_off) - Fbar^-1(X_M, a1, a2, l, v)   [m]
+    Qm_M - F^-1(X_M, xi),   F^-1 = diag(K)^-1 (Fbar^-1(X_M, a1, a2, l, v) - Q_off)
 
-with observation matrix ``Psi^IKU(X_M, xi)`` (eq. 106) exactly: no FK and no
-approximation of eq. 111 (the joint-space form is chosen over the actuator-space
-``k (Qm_M - Qm)`` because it is exactly linear in the offsets and gear ratios).
-The orientation noise enters through ``dq/dX``; the solver's per-channel sigma
-weights each actuator's row. ``q3_off, k3`` are not identifiable and are fully
-compensated (eqs. 112-113), N_R = 8.
+with observation matrix ``diag(K)^-1 Psi^IKU(X_M, xi)`` (eq. 106, the ``k_i``
+column taken at the predicted ``Qm``). This is the report's eq. 111 without its
+factor ``diag(K)``: the report's joint-space error ``K (Qm_M - Qm)`` shrinks
+with the overall scale of the model (all lengths, offsets and gear ratios
+times s give the same actuators but s times the residual), so a fit in joint
+space can lower its cost by shrinking the robot towards s = 0, and k3 looks
+identifiable wherever the residual is not zero. In actuator units the scale
+and the height shift (v and all offsets together) leave every residual
+exactly unchanged: ``q3_off, k3`` are not identifiable at any parameter
+values, fully compensated (eqs. 112-113), N_R = 8.
 """
 from __future__ import annotations
 
@@ -35,11 +39,14 @@ class InverseKinematics(PMMethod):
         self._channels(("q1", "q2", "q3"), [0, 1, 2])
 
     def evaluate(self, x):
-        q, _ = self.robot.ik_joints(self.X_m, x)  # UnreachablePose where a rod cannot reach
-        r = self.robot.joints(self.qm, x) - q
-        W = self.robot.psi_iku(self.X_m, x, self.qm)
-        return r.reshape(-1), W.reshape(-1, self.nr)
+        xi = np.asarray(x, dtype=float)
+        k = xi[7:10]
+        # UnreachablePose (a CalibrationError) where a rod cannot reach: the solver rejects the step
+        qm_pred = self.robot.ik_actuators(self.X_m, xi)
+        W = self.robot.psi_iku(self.X_m, xi, qm_pred) / k[None, :, None]
+        return (self.qm - qm_pred).reshape(-1), W.reshape(-1, self.nr)
 
     def residual_noise_gain(self, x):
-        """Joint-space residual per radian of orientation noise (row norm of dq/dX)."""
-        return np.linalg.norm(self.robot.ik_x_jacobian(self.X_m, x), axis=2).reshape(-1)
+        """Residual (actuator units) per radian of orientation noise: row norm of dQm/dX."""
+        J = self.robot.ik_x_jacobian(self.X_m, x) / np.asarray(x[7:10])[None, :, None]
+        return np.linalg.norm(J, axis=2).reshape(-1)

@@ -21,6 +21,7 @@ Positions: increments = round(axis position [units] * resolution
 from __future__ import annotations
 
 import collections
+import functools
 import logging
 import threading
 import time
@@ -150,8 +151,9 @@ class SimNode:
     """One simulated node: a LocalNode with TPDOs on SYNC from its own PDO objects."""
 
     def __init__(self, network: SimNetwork, node_id: int, axis: SimAxis, resolution: float,
-                 plan: FaultPlan, od=None):
+                 plan: FaultPlan, od=None, increments=None):
         self.id, self.axis, self.resolution, self.plan = node_id, axis, float(resolution), plan
+        self._increments = increments
         self.node = canopen.LocalNode(node_id, od or canopen.import_od(str(EDS_PATH), node_id))
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
@@ -169,6 +171,10 @@ class SimNode:
         self.node.data_store.setdefault(index, {})[sub] = obj.encode_raw(value)
 
     def increments(self) -> int:
+        """Encoder increments now: the ``increments()`` given (e.g. the simulated robot's,
+        with noise) or ``round(axis position * resolution)``."""
+        if self._increments is not None:
+            return int(self._increments())
         return round(self.axis.position() * self.resolution)
 
     def boot(self) -> None:
@@ -305,8 +311,8 @@ def cia406_od(node_id: int):
 class SimEncoder406(SimNode):
     """A read-only CiA 406 encoder on ``axis`` (moved by the robot's own controller)."""
 
-    def __init__(self, network, node_id, axis, resolution, plan):
-        super().__init__(network, node_id, axis, resolution, plan, od=cia406_od(node_id))
+    def __init__(self, network, node_id, axis, resolution, plan, increments=None):
+        super().__init__(network, node_id, axis, resolution, plan, od=cia406_od(node_id), increments=increments)
         self.offset = 0
 
     def _on_read(self, index, subindex, od):
@@ -330,10 +336,14 @@ class SimulatedDrives:
     resolution: increments per actuator unit, one number or one per node.
     plan:       the shared :class:`FaultPlan` (a fresh all-off plan if None).
     profile:    ``"cia402"`` (drives) or ``"cia406"`` (read-only encoders).
+    increments: optional ``increments(i, resolution) -> int`` giving axis ``i``'s encoder
+                value (e.g. ``SimulatedAgebot.encoder_increments``, with noise); default
+                ``round(axes[i].position() * resolution)``.
     """
 
     def __init__(self, bus: dict, nodes, axes, resolution, plan: FaultPlan | None = None,
-                 profile: str = "cia402"):
+                 profile: str = "cia402", increments=None):
+        self.increments = increments
         self.bus_config = dict(bus)
         self.node_ids = [int(n) for n in nodes]
         self.axes = list(axes)
@@ -350,10 +360,14 @@ class SimulatedDrives:
     def start(self) -> "SimulatedDrives":
         if self.network is not None:
             return self
-        network = SimNetwork(self.plan).connect(**self.bus_config)
+        config = dict(self.bus_config)
+        if config.get("interface") == "socketcand":
+            config.setdefault("tcp_tune", True)      # no Nagle delay between back-to-back frames
+        network = SimNetwork(self.plan).connect(**config)
         kind = SimDrive402 if self.profile == "cia402" else SimEncoder406
-        for nid, axis, res in zip(self.node_ids, self.axes, self.resolution):
-            self.nodes[nid] = kind(network, nid, axis, res, self.plan)
+        for i, (nid, axis, res) in enumerate(zip(self.node_ids, self.axes, self.resolution)):
+            inc = None if self.increments is None else functools.partial(self.increments, i, res)
+            self.nodes[nid] = kind(network, nid, axis, res, self.plan, increments=inc)
         network.subscribe(0x80, self._on_sync)
         self.network = network
         for node in self.nodes.values():
@@ -403,13 +417,15 @@ class CanopenSim:
 
 
 def start_canopen_sim(axes, nodes, resolution, plan: FaultPlan | None = None, *, host: str = "127.0.0.1",
-                      port: int = 0, channel: str = "can0", profile: str = "cia402") -> CanopenSim:
+                      port: int = 0, channel: str = "can0", profile: str = "cia402",
+                      increments=None) -> CanopenSim:
     """Start a socketcand hub on ``host:port`` (0: ephemeral) and the simulated nodes
-    on it, in this process (threads). Returns a :class:`CanopenSim` (``.endpoint``, ``.stop()``)."""
+    on it, in this process (threads). Arguments as :class:`SimulatedDrives`.
+    Returns a :class:`CanopenSim` (``.endpoint``, ``.drives``, ``.hub``, ``.stop()``)."""
     from drivers.sim.socketcand_hub import SocketcandHub
     hub = SocketcandHub(host, port, channel).start()
     try:
-        drives = SimulatedDrives(hub.endpoint, nodes, axes, resolution, plan, profile).start()
+        drives = SimulatedDrives(hub.endpoint, nodes, axes, resolution, plan, profile, increments).start()
     except BaseException:
         hub.stop()
         raise

@@ -254,3 +254,20 @@ def test_hub_forwards_to_others_and_survives_disconnects():
             assert a.recv(2).arbitration_id == 0x80
         finally:
             a.shutdown(), c.shutdown()
+
+
+def test_config_wiring_and_robot_increments_hook():
+    from drivers.config import CanopenConfig
+    from drivers.canopen_drives import canopen_device
+    from drivers.sim.axis import SimAxis
+    from drivers.sim.cia402_drive import start_canopen_sim
+    axes = [SimAxis(0.0), SimAxis(0.0)]
+    with start_canopen_sim(axes, [7, 8], 100.0, increments=lambda i, res: 1000 * (i + 1) + 1) as sim:
+        ep = sim.endpoint
+        cfg = CanopenConfig(interface="socketcand", channel="can0", nodes=(7, 8), increments_per_unit=(100.0, 100.0),
+                            host=ep["host"], port=ep["port"], profile_velocity=(1.0, 1.0),
+                            profile_acceleration=(4.0, 4.0))
+        with canopen_device(cfg) as drv:
+            assert isinstance(drv, CanopenActuators)
+            assert drv.read().values == {"qm1": 10.01, "qm2": 20.01}
+            assert drv.sdo_read(8, 0x6081) == 100 and drv.sdo_read(8, 0x6083) == 400

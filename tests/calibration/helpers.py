@@ -1,0 +1,58 @@
+"""Shared builders for the calibration tests: noise-free or noisy data sets
+made by the same generator the station uses for its fixtures."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from calibration.methods import METHODS, MethodData, build
+from calibration.robots import get_robot
+from station.tracegen import generate
+
+KNOWN = {"sm-self-redundancy": ("L4",),
+         "sm-plane": ("L4", "theta0", "a0", "plane_a", "plane_b", "plane_c")}
+
+
+def dataset(method, *, seed=0, noise=None, known=None, truth=None, count=None, components=None):
+    """(model, truth vector in the model's parameters) for a generated data set."""
+    mi = METHODS[method]
+    robot = get_robot(mi.robot)
+    xi = robot.true if truth is None else np.asarray(truth, float)
+    known = KNOWN.get(method, ()) if known is None else known
+    header, ref, poses = generate(method, xi, noise=noise, seed=seed, known=known, count=count,
+                                  components=components)
+    nom = dict(header["nominal"])
+    extra = [nom.pop(k, 0.0) for k in mi.extra_params]
+    nominal = np.r_[robot.params(nom), extra]
+    data = MethodData(qm=np.array([p["qm"] for p in poses]),
+                      channels={ch: np.array([p[ch] for p in poses]) for ch in mi.channels},
+                      group=np.array([p["group"] for p in poses]) if "group" in poses[0] else None,
+                      reference_qm=None if ref is None else np.array(ref["qm"]),
+                      components=components)
+    opts = {}
+    if method == "sm-plane":
+        opts["plane_given"] = all(k in header["nominal"] for k in mi.extra_params)
+    model = build(method, robot, data, nominal, **opts)
+    truth_vec = np.r_[xi, extra] if method == "sm-plane" else xi.copy()
+    if method == "sm-distance-tilt":
+        from calibration.methods.sm_distance_tilt import reframe_nominal
+
+        truth_vec = reframe_nominal(robot, xi, data.reference_qm)
+    return model, truth_vec
+
+
+def fd_jacobian(f, x, h=1e-6):
+    """Central differences of ``f (N,) -> (rows,)``."""
+    x = np.asarray(x, float)
+    cols = []
+    for j in range(len(x)):
+        step = h * max(1.0, abs(x[j]))
+        d = np.zeros_like(x)
+        d[j] = step
+        cols.append((f(x + d) - f(x - d)) / (2 * step))
+    return np.column_stack(cols)
+
+
+def rotvec_between(R1, R0):
+    """Rotation vector of ``R1 R0^T`` (small rotations)."""
+    return Rotation.from_matrix(R1 @ R0.T).as_rotvec()

@@ -1,0 +1,248 @@
+"""PM calibration (report sections 9-10): generalized Jacobians, the pm-ik,
+pm-fk and pm-tilt methods on the one solver, the robust start from the report's
+nominal values, and the compensation of q3_off, k3 (eqs. 112-113).
+
+Ground truth: the report's true PM; poses sampled in the report's +-20 deg box.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from calibration.errors import CalibrationError
+from calibration.identifiability import INFLUENCES, IDENTIFIABLE
+from calibration.methods import MethodData, build
+from calibration.methods.pm_common import COMPENSATION_NOTE, compensation_note, parse_components
+from calibration.methods.pm_fk import ForwardKinematics
+from calibration.methods.pm_ik import InverseKinematics
+from calibration.methods.pm_tilt import Tilt
+from calibration.planning import PM_BOX, box_array, sample_poses
+from calibration.pm_start import robust_start
+from calibration.robots.agebot_pm import (NOMINAL, TRUE, AgebotPM, gravity_tilt, rot_xyz,
+                                          tilt_jacobian)
+from calibration.solver import SolverOptions, solve
+
+ROBOT = AgebotPM()
+ABG = ("alpha", "beta", "gamma")
+MOUNT = np.array([0.02, -0.015])
+DEG20 = math.radians(20)
+# the +-20 deg workspace, 9^3 orientations
+GRID = np.array(np.meshgrid(*[np.linspace(-DEG20, DEG20, 9)] * 3)).reshape(3, -1).T
+
+
+def poses(m, seed):
+    plan = sample_poses(ROBOT, TRUE, box_array(ROBOT, PM_BOX), m, np.random.default_rng(seed))
+    return plan.targets, plan.qm
+
+
+def orientation_data(m, seed, comps=ABG, noise=0.0):
+    X, qm = poses(m, seed)
+    X = X + noise * np.random.default_rng(seed + 1000).normal(size=X.shape)
+    idx = [ABG.index(c) for c in comps]
+    return MethodData(qm, {"orientation": X[:, idx]}, components=comps)
+
+
+def tilt_data(m, seed, mount=MOUNT):
+    X, qm = poses(m, seed)
+    return MethodData(qm, {"tilt": np.column_stack(gravity_tilt(rot_xyz(X), mount))})
+
+
+def equivalent_truth(q3_off, k3):
+    """The member of the true robot's equivalence family (eqs. 112-113) with the
+    given q3_off, k3: lengths, offsets, gear ratios times s, then v and the
+    offsets shifted together."""
+    s = k3 / TRUE[9]
+    e = TRUE * s
+    shift = q3_off - s * TRUE[6]
+    e[3] += shift
+    e[4:7] += shift
+    return e
+
+
+def fd(f, x, steps):
+    cols = []
+    for j, h in enumerate(steps):
+        e = np.zeros_like(x)
+        e[j] = h
+        cols.append((f(x + e) - f(x - e)) / (2 * h))
+    return np.stack(cols, axis=-1)
+
+
+# -- generalized Jacobians (report eqs. 106, 123) -------------------------------------------
+def test_chain_jacobian_first_row_of_inverse_is_rod_direction_over_uz():
+    X, _ = poses(6, 1)
+    _, J, u = ROBOT.chain_jacobians(X, TRUE)
+    np.testing.assert_allclose(np.linalg.inv(J)[..., 0, :], u / u[..., 2:3], atol=1e-12)
+
+
+@pytest.mark.parametrize("xi", [TRUE, equivalent_truth(0.05, 1 / 8000)])
+def test_psi_iku_matches_finite_differences_of_the_ik(xi):
+    X, _ = poses(8, 2)
+    qm = ROBOT.ik_actuators(X, TRUE)  # any actuator values: the k columns are -qm
+
+    def closure(x):  # Fbar^-1(X, a1, a2, l, v) - (K Qm + Q_off), joint space (eq. 106)
+        q, _ = ROBOT.ik_joints(X, x)
+        return q - ROBOT.joints(qm, x)
+
+    P = ROBOT.psi_iku(X, xi, qm)
+    assert P.shape == (8, 3, 10)
+    np.testing.assert_allclose(P, fd(closure, xi, 1e-6 * np.abs(xi)), rtol=0,
+                               atol=1e-7 * np.abs(P).max())
+
+
+def test_psi_pku_matches_finite_differences_of_the_fk():
+    X, qm = poses(8, 3)
+    P = ROBOT.psi_pku(X, TRUE, qm)
+    num = fd(lambda x: ROBOT.fk(qm, x, guess=X), TRUE, 1e-6 * np.abs(TRUE))
+    np.testing.assert_allclose(P, num, rtol=0, atol=1e-7 * np.abs(P).max())
+
+
+# -- the physical inclinometer ----------------------------------------------------------------
+def test_gravity_tilt_conventions():
+    a, b, c = 0.2, -0.15, 0.3
+    assert np.allclose(gravity_tilt(rot_xyz([a, 0, 0])[0]), (a, 0))
+    assert np.allclose(gravity_tilt(rot_xyz([0, b, 0])[0]), (0, b))
+    Rz = rot_xyz([0, 0, c])[0]
+    Ry, Rx = rot_xyz([0, b, 0])[0], rot_xyz([a, 0, 0])[0]
+    # yaw about the vertical (Rz on the left) is not seen; yaw about the sensor's
+    # own z axis (Rz on the right) is, since it turns the sensor axes
+    assert np.allclose(gravity_tilt(Rz @ Ry @ Rx), (a, b))
+    assert not np.allclose(gravity_tilt(Ry @ Rx @ Rz), (a, b))
+    assert np.allclose(gravity_tilt(rot_xyz([0, 0, 0])[0], mount=(a, b)), (-a, -b), atol=0.05)
+
+
+def test_gravity_tilt_is_the_simulators():
+    sim = pytest.importorskip("drivers.sim.robot")
+    X, _ = poses(10, 4)
+    R = rot_xyz(X)
+    np.testing.assert_array_equal(np.array(gravity_tilt(R, MOUNT)),
+                                  np.array(sim.gravity_tilt(R, MOUNT)))
+    assert sim.gravity_tilt(R[0], MOUNT) == gravity_tilt(R[0], MOUNT)
+
+
+def test_tilt_jacobian_matches_finite_differences():
+    X, _ = poses(6, 5)
+    t, dX, dm = tilt_jacobian(X, MOUNT)
+    np.testing.assert_allclose(t, np.column_stack(gravity_tilt(rot_xyz(X), MOUNT)), atol=1e-15)
+    np.testing.assert_allclose(dX, fd(lambda x: tilt_jacobian(x.reshape(6, 3), MOUNT)[0], X,
+                                      [1e-6] * 3), atol=1e-8)
+    np.testing.assert_allclose(dm, fd(lambda m: tilt_jacobian(X, m)[0], MOUNT, [1e-6] * 2),
+                               atol=1e-8)
+
+
+# -- the methods' observation matrices ----------------------------------------------------
+@pytest.mark.parametrize("name, data", [
+    ("pm-ik", orientation_data(6, 6)),
+    ("pm-fk", orientation_data(6, 6, ("alpha", "beta"))),
+    ("pm-tilt", tilt_data(6, 6)),
+])
+def test_observation_matrix_is_minus_residual_derivative(name, data):
+    x = np.r_[equivalent_truth(0.01, 1 / 9500), [0.01, 0.01]][:12 if name == "pm-tilt" else 10]
+    model = build(name, ROBOT, data, x, start="nominal")
+    r, W = model.evaluate(x)
+    num = fd(lambda y: model.evaluate(y)[0], x, np.maximum(1e-6 * np.abs(x), 1e-9))
+    np.testing.assert_allclose(W, -num, rtol=0, atol=1e-6 * np.abs(W).max())
+
+
+# -- calibration from the report's nominal values (noise-free) ----------------------------
+CASES = [("pm-ik", ABG, 14), ("pm-fk", ABG, 14), ("pm-fk", ("alpha", "beta"), 20),
+         ("pm-fk", ("alpha",), 40)]
+
+
+def check_classification(res, extra=()):
+    labels = {s.name: s.label for s in res.status}
+    for name in res.names:
+        expected = INFLUENCES if name in ("q3_off", "k3") else IDENTIFIABLE
+        assert labels[name] == expected, (name, labels)
+    assert res.n_identifiable == 8 + len(extra)
+
+
+@pytest.mark.parametrize("name, comps, m", CASES)
+def test_converges_from_report_nominal_to_truth(name, comps, m):
+    nominal = ROBOT.params({"q3_off": TRUE[6], "k3": TRUE[9]}, base=NOMINAL)
+    res = solve(build(name, ROBOT, orientation_data(m, 20, comps), nominal))
+    assert res.converged, res.message
+    check_classification(res)
+    np.testing.assert_allclose(res.x, TRUE, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("name, comps, m", CASES)
+def test_report_nominal_gives_an_equivalent_model(name, comps, m):
+    res = solve(build(name, ROBOT, orientation_data(m, 21, comps), NOMINAL))
+    assert res.converged, res.message
+    check_classification(res)
+    np.testing.assert_allclose(res.x, equivalent_truth(NOMINAL[6], NOMINAL[9]), rtol=1e-9,
+                               atol=1e-12)
+    np.testing.assert_allclose(ROBOT.ik_actuators(GRID, res.x), ROBOT.ik_actuators(GRID, TRUE),
+                               rtol=0, atol=1e-6)
+
+
+def test_pm_tilt_converges_and_identifies_the_mount():
+    res = solve(build("pm-tilt", ROBOT, tilt_data(30, 22), np.r_[NOMINAL, 0.0, 0.0]))
+    assert res.converged, res.message
+    check_classification(res, extra=("mount_x", "mount_y"))
+    np.testing.assert_allclose(res.x[:10], equivalent_truth(NOMINAL[6], NOMINAL[9]), rtol=1e-9,
+                               atol=1e-12)
+    np.testing.assert_allclose(res.x[10:], MOUNT, atol=1e-10)
+    np.testing.assert_allclose(ROBOT.ik_actuators(GRID, res.x[:10]),
+                               ROBOT.ik_actuators(GRID, TRUE), rtol=0, atol=1e-6)
+
+
+# -- the compensation of q3_off, k3 (eqs. 112-113) -----------------------------------------
+def test_different_nominal_q3_off_k3_give_the_same_actuators():
+    data = orientation_data(20, 23, ("alpha", "beta"))
+    models = []
+    for q3, k3 in ((0.05, 1 / 8000), (-0.05, 1 / 10000), (0.0, 1 / 9000)):
+        res = solve(build("pm-fk", ROBOT, data, ROBOT.params({"q3_off": q3, "k3": k3})))
+        assert res.converged, res.message
+        assert res.value("q3_off") == q3 and res.value("k3") == k3  # kept at nominal
+        models.append(res.x)
+    assert np.abs(models[0] - models[1]).max() > 1e-3  # really different models ...
+    ref = ROBOT.ik_actuators(GRID, TRUE)
+    for x in models:  # ... driving the robot alike
+        np.testing.assert_allclose(ROBOT.ik_actuators(GRID, x), ref, rtol=0, atol=1e-6)
+
+
+def test_operator_note_names_the_compensated_parameters():
+    for cls in (InverseKinematics, ForwardKinematics, Tilt):
+        assert cls.notes == (COMPENSATION_NOTE,)
+    note = compensation_note(0.0, 1e-4)
+    assert "q3_off" in note and "k3" in note and "correct actuator values" in note
+    assert "1/10000" in note
+
+
+# -- noise ----------------------------------------------------------------------------------
+def test_noisy_alpha_beta_within_reported_std_and_drives_the_robot():
+    nominal = ROBOT.params({"q3_off": TRUE[6], "k3": TRUE[9]}, base=NOMINAL)
+    # 1e-4 rad (0.006 deg): a good dual-axis inclinometer, averaged
+    res = solve(build("pm-fk", ROBOT, orientation_data(40, 24, ("alpha", "beta"), 1e-4),
+                      nominal))
+    assert res.converged, res.message
+    check_classification(res)
+    ok = np.isfinite(res.std)
+    assert np.all(np.abs(res.x - TRUE)[ok] < 3 * res.std[ok])
+    assert 0.5e-4 < res.sigma["alpha"] < 2e-4
+    err = np.abs(ROBOT.ik_actuators(GRID, res.x) - ROBOT.ik_actuators(GRID, TRUE)).max()
+    assert err < 0.5  # actuator units (1 unit ~ 0.1 mm of slider travel)
+
+
+# -- start values and input checks -----------------------------------------------------------
+def test_robust_start_is_reachable_and_nominal_start_is_not():
+    data = orientation_data(20, 25, ("alpha", "beta"))
+    x = robust_start(ROBOT, data, NOMINAL, ("alpha", "beta"))
+    assert x.shape == (10,)
+    ROBOT.fk(data.qm, x)  # the start model assembles at every pose
+    with pytest.raises(CalibrationError):  # the report's nominal PM cannot
+        solve(build("pm-fk", ROBOT, data, NOMINAL, start="nominal"))
+
+
+def test_bad_components_are_rejected():
+    with pytest.raises(CalibrationError):
+        parse_components(("beta", "alpha"))
+    with pytest.raises(CalibrationError):
+        parse_components(("yaw",))
+    with pytest.raises(CalibrationError):
+        build("pm-fk", ROBOT, orientation_data(5, 26, ("alpha", "beta")), NOMINAL,
+              components=("alpha",), start="bogus")

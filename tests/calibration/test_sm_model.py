@@ -1,0 +1,66 @@
+"""AGEBOT serial arm: FK/IK and the Jacobian of every SM method against finite differences."""
+import math
+
+import numpy as np
+import pytest
+
+from calibration.errors import UnreachablePose
+from calibration.robots import get_robot
+from tests.calibration.helpers import dataset, fd_jacobian
+
+SM = get_robot("agebot-sm")
+
+
+def test_base_offset_matches_brief():
+    np.testing.assert_allclose(SM.base_offset(SM.true)[:2], [0.2, 0.4], atol=1e-4)
+
+
+@pytest.mark.parametrize("elbow", [1, -1])
+def test_ik_fk_roundtrip(elbow):
+    rng = np.random.default_rng(elbow + 2)
+    off = np.r_[SM.base_offset(SM.true), 0]
+    n = 0
+    while n < 20:
+        X = off + rng.uniform([0.9, 0.2, -0.7, -0.35], [1.5, 1.0, 0.7, 0.35])
+        try:
+            qm = SM.ik(X, SM.true, elbow=elbow)
+        except UnreachablePose:
+            continue
+        n += 1
+        np.testing.assert_allclose(SM.fk(qm, SM.true)[0], X, atol=1e-12)
+        assert SM.elbow_of(qm, SM.true) == elbow
+
+
+def test_unreachable_pose_is_reported_not_returned():
+    with pytest.raises(UnreachablePose, match="out of the arm's reach"):
+        SM.ik([5.0, 5.0, 0.0, 0.0], SM.true)
+
+
+def test_phi_is_the_last_link_angle():
+    qm = SM.ik([1.3, 1.2, 0.1, math.radians(10)], SM.true)
+    q = SM.chain.joints(qm, SM.true)[0]
+    assert SM.fk(qm, SM.true)[0, 3] == pytest.approx(math.pi / 2 + q[1:].sum())
+
+
+def test_fk_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(0)
+    qm = rng.uniform(-150, 150, (6, 4))
+    _, psi = SM.fk_jacobian(qm, SM.true)
+    num = fd_jacobian(lambda x: SM.fk(qm, x).reshape(-1), SM.true)
+    np.testing.assert_allclose(psi.reshape(-1, 13), num, atol=1e-6)
+
+
+@pytest.mark.parametrize("method,residual", [
+    ("sm-full-pose", "plain"), ("sm-distance", "plain"), ("sm-distance", "squared"),
+    ("sm-self-redundancy", "plain"), ("sm-plane", "plain"), ("sm-distance-tilt", "plain"),
+    ("sm-distance-tilt", "squared")])
+def test_method_observation_matrix_matches_finite_differences(method, residual):
+    model, _ = dataset(method, seed=1)
+    if residual == "squared":
+        model.residual = "squared"
+    x = model.x0 + 0.01 * np.random.default_rng(2).normal(size=model.n_params) * np.abs(model.x0)
+    _, W = model.evaluate(x)
+    # W = d predicted / dx = -d residual / dx
+    num = fd_jacobian(lambda v: -model.evaluate(v)[0], x)
+    scale = np.maximum(np.abs(num).max(axis=0), 1.0)
+    np.testing.assert_allclose(W / scale, num / scale, atol=2e-6)

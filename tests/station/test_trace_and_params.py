@@ -1,0 +1,145 @@
+"""Trace and parameter-file contracts (docs/file-formats.md)."""
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from calibration.errors import CalibrationError, TraceFormatError
+from station.batch import calibrate_trace
+from station.params_file import read_params, write_params
+from station.trace import TraceWriter, TruncatedLineWarning, read_trace
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+FIXTURE = os.path.join(ROOT, "fixtures", "traces", "sm-distance-tilt.jsonl")
+
+
+def lines_of(path):
+    with open(path) as f:
+        return f.read().splitlines()
+
+
+def write_lines(path, lines, newline=True):
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + ("\n" if newline else ""))
+
+
+@pytest.fixture
+def trace_lines():
+    return lines_of(FIXTURE)
+
+
+@pytest.mark.parametrize("name", sorted(os.listdir(os.path.join(ROOT, "fixtures", "traces"))))
+def test_fixture_traces_read(name):
+    t = read_trace(os.path.join(ROOT, "fixtures", "traces", name))
+    assert t.poses and t.header["format"] == "calstation-trace"
+
+
+def test_malformed_line_is_named(tmp_path, trace_lines):
+    trace_lines[5] = trace_lines[5][:-3] + "xx}"
+    p = tmp_path / "t.jsonl"
+    write_lines(p, trace_lines)
+    with pytest.raises(TraceFormatError, match=r"t\.jsonl:6: not valid JSON"):
+        read_trace(p)
+
+
+def test_truncated_last_line_is_skipped_with_warning(tmp_path, trace_lines):
+    p = tmp_path / "t.jsonl"
+    write_lines(p, trace_lines[:-1] + [trace_lines[-1][:20]], newline=False)
+    with pytest.warns(TruncatedLineWarning, match="truncated"):
+        t = read_trace(p)
+    assert len(t.poses) == len(trace_lines) - 3  # header, reference, cut pose
+
+
+@pytest.mark.parametrize("field,value,message", [
+    ("format", "other", "format must be"),
+    ("version", 2, "unsupported trace version 2"),
+    ("robot", "puma", "unknown robot"),
+    ("method", "sm-laser", "unknown method"),
+])
+def test_bad_header(tmp_path, trace_lines, field, value, message):
+    h = json.loads(trace_lines[0])
+    h[field] = value
+    trace_lines[0] = json.dumps(h)
+    p = tmp_path / "t.jsonl"
+    write_lines(p, trace_lines)
+    with pytest.raises(TraceFormatError, match=message) as e:
+        read_trace(p)
+    assert ":1:" in str(e.value)
+
+
+@pytest.mark.parametrize("mutate,message", [
+    (lambda r: r.pop("distance"), "no 'distance' reading"),
+    (lambda r: r.update(distance=float("nan")), "finite number"),
+    (lambda r: r.update(tilt=float("inf")), "finite number"),
+    (lambda r: r.update(qm=[1, 2]), "qm must be a list of 4"),
+])
+def test_bad_pose(tmp_path, trace_lines, mutate, message):
+    rec = json.loads(trace_lines[4])
+    mutate(rec)
+    trace_lines[4] = json.dumps(rec)
+    p = tmp_path / "t.jsonl"
+    write_lines(p, trace_lines)
+    with pytest.raises(TraceFormatError, match=message) as e:
+        read_trace(p)
+    assert ":5:" in str(e.value)
+
+
+def test_too_few_poses_says_the_minimum(tmp_path, trace_lines):
+    p = tmp_path / "t.jsonl"
+    write_lines(p, trace_lines[:7])
+    with pytest.raises(CalibrationError, match=r"at least 7 poses are needed \(recommended 33"):
+        calibrate_trace(str(p), out=str(tmp_path / "p.json"))
+    assert not (tmp_path / "p.json").exists()
+
+
+def test_non_convergence_writes_no_file(tmp_path):
+    from calibration.solver import SolverOptions
+
+    out = tmp_path / "p.json"
+    with pytest.raises(CalibrationError, match="did not converge"):
+        calibrate_trace(FIXTURE, out=str(out), options=SolverOptions(max_iter=2))
+    assert not out.exists()
+
+
+def test_params_file_roundtrip_and_checksum(tmp_path):
+    out = tmp_path / "p.json"
+    outcome = calibrate_trace(FIXTURE, out=str(out))
+    doc = read_params(out)
+    assert doc["method"] == "sm-distance-tilt" and doc["fit"]["converged"]
+    assert doc["frame"]["origin_qm"] == read_trace(FIXTURE).reference["qm"]
+    assert doc["source_trace"]["file"] == "sm-distance-tilt.jsonl"
+    assert set(doc["covariance"]["names"]) == set(doc["parameters"])
+    a0 = doc["parameters"]["a0"]
+    assert a0["identifiable"] and a0["std"] > 0
+    assert np.isclose(a0["value"], outcome.result.value("a0"))
+    # an edited file is detected
+    text = out.read_text().replace(repr(a0["value"]), repr(a0["value"] + 1e-3))
+    out.write_text(text)
+    with pytest.raises(TraceFormatError, match="checksum does not match"):
+        read_params(out)
+
+
+def test_params_writer_is_atomic(tmp_path):
+    out = tmp_path / "p.json"
+    write_params(out, {"format": "calstation-params", "version": 1})
+    before = out.read_bytes()
+    with pytest.raises(ValueError):
+        write_params(out, {"bad": float("nan")})
+    assert out.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["p.json"]
+
+
+def test_writer_resume_cuts_partial_line(tmp_path, trace_lines):
+    p = tmp_path / "t.jsonl"
+    shutil.copy(FIXTURE, p)
+    with open(p, "ab") as f:
+        f.write(b'{"record":"pose","ind')
+    w = TraceWriter.resume(p)
+    n = len(w.trace.poses)
+    rec = json.loads(trace_lines[-1])
+    rec["index"] += 1
+    w.append(rec)
+    w.close()
+    assert len(read_trace(p).poses) == n + 1
