@@ -149,7 +149,10 @@ class Chain:
             if f.kind in ("tz", "tx"):
                 cols[:, :3, j] = u
             else:
-                cols[:, :3, j] = np.cross(u, p_e - before[:, j, :3, 3])
+                v = p_e - before[:, j, :3, 3]  # u x v, written out (np.cross is slow on small arrays)
+                cols[:, 0, j] = u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1]
+                cols[:, 1, j] = u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2]
+                cols[:, 2, j] = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
                 cols[:, 3:, j] = u
         return cols
 

@@ -261,10 +261,25 @@ class _Algorithm2:
         return not floor and any(abs(sigma[ch] / old[ch] - 1) > 0.05 for ch in sigma)
 
     # -- iteration -------------------------------------------------------------
+    def _record(self, d, step, sv, Vt, h, g, cost):
+        """History entry: variance of the estimate at this iteration (eq. 52,
+        from the SVD of the scaled, weighted matrix) and its condition number."""
+        self.cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
+        w_cov = _weights(self.model, self.sigma)
+        factor = float(g[0] ** 2 / w_cov[0]) if self.mode == "pooled" or not self.opt.weight_errors else 1.0
+        inv = np.where(sv > sv[0] * 1e-15, 1 / sv ** 2, 0.0)
+        var = np.full(len(self.names), np.nan)
+        var[self.active] = factor * h ** 2 * np.einsum("ij,i->j", Vt ** 2, inv)
+        it = Iteration(self.x.copy(), var, self.cond, step, cost, dict(self.sigma))
+        self.history.append(it)
+        if self.callback is not None:
+            self.callback(self.k, it)
+
     def iterate(self) -> tuple[bool, str]:
         """Iterate on the current active set until the step is below epsilon."""
         opt, model = self.opt, self.model
         rejected = 0
+        self.lam_eff = self.lam
         while self.k < opt.max_iter:
             active = self.active
             WA = self.W[:, active]
@@ -281,52 +296,47 @@ class _Algorithm2:
             g = np.sqrt(self.weights)
             A = (WA * h) * g[:, None]
             b = g * self.r
-            nA = A.shape[1]
-            if self.lam_eff > 0:
-                d_s, *_ = np.linalg.lstsq(np.vstack([A, self.lam_eff * np.eye(nA)]),
-                                          np.concatenate([b, np.zeros(nA)]), rcond=None)
-            else:
-                d_s, *_ = np.linalg.lstsq(A, b, rcond=None)
-            d = h * d_s
+            # one thin SVD gives the damped step for any lambda (eq. 48), the
+            # condition number and the variance (eq. 52)
+            try:
+                U, sv, Vt = np.linalg.svd(A, full_matrices=False)
+            except np.linalg.LinAlgError:
+                return False, f"the observation matrix is not finite at iteration {self.k + 1}"
+            Ub = U.T @ b
             cost = 0.5 * float(b @ b)
+            lam2 = self.lam_eff ** 2
+            filt = sv / (sv * sv + lam2) if lam2 > 0 else np.where(sv > sv[0] * 1e-15, 1 / sv, 0.0)
+            d = h * (Vt.T @ (filt * Ub))
+            step = float(np.max(np.abs(d))) if d.size else 0.0
+            if not np.all(np.isfinite(d)):
+                return False, f"the step became non-finite at iteration {self.k + 1}"
+            if step < opt.epsilon:  # converged: the step is below the tolerance
+                self.k += 1
+                self._record(d, step, sv, Vt, h, g, cost)
+                return True, ""
             x_try = self.x.copy()
             x_try[active] += d
-            ok = bool(np.all(np.isfinite(d)))
-            r_try = W_try = None
-            if ok:
-                try:
-                    r_try, W_try = self.evaluate(x_try)
-                    ok = bool(np.all(np.isfinite(r_try)) and np.all(np.isfinite(W_try)))
-                except CalibrationError:  # e.g. the PM cannot assemble there
-                    ok = False
-            small = bool(d.size) and float(np.max(np.abs(d))) < opt.epsilon
+            try:
+                r_try, W_try = self.evaluate(x_try)
+                ok = bool(np.all(np.isfinite(r_try)) and np.all(np.isfinite(W_try)))
+            except CalibrationError:  # e.g. the PM cannot assemble there
+                ok, r_try, W_try = False, None, None
             worse = not ok or 0.5 * float(np.sum(self.weights * r_try ** 2)) > cost * (1 + 1e-12)
-            if opt.adaptive and worse and not small:
+            if opt.adaptive and worse:
                 rejected += 1
                 if rejected > 30:
                     return False, f"no step lowers the cost any more (iteration {self.k + 1})"
-                self.lam_eff = max(10 * self.lam_eff, 1e-3 * float(norms.max() * h.max() * g.max()))
+                self.lam_eff = max(10 * self.lam_eff, 1e-3 * float(sv[0]))
                 continue
             if not ok:
                 return False, f"the step left the model's domain at iteration {self.k + 1}"
             rejected = 0
             self.lam_eff = max(self.lam, self.lam_eff / 10)
-            sv = np.linalg.svd(A, compute_uv=False)
-            self.cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
             self.x, self.r, self.W = x_try, r_try, W_try
-            na = int(active.sum())
-            if self.mode == "pooled":  # eq. 51, one sigma for all rows
-                self.sigma = _channel_sigma(model, self.r, na, pooled=True)
-            var = np.full(len(self.names), np.nan)
-            WA = self.W[:, active]
-            w = _weights(model, self.sigma)
-            var[active] = np.diag(np.linalg.pinv(WA.T @ (WA * w[:, None])))  # eq. 52
             self.k += 1
-            step = float(np.max(np.abs(d))) if d.size else 0.0
-            it = Iteration(self.x.copy(), var, self.cond, step, cost, dict(self.sigma))
-            self.history.append(it)
-            if self.callback is not None:
-                self.callback(self.k, it)
+            if self.mode == "pooled":  # eq. 51, one sigma for all rows
+                self.sigma = _channel_sigma(model, self.r, int(active.sum()), pooled=True)
+            self._record(d, step, sv, Vt, h, g, cost)
             self.weights = self._weights_now()
             if step < opt.epsilon:
                 return True, ""

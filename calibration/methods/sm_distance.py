@@ -22,18 +22,16 @@ from calibration.methods.base import RobotMethod, channel
 RESIDUALS = ("plain", "squared")
 
 
-def distance_rows(robot, qm, x, origin_qm, measured, residual):
+def distance_rows(X, psi, origin, measured, residual):
     """Residuals and observation rows of distance readings to a point.
 
-    origin_qm: actuator values at the reference point, or None for the
-    base-frame origin (sm-distance-tilt)."""
-    X, psi = robot.fk_jacobian(qm, x)
+    X, psi: the poses' FK and generalized Jacobian; origin: ``(X_ref, psi_ref)``
+    of the reference point, or None for the base-frame origin (sm-distance-tilt)."""
     p = X[:, :3]
     J = psi[:, :3, :]
-    if origin_qm is not None:
-        Xr, psir = robot.fk_jacobian(origin_qm, x)
-        p = p - Xr[:, :3]
-        J = J - psir[:, :3, :]
+    if origin is not None:
+        p = p - origin[0][:, :3]
+        J = J - origin[1][:, :3, :]
     D = np.linalg.norm(p, axis=1)
     if np.any(D < 1e-9):
         raise CalibrationError("a pose coincides with the reference point (distance 0): "
@@ -60,7 +58,8 @@ class Distance(RobotMethod):
         self._channels(("distance",), [0])
 
     def evaluate(self, x):
-        return distance_rows(self.robot, self.qm, x, self.reference_qm, self.D_m, self.residual)
+        X, psi = self.robot.fk_jacobian(np.vstack([self.qm, self.reference_qm]), x)
+        return distance_rows(X[:-1], psi[:-1], (X[-1:], psi[-1:]), self.D_m, self.residual)
 
     def residual_noise_gain(self, x):
         return np.ones(self.n_poses) if self.residual == "plain" else 2 * self.D_m

@@ -53,8 +53,8 @@ class DistanceTilt(RobotMethod):
         self._channels(("distance", "tilt"), [0, 1])
 
     def evaluate(self, x):
-        rd, Wd = distance_rows(self.robot, self.qm, x, None, self.D_m, self.residual)
         X, psi = self.robot.fk_jacobian(self.qm, x)
+        rd, Wd = distance_rows(X, psi, None, self.D_m, self.residual)
         rt = wrap(self.phi_m - X[:, 3])
         r = np.column_stack([rd, rt]).reshape(-1)
         W = np.stack([Wd, psi[:, 3, :]], axis=1).reshape(-1, self.nr)

@@ -83,10 +83,12 @@ class SimDrawWire:
         if set_values is not None:                       # function 06 on 0x0008
             if address != REG_ZERO or list(set_values) != [1]:
                 return ExcCodes.ILLEGAL_VALUE
-            self.offset_m = self.length_m()
-            self.zero_calls += 1
+            # the hook first: the simulated robot captures its anchor there, so
+            # the length read afterwards is the one at the new zero
             if self.zero_hook is not None:
                 self.zero_hook()
+            self.offset_m = self.length_m()
+            self.zero_calls += 1
             return None
         c = self.counts()
         base = REG_COUNT - start
