@@ -245,9 +245,16 @@ class _Algorithm2:
         return True
 
     def drop(self, mask):
+        """Stop calibrating ``mask``; they return to their start values, or stay
+        where they are if the model cannot be evaluated there."""
         self.active = self.active & ~mask
-        self.x[mask] = self.x0[mask]
-        self.r, self.W = self.evaluate(self.x)
+        x = self.x.copy()
+        x[mask] = self.x0[mask]
+        try:
+            self.r, self.W = self.evaluate(x)
+            self.x = x
+        except CalibrationError:
+            self.r, self.W = self.evaluate(self.x)
 
     def reweight(self) -> bool:
         """Per-channel weights at the solution; True if they changed materially."""

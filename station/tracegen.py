@@ -22,7 +22,7 @@ from station.trace import write_trace
 # N_R and p of each method (brief section 3), for the default pose count (eq. 60)
 DEFAULT_NR_P = {"sm-full-pose": (13, 4), "sm-distance": (9, 1), "sm-self-redundancy": (7, 2),
                 "sm-plane": (10, 1), "sm-distance-tilt": (13, 2), "pm-ik": (8, 3),
-                "pm-fk": (8, 3), "pm-tilt": (8, 2)}
+                "pm-fk": (8, 3), "pm-tilt": (10, 2)}
 SM_REFERENCE_POINT = np.array([1.0, 1.0, 0.0, 0.2])  # report 7.2, relative to the base offset
 SM_BASE_ORIGIN = np.array([0.5, 1.0, 0.8, 0.0])  # report 7.5 (phi chosen reachable)
 DEFAULT_PLANE_NORMAL = np.array([1.0, 0.3, 0.2])
@@ -92,8 +92,10 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
         else:  # pragma: no cover
             raise CalibrationError(method)
     else:
+        # the report's nominal wrist cannot even reach X = 0 (its rods are too
+        # short), so the orientations are those the true wrist is driven to
         bounds = planning.box_array(robot, planning.PM_BOX)
-        plan = planning.sample_poses(robot, nom, bounds, count, rng)
+        plan = planning.sample_poses(robot, xi_true, bounds, count, rng)
         qm = plan.qm
         if method == "pm-fk" and components:
             header["components"] = list(components)
