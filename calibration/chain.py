@@ -279,11 +279,3 @@ def dh_model(joints: list[DHJoint], base=(0.0, 0.0, 0.0, 0.0), tool=(0.0, 0.0),
         gain_idx.append(par(f"k{i}", g)[0][0])
     chain = Chain(tuple(factors), len(names), tuple(offset_idx), tuple(gain_idx))
     return DHModel(chain, tuple(names), np.array(nominal))
-
-
-def rotation_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vector ``(..., 3)`` of rotation matrices ``(..., 3, 3)`` (the
-    report's 'absolute' orientation error, eq. 27 ff.)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(R).as_rotvec()

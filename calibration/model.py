@@ -14,8 +14,6 @@ One solver (:mod:`calibration.solver`) runs Algorithm 2 on any of them.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from calibration.errors import CalibrationError
@@ -68,24 +66,6 @@ class MeasurementModel:
         plane) move their poses so that ``x`` satisfies the constraints."""
         return self
 
-    def residual_noise_gain(self, x: np.ndarray) -> np.ndarray:
-        """How much one unit of reading noise moves each residual row: 1 for a
-        residual that is a reading minus a prediction (override otherwise)."""
-        return np.ones(len(self.row_channel))
-
-
-@dataclass(frozen=True)
-class Pose:
-    """Measured data of the poses, as arrays (no I/O here).
-
-    qm:       ``(m, n)`` actuator values.
-    channels: channel name -> ``(m,)`` or ``(m, k)`` readings.
-    group:    ``(m,)`` integer group of each pose (sm-self-redundancy) or None.
-    """
-
-    qm: np.ndarray
-    channels: dict
-    group: np.ndarray | None = None
 
 
 def require_finite(name: str, a: np.ndarray) -> np.ndarray:

@@ -10,7 +10,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration.errors import CalibrationError, UnreachablePose
-from calibration.identifiability import minimum_poses
 
 # Workspace boxes of the report, relative to the base offset (x0, y0, z0)
 # (brief section 1), phi +-20 deg; and for 7.5 relative to the chosen origin.
@@ -84,6 +83,3 @@ def order_for_travel(qm: np.ndarray, start=None, scale=None) -> np.ndarray:
         cur = z[i]
     return np.array(order)
 
-
-def recommended_count(n_identifiable: int, p: int) -> int:
-    return minimum_poses(n_identifiable, p)

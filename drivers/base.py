@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
@@ -93,7 +92,3 @@ class Device(ABC):
 
     @abstractmethod
     def _read_internal(self, timeout: float) -> Sample: ...
-
-
-def deadline(timeout: float) -> float:
-    return time.monotonic() + timeout

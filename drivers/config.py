@@ -414,14 +414,19 @@ def _snapshot(r: KeyReader) -> SnapshotConfig:
 
 
 # -- simulator endpoints ------------------------------------------------------------------
-def load_endpoints(path: str | Path) -> dict:
-    """The endpoints JSON written by ``app.py simulate --endpoints FILE``."""
+def load_json(path: str | Path):
+    """A JSON file's content; unreadable or invalid files are ConfigErrors naming the file."""
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
+        return json.loads(Path(path).read_text(encoding="utf-8"))
     except OSError as e:
         raise ConfigError(f"cannot read: {e.strerror or e}", source=str(path)) from e
     except json.JSONDecodeError as e:
         raise ConfigError(f"not valid JSON: {e}", source=str(path)) from e
+
+
+def load_endpoints(path: str | Path) -> dict:
+    """The endpoints JSON written by ``app.py simulate --endpoints FILE``."""
+    data = load_json(path)
     if not isinstance(data, dict):
         raise ConfigError("expected a JSON object", source=str(path))
     return data

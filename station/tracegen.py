@@ -14,6 +14,7 @@ import numpy as np
 
 from calibration import planning, simulate
 from calibration.errors import CalibrationError, UnreachablePose
+from calibration.identifiability import minimum_poses
 from calibration.methods import METHODS
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
@@ -32,7 +33,7 @@ def default_count(method: str, components=None) -> int:
     nr, p = DEFAULT_NR_P[method]
     if method == "pm-fk" and components:
         p = len(components)
-    return planning.recommended_count(nr, p)
+    return minimum_poses(nr, p)
 
 
 def default_plane(xi_true, robot) -> np.ndarray:

@@ -16,7 +16,6 @@ for 3, 2 or 1 components.
 """
 from __future__ import annotations
 
-import numpy as np
 
 from calibration.errors import CalibrationError
 from calibration.methods import MethodData

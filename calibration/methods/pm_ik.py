@@ -45,8 +45,3 @@ class InverseKinematics(PMMethod):
         qm_pred = self.robot.ik_actuators(self.X_m, xi)
         W = self.robot.psi_iku(self.X_m, xi, qm_pred) / k[None, :, None]
         return (self.qm - qm_pred).reshape(-1), W.reshape(-1, self.nr)
-
-    def residual_noise_gain(self, x):
-        """Residual (actuator units) per radian of orientation noise: row norm of dQm/dX."""
-        J = self.robot.ik_x_jacobian(self.X_m, x) / np.asarray(x[7:10])[None, :, None]
-        return np.linalg.norm(J, axis=2).reshape(-1)

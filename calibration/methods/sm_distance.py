@@ -41,18 +41,25 @@ def distance_rows(X, psi, origin, measured, residual):
     return measured ** 2 - D ** 2, 2 * np.einsum("mi,min->mn", p, J)
 
 
+def check_inputs(method: str, residual: str, reference_qm, what: str) -> np.ndarray:
+    """Validate the residual choice and the reference actuator values of a
+    distance method; returns the reference as a float array."""
+    if residual not in RESIDUALS:
+        raise CalibrationError(f"residual must be one of {RESIDUALS}, not {residual!r}")
+    if reference_qm is None:
+        raise CalibrationError(f"{method} needs {what}")
+    return np.asarray(reference_qm, dtype=float)
+
+
 class Distance(RobotMethod):
     method = "sm-distance"
     default_damping = 1e-2
 
     def __init__(self, robot, qm, measured: dict, nominal, *, reference_qm, residual="plain"):
         super().__init__(robot, qm, nominal)
-        if residual not in RESIDUALS:
-            raise CalibrationError(f"residual must be one of {RESIDUALS}, not {residual!r}")
-        if reference_qm is None:
-            raise CalibrationError("sm-distance needs the reference point's actuator values "
-                                   "(a 'reference' record with role 'reference-point')")
-        self.reference_qm = np.atleast_2d(np.asarray(reference_qm, dtype=float))
+        self.reference_qm = np.atleast_2d(check_inputs(
+            self.method, residual, reference_qm, "the reference point's actuator values "
+            "(a 'reference' record with role 'reference-point')"))
         self.D_m = channel(measured, "distance", self.method).reshape(-1)
         self.residual = residual
         self._channels(("distance",), [0])
@@ -60,6 +67,3 @@ class Distance(RobotMethod):
     def evaluate(self, x):
         X, psi = self.robot.fk_jacobian(np.vstack([self.qm, self.reference_qm]), x)
         return distance_rows(X[:-1], psi[:-1], (X[-1:], psi[-1:]), self.D_m, self.residual)
-
-    def residual_noise_gain(self, x):
-        return np.ones(self.n_poses) if self.residual == "plain" else 2 * self.D_m

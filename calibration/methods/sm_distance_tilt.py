@@ -14,9 +14,8 @@ import math
 
 import numpy as np
 
-from calibration.errors import CalibrationError
 from calibration.methods.base import RobotMethod, channel
-from calibration.methods.sm_distance import RESIDUALS, distance_rows
+from calibration.methods.sm_distance import check_inputs, distance_rows
 from calibration.robots.agebot_sm import wrap
 
 
@@ -39,12 +38,9 @@ class DistanceTilt(RobotMethod):
     def __init__(self, robot, qm, measured: dict, nominal, *, reference_qm,
                  residual="plain", reframe: bool = True):
         super().__init__(robot, qm, nominal)
-        if residual not in RESIDUALS:
-            raise CalibrationError(f"residual must be one of {RESIDUALS}, not {residual!r}")
-        if reference_qm is None:
-            raise CalibrationError("sm-distance-tilt needs the base origin's actuator values "
-                                   "(a 'reference' record with role 'base-origin')")
-        self.reference_qm = np.asarray(reference_qm, dtype=float).reshape(-1)
+        self.reference_qm = check_inputs(
+            self.method, residual, reference_qm, "the base origin's actuator values "
+            "(a 'reference' record with role 'base-origin')").reshape(-1)
         self.D_m = channel(measured, "distance", self.method).reshape(-1)
         self.phi_m = channel(measured, "tilt", self.method).reshape(-1)
         self.residual = residual

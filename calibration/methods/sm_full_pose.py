@@ -5,7 +5,6 @@ Jacobian itself (``Phi = Psi``). All 13 parameters are identifiable.
 """
 from __future__ import annotations
 
-import numpy as np
 
 from calibration.methods.base import RobotMethod, channel
 from calibration.robots.agebot_sm import wrap

@@ -255,7 +255,7 @@ def mount_rotation(mount) -> np.ndarray:
 def gravity_tilt(R, mount=(0.0, 0.0)):
     """``(roll, pitch)`` in rad that a dual-axis inclinometer reads.
 
-    Identical to :func:`drivers.sim.robot.gravity_tilt` (the simulator's convention):
+    The simulator (:mod:`drivers.sim.robot`) uses this same function:
     gravity ``(0, 0, -1)`` in F_b, in the sensor frame ``g_s = R_mount^T R^T (0, 0, -1)``
     with ``R_mount = Rx(mx) Ry(my)``; ``roll = atan2(-g_y, -g_z)``,
     ``pitch = atan2(g_x, sqrt(g_y^2 + g_z^2))``. Yaw about the vertical is not seen.

@@ -27,7 +27,8 @@ Inclinometer conventions (the calibration's measurement model builds on these):
   ``c`` (a rotation about gravity changes nothing). The report's
   ``Rx(alpha) Ry(beta) Rz(gamma)`` couples them: ``gamma`` turns the sensor about
   its own z and so mixes roll and pitch. Yaw is not measured: reported as 0.
-  :func:`gravity_tilt` is this function, pure and vectorized.
+  :func:`gravity_tilt` (:mod:`calibration.robots.agebot_pm`) is this function, pure
+  and vectorized; the calibration model uses the same one.
 
 The draw-wire reads ``|p - anchor|`` (m) where ``p`` is the end-effector
 position (SM: ``X[:3]``; PM: the fixed platform centre ``(0, 0, v)``) and the
@@ -46,7 +47,7 @@ import numpy as np
 
 from calibration.errors import CalibrationError, ConfigError, UnreachablePose
 from calibration.robots import get_robot
-from calibration.robots.agebot_pm import rot_xyz
+from calibration.robots.agebot_pm import gravity_tilt, rot_xyz  # noqa: F401 (re-exported: the one tilt convention)
 from drivers.sim.axis import SimAxis
 from drivers.sim.faults import FaultPlan
 from drivers.sim.truth import SimTruth
@@ -57,33 +58,6 @@ HOME = {"agebot-sm": (1.2, 1.4, 0.0, 0.0), "agebot-pm": (0.0, 0.0, 0.0)}
 # default axis speeds (actuator units/s) and accelerations (units/s^2)
 VELOCITY = {"agebot-sm": (50.0, 200.0, 200.0, 200.0), "agebot-pm": (3000.0,) * 3}
 ACCELERATION = {"agebot-sm": (400.0, 2000.0, 2000.0, 2000.0), "agebot-pm": (30000.0,) * 3}
-
-
-def _rx(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _ry(b: float) -> np.ndarray:
-    c, s = math.cos(b), math.sin(b)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def gravity_tilt(R, mount=(0.0, 0.0)):
-    """``(roll, pitch)`` in rad that a dual-axis inclinometer reads (module docstring).
-
-    R:     platform orientation, ``(3, 3)`` or ``(m, 3, 3)``.
-    mount: ``(mx, my)`` rad, sensor mounting rotation ``Rx(mx) Ry(my)`` on the platform.
-    Returns two floats for one R, else two ``(m,)`` arrays.
-    """
-    R = np.asarray(R, dtype=float)
-    single = R.ndim == 2
-    R = R.reshape(-1, 3, 3)
-    Rm = _rx(float(mount[0])) @ _ry(float(mount[1]))
-    g = -np.einsum("ji,mj->mi", Rm, R[:, 2, :])  # R_mount^T R^T (0, 0, -1)
-    roll = np.arctan2(-g[:, 1], -g[:, 2])
-    pitch = np.arctan2(g[:, 0], np.hypot(g[:, 1], g[:, 2]))
-    return (float(roll[0]), float(pitch[0])) if single else (roll, pitch)
 
 
 def pose_tilt(X, mount=(0.0, 0.0)):

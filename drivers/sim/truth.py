@@ -33,9 +33,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from calibration.errors import ConfigError
 from calibration.robots import ROBOTS, get_robot
-from drivers.config import KeyReader, frozen_map
+from drivers.config import KeyReader, frozen_map, load_json
 
 NOISE_CHANNELS = ("distance", "tilt", "roll", "pitch", "qm")
 PLANE_KEYS = ("plane_a", "plane_b", "plane_c")
@@ -125,13 +124,7 @@ def parse_truth(data: Any, source: str | None = None) -> SimTruth:
 
 def load_truth(path: str | Path) -> SimTruth:
     """Read a truth file; errors name the file and the key."""
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as e:
-        raise ConfigError(f"cannot read: {e.strerror or e}", source=str(path)) from e
-    except json.JSONDecodeError as e:
-        raise ConfigError(f"not valid JSON: {e}", source=str(path)) from e
-    return parse_truth(data, str(path))
+    return parse_truth(load_json(path), str(path))
 
 
 def truth_to_dict(truth: SimTruth) -> dict:
