@@ -158,6 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--truth")
     s.add_argument("--config")
     s.add_argument("--endpoints", help="write the devices' endpoints (JSON) here")
+    s.add_argument("--seed", type=int, help="seed of the simulated noise and faults")
+    s.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
     s.set_defaults(func=_delegate("drivers.sim.server", "main"))
 
     d = sub.add_parser("devices", help="devices")
@@ -166,6 +168,9 @@ def build_parser() -> argparse.ArgumentParser:
     dc.add_argument("--config")
     dc.add_argument("--endpoints", help="simulator endpoints file to fill the config from")
     dc.add_argument("--seconds", type=float, default=3.0)
+    dc.add_argument("--simulate", action="store_true",
+                    help="start the simulated station (--robot) and check it")
+    dc.add_argument("--robot", choices=("agebot-sm", "agebot-pm"), default="agebot-sm")
     dc.set_defaults(func=_delegate("drivers.check", "main"))
 
     r = sub.add_parser("run", help="a whole station session, headless")
@@ -174,7 +179,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--method", required=True)
     r.add_argument("--truth")
     r.add_argument("--config")
-    r.add_argument("--out", required=True)
+    r.add_argument("--out", required=True, help="folder for trace.jsonl, params.json, "
+                   "report.html (an existing trace there is resumed)")
+    r.add_argument("--count", type=int, help="poses to fit (default: twice eq. 60's minimum)")
+    r.add_argument("--seed", type=int, default=0, help="seed of the pose planner")
+    r.add_argument("--sim-seed", type=int, help="seed of the simulated noise and faults")
+    r.add_argument("--endpoints", help="without --simulate: fill --config's \"@endpoints\" "
+                   "from a running simulator's endpoints file")
+    r.add_argument("--nominal", action="append", metavar="NAME=VALUE",
+                   help="a start value the engineer knows (repeatable), e.g. k3=1.111e-4")
     r.set_defaults(func=_delegate("station.headless", "main"))
 
     gui = sub.add_parser("gui", help="the operator's Qt wizard")

@@ -1,6 +1,6 @@
 """The station configuration: one TOML file parsed once into frozen dataclasses.
 
-House style 6: raw dicts never leave this module. Every error is a
+House style 6: raw dicts never leave this module (and its two helpers below). Every error is a
 :class:`ConfigError` naming the file and the key path, e.g.
 ``stations/sim.toml: drawwire.port: expected an integer``; unknown keys are
 errors, missing required keys are named. Layout (see
@@ -19,11 +19,15 @@ Endpoint values the simulator picks at run time are written as the placeholder
 ``"@endpoints"`` and filled by :func:`with_endpoints` from the endpoints JSON of
 ``app.py simulate --endpoints FILE`` (cli.md). Units: SI, radians, seconds;
 actuator values in actuator units of ``Q = K*Qm + Q_off``.
+
+The typed key reading lives in :mod:`drivers.config_reader` (:class:`KeyReader`,
+:func:`frozen_map`, :func:`load_json`), the endpoints merge in
+:mod:`drivers.endpoints` (:func:`with_endpoints`, :func:`load_endpoints`); both
+are importable from here as well.
 """
 from __future__ import annotations
 
 import dataclasses
-import json
 import re
 import tomllib
 from dataclasses import dataclass
@@ -32,11 +36,18 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from calibration.errors import ConfigError
+from drivers.config_reader import PLACEHOLDER, KeyReader, frozen_map, load_json
+from drivers.endpoints import load_endpoints, with_endpoints
+
+__all__ = ["INCLINOMETER_CHANNELS", "LIMIT_CHANNEL", "PLACEHOLDER", "RAW_AXES", "ROBOT_AXES",
+           "AxisMap", "CanopenConfig", "DrawwireConfig", "InclinometerConfig", "KeyReader",
+           "SnapshotConfig", "StationConfig", "frozen_map", "load_endpoints", "load_json",
+           "load_station_config", "parse_station_config", "with_endpoints"]
 
 ROBOT_AXES = {"agebot-sm": 4, "agebot-pm": 3}
-INCLINOMETER_CHANNELS = ("tilt", "roll", "pitch")
+INCLINOMETER_CHANNELS = ("tilt", "roll", "pitch", "yaw")
 RAW_AXES = ("roll", "pitch", "yaw")
-LIMIT_CHANNEL = re.compile(r"^(qm[0-9]*|tilt|roll|pitch|distance)$")
+LIMIT_CHANNEL = re.compile(r"^(qm[0-9]*|tilt|roll|pitch|yaw|distance)$")
 
 
 @dataclass(frozen=True)
@@ -167,126 +178,6 @@ class StationConfig:
         return self
 
 
-# -- typed reading of one table -----------------------------------------------------------
-PLACEHOLDER = "@endpoints"
-_REQUIRED = object()
-
-
-def frozen_map(d: Mapping) -> Mapping:
-    """A read-only copy of ``d``."""
-    return MappingProxyType(dict(d))
-
-
-class KeyReader:
-    """Typed access to one table of a config document, naming ``source`` and the key path.
-
-    Each getter marks its key as used; :meth:`finish` rejects the keys nobody used.
-    ``placeholder`` (a list) allows the value ``"@endpoints"``: the key path is
-    appended to the list and None returned.
-    """
-
-    def __init__(self, data: Any, path: str, source: str | None, *, indexed: bool = False):
-        self.path, self.source, self._indexed = path, source, indexed
-        if not isinstance(data, Mapping):
-            raise ConfigError(f"expected a table, got {type(data).__name__}",
-                              source=source, key=path or None)
-        self.data, self._used = data, set()
-
-    def key(self, key) -> str:
-        """The key path of ``key`` in this table (``drawwire.port``, ``canopen.nodes[2]``)."""
-        if self._indexed:
-            return f"{self.path}[{key}]"
-        return f"{self.path}.{key}" if self.path else str(key)
-
-    def fail(self, key: str, message: str):
-        raise ConfigError(message, source=self.source, key=self.key(key))
-
-    def keys(self) -> list[str]:
-        return list(self.data)
-
-    def _get(self, key, default, placeholder):
-        self._used.add(key)
-        if key not in self.data:
-            if default is _REQUIRED:
-                self.fail(key, "missing required key")
-            return default, True
-        v = self.data[key]
-        if placeholder is not None and v == PLACEHOLDER:
-            placeholder.append(self.key(key))
-            return None, True
-        return v, False
-
-    def _range(self, key, v, lo, hi, lo_open):
-        if lo is not None and (v <= lo if lo_open else v < lo):
-            self.fail(key, f"{v!r} must be {'>' if lo_open else '>='} {lo}")
-        if hi is not None and v > hi:
-            self.fail(key, f"{v!r} must be <= {hi}")
-        return v
-
-    def str(self, key, default=_REQUIRED, placeholder=None):
-        v, done = self._get(key, default, placeholder)
-        if not done and (not isinstance(v, str) or not v):
-            self.fail(key, f"expected a non-empty string, got {v!r}")
-        return v
-
-    def int(self, key, default=_REQUIRED, lo=None, hi=None, placeholder=None):
-        v, done = self._get(key, default, placeholder)
-        if done:
-            return v
-        if isinstance(v, bool) or not isinstance(v, int):
-            self.fail(key, f"expected an integer, got {v!r}")
-        return self._range(key, v, lo, hi, False)
-
-    def float(self, key, default=_REQUIRED, lo=None, hi=None, lo_open=False):
-        v, done = self._get(key, default, None)
-        if done:
-            return v
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v or abs(v) == float("inf"):
-            self.fail(key, f"expected a finite number, got {v!r}")
-        return self._range(key, float(v), lo, hi, lo_open)
-
-    def choice(self, key, options, default=_REQUIRED):
-        v, done = self._get(key, default, None)
-        if not done and (isinstance(v, bool) or v not in options):
-            self.fail(key, f"{v!r} is not one of {', '.join(map(repr, options))}")
-        return v
-
-    def _list(self, key, length, default, scalar_ok, one):
-        v, done = self._get(key, default, None)
-        if done:
-            return tuple(v) if v is not None else v
-        if scalar_ok and not isinstance(v, list):
-            v = [v] * length
-        if not isinstance(v, list) or (length is not None and len(v) != length):
-            self.fail(key, f"expected a list of {length or 'some'} values, got {v!r}")
-        sub = KeyReader(dict(enumerate(v)), self.key(key), self.source, indexed=True)
-        return tuple(one(sub, i) for i in range(len(v)))
-
-    def int_list(self, key, length=None, lo=None, hi=None, default=_REQUIRED):
-        return self._list(key, length, default, False, lambda s, i: s.int(i, lo=lo, hi=hi))
-
-    def float_list(self, key, length=None, lo=None, lo_open=False, default=_REQUIRED,
-                   scalar_ok=False):
-        return self._list(key, length, default, scalar_ok,
-                          lambda s, i: s.float(i, lo=lo, lo_open=lo_open))
-
-    def table(self, key, required=True) -> "KeyReader | None":
-        v, done = self._get(key, _REQUIRED if required else None, None)
-        return None if done else KeyReader(v, self.key(key), self.source)
-
-    def rest(self) -> dict:
-        """Every key not read yet (and mark them read)."""
-        out = {k: v for k, v in self.data.items() if k not in self._used}
-        self._used.update(out)
-        return out
-
-    def finish(self) -> None:
-        """ConfigError naming the first key that no getter asked for."""
-        for k in self.data:
-            if k not in self._used:
-                self.fail(k, "unknown key")
-
-
 # -- parsing --------------------------------------------------------------------------
 def load_station_config(path: str | Path) -> StationConfig:
     """Read and parse a station TOML file; errors name ``path`` and the key."""
@@ -360,7 +251,7 @@ def _inclinometer(r: KeyReader, unresolved: list[str]) -> InclinometerConfig:
                            offset_rad=a.float("offset_rad", default=0.0))
         a.finish()
     if not axes:
-        r.fail("axes", "map at least one channel (tilt, roll or pitch)")
+        r.fail("axes", "map at least one channel (tilt, roll, pitch or yaw)")
     axes_r.finish()
     cfg = InclinometerConfig(
         port=r.str("port", placeholder=unresolved), axes=frozen_map(axes),
@@ -396,7 +287,7 @@ def _limits(r: KeyReader, key: str) -> Mapping[str, float]:
     out = {}
     for ch in t.keys():
         if not LIMIT_CHANNEL.match(ch):
-            t.fail(ch, "unknown channel (known: qm, qmN, tilt, roll, pitch, distance)")
+            t.fail(ch, "unknown channel (known: qm, qmN, tilt, roll, pitch, yaw, distance)")
         out[ch] = t.float(ch, lo=0.0)
     t.finish()
     return frozen_map(out)
@@ -411,77 +302,3 @@ def _snapshot(r: KeyReader) -> SnapshotConfig:
         noise_floor=_limits(r, "noise_floor"))
     r.finish()
     return cfg
-
-
-# -- simulator endpoints ------------------------------------------------------------------
-def load_json(path: str | Path):
-    """A JSON file's content; unreadable or invalid files are ConfigErrors naming the file."""
-    try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as e:
-        raise ConfigError(f"cannot read: {e.strerror or e}", source=str(path)) from e
-    except json.JSONDecodeError as e:
-        raise ConfigError(f"not valid JSON: {e}", source=str(path)) from e
-
-
-def load_endpoints(path: str | Path) -> dict:
-    """The endpoints JSON written by ``app.py simulate --endpoints FILE``."""
-    data = load_json(path)
-    if not isinstance(data, dict):
-        raise ConfigError("expected a JSON object", source=str(path))
-    return data
-
-
-def with_endpoints(config: StationConfig, endpoints: Mapping[str, Any],
-                   source: str = "endpoints") -> StationConfig:
-    """A copy of ``config`` whose device addresses are those of the running simulator.
-
-    ``endpoints`` as in cli.md: ``canopen`` {interface, host, port, channel, nodes},
-    ``inclinometer`` {port, baudrate}, ``drawwire`` {host, port, device_id} (TCP) or
-    {mode: "rtu", port: "/dev/pts/N", baudrate}; mode defaults to TCP where a host
-    is given, else to the config's. Given values replace the config's
-    (placeholder or not); keys this station does not know are ignored.
-    """
-    top = KeyReader(endpoints, "", source)
-    unresolved = set(config.unresolved)
-    changes: dict[str, Any] = {}
-
-    def take(r: KeyReader, key: str, value, section: str, **to) -> None:
-        name = to.get("field", key)
-        if key in r.data:
-            changes.setdefault(section, {})[name] = value(key)
-            unresolved.discard(f"{section}.{name}")
-
-    r = top.table("canopen", required=False)
-    if r is not None:
-        for k in ("interface", "channel", "host"):
-            take(r, k, r.str, "canopen")
-        take(r, "port", lambda k: r.int(k, lo=1, hi=65535), "canopen")
-        n = len(config.canopen.nodes)
-        take(r, "nodes", lambda k: r.int_list(k, length=n, lo=1, hi=127), "canopen")
-    r = top.table("inclinometer", required=False)
-    if r is not None and config.inclinometer is not None:
-        take(r, "port", r.str, "inclinometer")
-        take(r, "baudrate", lambda k: r.int(k, lo=1), "inclinometer")
-    r = top.table("drawwire", required=False)
-    if r is not None and config.drawwire is not None:
-        guess = "tcp" if "host" in r.data else config.drawwire.mode
-        if r.choice("mode", ("tcp", "rtu"), default=guess) == "rtu":
-            changes["drawwire"] = {"mode": "rtu", "host": None, "port": None}
-            unresolved -= {"drawwire.host", "drawwire.port"}
-            take(r, "port", r.str, "drawwire", field="serial_port")
-            take(r, "baudrate", lambda k: r.int(k, lo=1), "drawwire")
-        else:
-            changes["drawwire"] = {"mode": "tcp", "serial_port": None}
-            unresolved.discard("drawwire.serial_port")
-            take(r, "host", r.str, "drawwire")
-            take(r, "port", lambda k: r.int(k, lo=1, hi=65535), "drawwire")
-        take(r, "device_id", lambda k: r.int(k, lo=0, hi=247), "drawwire")
-    sections = {k: dataclasses.replace(getattr(config, k), **v) for k, v in changes.items()}
-    dw = sections.get("drawwire")
-    for key in (("host", "port") if dw and dw.mode == "tcp" else ("serial_port",) if dw else ()):
-        if getattr(dw, key) is None and f"drawwire.{key}" not in unresolved:
-            raise ConfigError("missing required key (the drawwire mode changed)",
-                              source=source, key=f"drawwire.{'port' if key == 'serial_port' else key}")
-    return dataclasses.replace(config, **sections,
-                               unresolved=tuple(k for k in config.unresolved if k in unresolved))

@@ -9,7 +9,10 @@ Register map (holding registers, function codes 03 and 06 only):
 0x0008 write 1: zero the count at the current position
 ====== ============================================================
 
-distance (m) = count * metres_per_count + offset_m.
+distance (m) = count * metres_per_count + offset_m, where the UINT32 count is read
+as two's complement: a count below the zero point (the cable pulled in past the
+position where it was zeroed, or noise right at it) wraps to 2**32 - n on the
+wire and means -n; no draw-wire cable is 2**31 counts long.
 """
 from __future__ import annotations
 
@@ -126,6 +129,8 @@ class DrawWire(Device):
     def _read_internal(self, timeout: float) -> Sample:
         regs = self._request("read_holding_registers", REG_COUNT, timeout=timeout, count=3)
         count = combine_words(regs[:2], self.word_order)
+        if count >= 1 << 31:        # below the zero point (module docstring)
+            count -= 1 << 32
         distance = count * self.metres_per_count + self.offset_m
         self._seq += 1
         return Sample(time.monotonic(), {"distance": distance}, self._seq,

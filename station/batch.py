@@ -80,7 +80,18 @@ def frame_statement(trace: Trace) -> dict | None:
 def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | None = None,
                     residual: str | None = None, options: SolverOptions | None = None,
                     callback=None) -> BatchOutcome:
+    """Read a trace file and :func:`calibrate` it."""
     trace = read_trace(trace_path, method_override=method)
+    return calibrate(trace, out=out, method=method, residual=residual, options=options,
+                     callback=callback)
+
+
+def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None,
+              residual: str | None = None, options: SolverOptions | None = None,
+              callback=None) -> BatchOutcome:
+    """Calibrate the fit poses of ``trace``; write the parameter file ``out`` if given.
+    ``callback(iteration)`` is called after every iteration (live plots)."""
+    trace_path = trace.path
     model, nominal = make_model(trace, method=method, residual=residual)
     opts = options or SolverOptions()
     if opts.sigma is None:

@@ -72,19 +72,33 @@ class Trace:
         tail = [float(ext.get(k, (extra_default or {}).get(k, 0.0))) for k in extra]
         return np.concatenate([xi, tail])
 
-    def method_data(self, method: str | None = None) -> MethodData:
-        """Arrays for :func:`calibration.methods.build`."""
+    @property
+    def fit_poses(self) -> list[dict]:
+        """The poses to calibrate with (``use`` absent or ``"fit"``)."""
+        return [p for p in self.poses if p.get("use", "fit") == "fit"]
+
+    @property
+    def validation_poses(self) -> list[dict]:
+        """Held-out poses (``use = "validation"``): checked, never fitted."""
+        return [p for p in self.poses if p.get("use") == "validation"]
+
+    def method_data(self, method: str | None = None, use: str = "fit") -> MethodData:
+        """Arrays for :func:`calibration.methods.build` of the ``use`` poses
+        (``"fit"``, ``"validation"`` or ``"all"``)."""
         method = method or self.method
-        if not self.poses:
-            raise CalibrationError(f"{self.path}: the trace has no poses")
-        qm = np.array([p["qm"] for p in self.poses], dtype=float)
+        poses = {"fit": self.fit_poses, "validation": self.validation_poses,
+                 "all": self.poses}[use]
+        if not poses:
+            raise CalibrationError(f"{self.path}: the trace has no {use} poses" if use != "fit"
+                                   else f"{self.path}: the trace has no poses to fit")
+        qm = np.array([p["qm"] for p in poses], dtype=float)
         mi = METHODS[method]
         channels = {}
         for ch in mi.channels:
-            channels[ch] = np.array([p[ch] for p in self.poses], dtype=float)
+            channels[ch] = np.array([p[ch] for p in poses], dtype=float)
         group = None
-        if any("group" in p for p in self.poses):
-            group = np.array([p.get("group", -1) for p in self.poses])
+        if any("group" in p for p in poses):
+            group = np.array([p.get("group", -1) for p in poses])
         ref = None if self.reference is None else np.array(self.reference["qm"], dtype=float)
         comps = self.header.get("components")
         return MethodData(qm=qm, channels=channels, group=group, reference_qm=ref,
@@ -171,6 +185,8 @@ def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -
         _check_pose_channels(rec, trace, fail)
         if "group" in rec and (not isinstance(rec["group"], int) or isinstance(rec["group"], bool)):
             fail(f"group must be an integer, not {rec['group']!r}")
+        if rec.get("use", "fit") not in ("fit", "validation"):
+            fail(f"use must be 'fit' or 'validation', not {rec['use']!r}")
         trace.poses.append(rec)
     if trace is None:
         raise TraceFormatError("the trace is empty (no header)", file=path, line=1)

@@ -274,6 +274,35 @@ def gravity_tilt(R, mount=(0.0, 0.0)):
     return (float(roll[0]), float(pitch[0])) if single else (roll, pitch)
 
 
+def sensor_heading(R, mount=(0.0, 0.0)):
+    """Yaw (rad) that an orientation sensor (AHRS) on the platform reports: the
+    heading of ``R_s = R R_mount`` in the yaw-pitch-roll convention
+    ``R_s = Rz(yaw) Ry(pitch) Rx(roll)``, whose roll and pitch are exactly
+    :func:`gravity_tilt`. ``R`` ``(3, 3)`` or ``(m, 3, 3)``."""
+    R = np.asarray(R, dtype=float)
+    single = R.ndim == 2
+    Rs = R.reshape(-1, 3, 3) @ mount_rotation(mount)
+    yaw = np.arctan2(Rs[:, 1, 0], Rs[:, 0, 0])
+    return float(yaw[0]) if single else yaw
+
+
+def euler_from_ypr(roll, pitch, yaw) -> np.ndarray:
+    """``[alpha, beta, gamma]`` of ``R = Rx(alpha) Ry(beta) Rz(gamma)`` (the report's
+    convention) for a sensor reading ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (rad):
+    how an orientation sensor's output becomes the PM's measured orientation.
+    Scalars give ``(3,)``, arrays ``(m, 3)``."""
+    r, p, y = (np.asarray(v, dtype=float) for v in (roll, pitch, yaw))
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    # R = Rz(y) Ry(p) Rx(r); entries needed: R02, R12, R22, R01, R00
+    r00, r01 = cy * cp, cy * sp * sr - sy * cr
+    r02 = cy * sp * cr + sy * sr
+    r12 = sy * sp * cr - cy * sr
+    r22 = cp * cr
+    out = np.stack([np.arctan2(-r12, r22), np.arcsin(np.clip(r02, -1.0, 1.0)),
+                    np.arctan2(-r01, r00)], axis=-1)
+    return out
+
+
 def _tilt_of_gravity(g):
     """``(tilt (m, 2), d tilt / d g_s (m, 2, 3))`` for sensor-frame gravity ``g (m, 3)``."""
     gx, gy, gz = g[:, 0], g[:, 1], g[:, 2]

@@ -26,7 +26,11 @@ Inclinometer conventions (the calibration's measurement model builds on these):
   orientation ``R = Rz(c) Ry(b) Rx(a)`` reads exactly ``(a, b)`` for any heading
   ``c`` (a rotation about gravity changes nothing). The report's
   ``Rx(alpha) Ry(beta) Rz(gamma)`` couples them: ``gamma`` turns the sensor about
-  its own z and so mixes roll and pitch. Yaw is not measured: reported as 0.
+  its own z and so mixes roll and pitch. Yaw is the heading ``c`` of that same
+  yaw-pitch-roll decomposition of ``R R_mount`` (an AHRS's fused heading,
+  relative to the home pose; :func:`sensor_heading`), so that roll, pitch and yaw
+  together give the full orientation (:func:`euler_from_ypr`, for pm-fk). On the
+  SM yaw reads 0.
   :func:`gravity_tilt` (:mod:`calibration.robots.agebot_pm`) is this function, pure
   and vectorized; the calibration model uses the same one.
 
@@ -47,7 +51,8 @@ import numpy as np
 
 from calibration.errors import CalibrationError, ConfigError, UnreachablePose
 from calibration.robots import get_robot
-from calibration.robots.agebot_pm import gravity_tilt, rot_xyz  # noqa: F401 (re-exported: the one tilt convention)
+from calibration.robots.agebot_pm import (gravity_tilt,  # noqa: F401 (re-exported: the one tilt convention)
+                                          rot_xyz, sensor_heading)
 from drivers.sim.axis import SimAxis
 from drivers.sim.faults import FaultPlan
 from drivers.sim.truth import SimTruth
@@ -181,7 +186,7 @@ class SimulatedAgebot:
         if self.model.name == "agebot-sm":
             return 0.0, float(X[3]), 0.0
         roll, pitch = pose_tilt(X, self.truth.inclinometer_mount)
-        return roll, pitch, 0.0
+        return roll, pitch, sensor_heading(rot_xyz(X)[0], self.truth.inclinometer_mount)
 
     def inclinometer_angles_deg(self) -> tuple[float, float, float]:
         """``(roll, pitch, yaw)`` in degrees as the sensor reports them, with noise
@@ -190,6 +195,8 @@ class SimulatedAgebot:
         sm = self.model.name == "agebot-sm"
         roll += self._noise("roll")
         pitch += self._noise("tilt" if sm else "pitch")
+        if not sm:
+            yaw += self._noise("yaw")
         return tuple(_wrap_deg(math.degrees(a)) for a in (roll, pitch, yaw))
 
     def zero_drawwire(self) -> None:

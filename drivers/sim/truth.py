@@ -9,7 +9,7 @@ seen::
                                          # agebot-sm may add plane_a, plane_b, plane_c
                                          # (all three): the plane a x + b y + c z + 1 = 0
      "noise": {channel: std, ...},       # optional, std of ONE reading:
-                                         #   distance [m], tilt/roll/pitch [rad],
+                                         #   distance [m], tilt/roll/pitch/yaw [rad],
                                          #   qm [actuator units]; absent = 0
      "seed": 7,                          # optional, seed of the simulator's noise
      "inclinometer_mount": [rx, ry],     # optional, agebot-pm only: the inclinometer's
@@ -34,9 +34,9 @@ from typing import Any, Mapping
 import numpy as np
 
 from calibration.robots import ROBOTS, get_robot
-from drivers.config import KeyReader, frozen_map, load_json
+from drivers.config_reader import KeyReader, frozen_map, load_json
 
-NOISE_CHANNELS = ("distance", "tilt", "roll", "pitch", "qm")
+NOISE_CHANNELS = ("distance", "tilt", "roll", "pitch", "yaw", "qm")
 PLANE_KEYS = ("plane_a", "plane_b", "plane_c")
 
 

@@ -112,6 +112,23 @@ def test_enable_move_wait_read_cycle(drives, sim):
     drives.wait_target_reached(timeout=10)
 
 
+def test_move_after_a_master_died_mid_handshake(drives, sim):
+    """A master killed between 'new set-point' (controlword bit 4 up) and taking it down
+    leaves the acknowledge set; the next master's move must still start (a fresh rising
+    edge), not return at once from the old target."""
+    drives.enable()
+    for nid in drives.nodes:                       # the dead master's half handshake
+        drives.sdo_write(nid, 0x607A, round(0.25 * RES))
+        drives.sdo_write(nid, 0x6040, 0x3F)
+    eventually(lambda: drives._await(drives.nodes[0], lambda sw: sw & 0x1000, "ack", 2.0))
+    targets = [-0.25, 0.125, 0.5, -0.5]
+    drives.move_to(targets)
+    drives.wait_target_reached(timeout=10)
+    assert [sim.call("position", i) for i in range(4)] == pytest.approx(targets, abs=1e-9)
+    drives.move_to(START)
+    drives.wait_target_reached(timeout=10)
+
+
 def test_tpdo_on_sync_matches_sdo_read(drives):
     a = drives.read()
     b = drives.read_sdo()

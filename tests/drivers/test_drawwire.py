@@ -62,7 +62,20 @@ def test_word_order_both_ways(server, order):
         assert dw.read().values["distance"] == pytest.approx(LONG, abs=MPC)
     other = "little" if order == "big" else "big"
     with tcp(server, word_order=other) as dw:          # mismatched config: words swapped
-        assert dw.read().info["count"] == combine_words(split_words(123456, order), other)
+        swapped = combine_words(split_words(123456, order), other)
+        assert dw.read().info["count"] == (swapped - (1 << 32) if swapped >= 1 << 31 else swapped)
+
+
+def test_count_below_the_zero_point_is_negative(server):
+    """UINT32 on the wire, two's complement in meaning: just below zero is -n counts,
+    never 4294 m of cable."""
+    server.call(length=2.0)
+    with tcp(server) as dw:
+        dw.zero()
+        server.call(length=2.0 - 7 * MPC)
+        s = dw.read()
+        assert s.info["count"] == -7
+        assert s.values["distance"] == pytest.approx(OFFSET - 7 * MPC, abs=MPC / 10)
 
 
 @pytest.mark.parametrize("make", [tcp, rtu], ids=["tcp", "rtu"])

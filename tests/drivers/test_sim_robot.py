@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from calibration.errors import ConfigError
-from calibration.robots.agebot_pm import rot_xyz
+from calibration.robots.agebot_pm import euler_from_ypr, rot_xyz, sensor_heading
 from drivers.sim.faults import FaultPlan
 from drivers.sim.robot import SimulatedAgebot, gravity_tilt, pose_tilt
 from drivers.sim.truth import load_truth
@@ -172,15 +172,18 @@ def test_pm_inclinometer_from_the_platform_pose(name):
     expect0 = gravity_tilt(np.eye(3), mount)
     roll, pitch, yaw = r.inclinometer_angles_deg()
     assert (math.radians(roll), math.radians(pitch)) == pytest.approx(expect0, abs=1e-12)
-    assert yaw == 0.0
+    assert math.radians(yaw) == pytest.approx(sensor_heading(np.eye(3), mount), abs=1e-12)
     if mount == (0.0, 0.0):
         assert (roll, pitch) == (0.0, 0.0)
     for X in ([0.1, -0.05, 0.2], [-0.15, 0.1, -0.3]):
         go(r, X)
         np.testing.assert_allclose(r.ee_pose(), X, atol=1e-10)
-        roll, pitch, _ = r.inclinometer_angles_deg()
+        roll, pitch, yaw = r.inclinometer_angles_deg()
         assert (math.radians(roll), math.radians(pitch)) == pytest.approx(
             pose_tilt(X, mount), abs=1e-12)
+        if mount == (0.0, 0.0):   # roll, pitch, yaw give back the full orientation (pm-fk)
+            np.testing.assert_allclose(euler_from_ypr(*np.radians([roll, pitch, yaw])), X,
+                                       atol=1e-12)
 
 
 def test_pm_home_actuators_match_the_brief():

@@ -1,0 +1,283 @@
+"""Software overhead of one pose snapshot, from target reached to snapshot stored.
+
+    python bench/bench_snapshot.py [--poses 15] [--incl-rate 100] [--trace-dir DIR]
+
+The simulated AGEBOT SM station (``fixtures/stations/sim-sm.toml``, truth
+``fixtures/truth/agebot-sm.json``) runs in a separate process: 4 CiA 402 drives
+behind the socketcand hub, the inclinometer on a pseudo-terminal, the Modbus TCP
+draw-wire, so the simulators' CPU does not count against the station process.
+The station process opens the real drivers (``CanopenActuators``,
+``Inclinometer``, ``DrawWire``) and, per pose:
+
+  1. commands a small move and waits for target reached (not timed);
+  2. ``snapshot_with(devices, SnapshotConfig(samples, period, settle))`` (timed:
+     ``snapshot``);
+  3. builds the pose record and appends it with ``station.trace.TraceWriter``
+     (flush + fsync; timed: ``store``).
+
+The configured budget of a snapshot is ``settle + (samples - 1) * period`` (the
+sleeps; the last round's reads start at its end). Overhead = wall - budget; the
+table gives it in ms and as a share of the budget, with the CANopen positions
+read by SYNC + TPDO (the station's default) or by SDO (the fallback), and with
+the inclinometer streaming at ``--incl-rate`` and at the simulator's default
+20 Hz. A second table gives the per-device read latency inside the snapshots
+and the bare read latency of the 4 drives by TPDO versus SDO (see
+``bench_canopen.py`` for the CANopen details).
+
+Columns: ``snapshot``: wall time of ``snapshot_with``; ``overhead`` = snapshot -
+budget; ``last round``: the three device reads of the last sample round (always
+overhead; the rest is sleep overshoot and the statistics); ``store``: pose record
++ ``TraceWriter.append`` (fsync); ``(ovh+store)/budget``: everything from target
+reached to snapshot stored beyond the configured sleeps, relative to them.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import logging
+import multiprocessing
+import os
+import random
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from drivers.canopen_drives import CanopenActuators  # noqa: E402
+from drivers.config import load_station_config, with_endpoints  # noqa: E402
+from drivers.drawwire import DrawWire  # noqa: E402
+from drivers.inclinometer import Inclinometer  # noqa: E402
+from drivers.snapshot import snapshot_with  # noqa: E402
+from station.trace import TraceWriter, read_trace  # noqa: E402
+
+CONFIG = ROOT / "fixtures" / "stations" / "sim-sm.toml"
+TRUTH = ROOT / "fixtures" / "truth" / "agebot-sm.json"
+# (samples, period s, settle s)
+SETTINGS = ((5, 0.02, 0.05), (10, 0.05, 0.05))
+SIM_INCL_RATE = 20.0            # SimInclinometer's default frame rate, Hz
+
+
+def serve_station(conn, nodes, resolution, metres_per_count, incl_rate) -> None:
+    """Simulator process: the simulated AGEBOT SM and its three devices.
+
+    Sends ``("ready", endpoints)`` (cli.md format), then serves ``("incl_rate", hz)``
+    and ``("stop",)`` until stop or EOF.
+    """
+    from drivers.sim.cia402_drive import start_canopen_sim
+    from drivers.sim.drawwire_sim import SimDrawWire
+    from drivers.sim.faults import FaultPlan
+    from drivers.sim.inclinometer_sim import SimInclinometer
+    from drivers.sim.robot import SimulatedAgebot
+    from drivers.sim.truth import load_truth
+
+    plan = FaultPlan(seed=1)
+    robot = SimulatedAgebot(load_truth(TRUTH), faults=plan)
+    with contextlib.ExitStack() as stack:
+        can_sim = stack.enter_context(start_canopen_sim(robot.axes, nodes, resolution, plan,
+                                                        increments=robot.encoder_increments))
+        incl = stack.enter_context(SimInclinometer(robot.inclinometer_angles_deg, rate_hz=incl_rate,
+                                                   faults=plan, seed=1))
+        wire = stack.enter_context(SimDrawWire(robot.drawwire_length, zero=robot.zero_drawwire,
+                                               metres_per_count=metres_per_count, rtu=False,
+                                               faults=plan))
+        conn.send(("ready", {"canopen": can_sim.endpoint, "inclinometer": {"port": incl.port},
+                             "drawwire": {"host": wire.host, "port": wire.port,
+                                          "device_id": wire.device_id}}))
+        while True:
+            try:
+                req = conn.recv()
+            except (EOFError, OSError):
+                break
+            if req[0] == "incl_rate":
+                incl.period = 1.0 / float(req[1])
+            conn.send(("ok", None))
+            if req[0] == "stop":
+                break
+
+
+def open_devices(cfg, stack: contextlib.ExitStack):
+    """The station's three drivers from the (resolved) station config, opened."""
+    drives = stack.enter_context(CanopenActuators.from_config(cfg.canopen, name="drives"))
+    ic = cfg.inclinometer
+    incl = stack.enter_context(Inclinometer(
+        ic.port, {ch: (a.raw, a.sign, a.offset_rad) for ch, a in ic.axes.items()},
+        baudrate=ic.baudrate, timeout=ic.timeout, name="inclinometer"))
+    dc = cfg.drawwire
+    wire = stack.enter_context(DrawWire(
+        metres_per_count=dc.metres_per_count, offset_m=dc.offset_m, host=dc.host, tcp_port=dc.port,
+        device_id=dc.device_id, word_order="big" if dc.word_order == "high-first" else "little",
+        timeout=dc.timeout, name="drawwire"))
+    return drives, incl, wire
+
+
+def time_reads(devices, sink: dict[str, list[float]]) -> None:
+    """Wrap each device's ``read`` to record its wall time (about 1 us added per read)."""
+    for d in devices:
+        def read(timeout=None, _orig=d.read, _name=d.name):
+            t = time.perf_counter()
+            try:
+                return _orig(timeout)
+            finally:
+                sink[_name].append(time.perf_counter() - t)
+        d.read = read
+
+
+def pose_record(index: int, snap, n_axes: int) -> dict:
+    """The trace's pose record of one snapshot (docs/file-formats.md)."""
+    return {"record": "pose", "index": index,
+            "qm": [snap.mean[f"qm{i + 1}"] for i in range(n_axes)],
+            "distance": snap.mean["distance"], "tilt": snap.mean["tilt"], "t": snap.t_end,
+            "samples": snap.samples, "std": dict(snap.std)}
+
+
+def stats_ms(xs) -> tuple[float, float, float]:
+    ms = sorted(x * 1e3 for x in xs)
+    return statistics.fmean(ms), statistics.median(ms), ms[int(0.95 * (len(ms) - 1))]
+
+
+def run_case(drives, devices, writer, snap_cfg, poses, q0, rng, index0):
+    """``poses`` measured poses (plus one warm-up); per-pose times and per-device read times."""
+    reads: dict[str, list[float]] = {d.name: [] for d in devices}
+    time_reads(devices, reads)
+    rows = []
+    try:
+        for k in range(poses + 1):
+            target = [q + rng.uniform(-0.3, 0.3) for q in q0]
+            drives.move_to(target)
+            drives.wait_target_reached(30.0)
+            before = {n: len(v) for n, v in reads.items()}
+            t0 = time.perf_counter()
+            snap = snapshot_with(devices, snap_cfg)
+            t1 = time.perf_counter()
+            writer.append(pose_record(index0 + k, snap, len(q0)))
+            t2 = time.perf_counter()
+            if k == 0:                                  # warm-up
+                for v in reads.values():
+                    v.clear()
+                continue
+            last = sum(reads[d.name][-1] for d in devices)
+            assert all(len(v) - before[n] == snap_cfg.samples for n, v in reads.items())
+            rows.append((t1 - t0, t2 - t1, last))
+    finally:
+        for d in devices:
+            del d.read                                  # back to the class's method
+    return rows, reads
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--poses", type=int, default=15, help="measured poses per case")
+    p.add_argument("--incl-rate", type=float, default=100.0,
+                   help="inclinometer frame rate, Hz (the simulator's default is 20)")
+    p.add_argument("--n", type=int, default=200, help="repetitions of the bare TPDO/SDO reads")
+    p.add_argument("--trace-dir", help="where the trace is written (default: a temporary folder)")
+    a = p.parse_args(argv)
+    logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    cfg = load_station_config(CONFIG)
+    cc = cfg.canopen
+
+    ctx = multiprocessing.get_context("spawn")
+    conn, child = ctx.Pipe()
+    proc = ctx.Process(target=serve_station, args=(child, list(cc.nodes), list(cc.increments_per_unit),
+                                                   cfg.drawwire.metres_per_count, a.incl_rate),
+                       daemon=True)
+    proc.start()
+    results, read_rows = [], {}
+    try:
+        if not conn.poll(60):
+            raise SystemExit("simulator did not start")
+        _, endpoints = conn.recv()
+        cfg = with_endpoints(cfg, endpoints).require_resolved()
+        with contextlib.ExitStack() as stack:
+            drives, incl, wire = devices = open_devices(cfg, stack)
+            drives.enable()
+            wire.zero()
+            q0 = [drives.read().values[ch] for ch in drives.channels]
+            tmp = a.trace_dir or stack.enter_context(tempfile.TemporaryDirectory(prefix="bench-snapshot-"))
+            path = Path(tmp) / f"bench-snapshot-{os.getpid()}.jsonl"
+            writer = stack.enter_context(TraceWriter.create(path, {
+                "robot": cfg.robot, "method": "sm-distance-tilt",
+                "station": {"bench": "bench/bench_snapshot.py", "config": CONFIG.name}}))
+            writer.append({"record": "reference", "role": "base-origin", "qm": q0})
+            rng, index = random.Random(7), 0
+            cases = [(s, via, a.incl_rate) for s in SETTINGS for via in ("tpdo", "sdo")]
+            cases += [(s, "tpdo", SIM_INCL_RATE) for s in SETTINGS]
+            for (samples, period, settle), via, rate in cases:
+                conn.send(("incl_rate", rate))
+                conn.recv()
+                time.sleep(0.2)                         # a few frames at the new rate
+                drives.read_via = via
+                snap_cfg = dataclasses.replace(cfg.snapshot, samples=samples, period=period, settle=settle)
+                rows, reads = run_case(drives, devices, writer, snap_cfg, a.poses, q0, rng, index)
+                index += a.poses + 1
+                results.append(((samples, period, settle), via, rate, rows))
+                read_rows[(samples, period, via, rate)] = reads
+            drives.read_via = "tpdo"
+            n_poses = len(read_trace(path).poses)
+            bare = {"read() by SYNC + 4 TPDOs": [], "read_sdo(), 4 SDO uploads": []}
+            for _ in range(a.n):
+                for name, fn in zip(bare, (drives.read, drives.read_sdo), strict=True):
+                    t = time.perf_counter()
+                    fn()
+                    bare[name].append(time.perf_counter() - t)
+    finally:
+        if proc.is_alive():
+            with contextlib.suppress(OSError):
+                conn.send(("stop",))
+            proc.join(10)
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(5)
+
+    print(f"\nSnapshot of one pose, simulated AGEBOT SM ({CONFIG.name}): 4 CiA 402 drives over the "
+          f"socketcand hub + inclinometer (pty) + draw-wire (Modbus TCP); simulators in another "
+          f"process; {a.poses} poses per row, medians (p95 in brackets); trace fsynced "
+          f"({n_poses} poses read back)\n")
+    head = (f"{'samples x period, settle':<25} {'CAN':<5} {'incl Hz':>7} {'budget ms':>9} "
+            f"{'snapshot ms':>15} {'overhead ms':>15} {'ovh/budget':>10} {'last round ms':>13} "
+            f"{'store ms':>13} {'(ovh+store)/budget':>18}")
+    print(head)
+    print("-" * len(head))
+    for (samples, period, settle), via, rate, rows in results:
+        budget = settle + (samples - 1) * period
+        snap = [r[0] for r in rows]
+        ovh = [r[0] - budget for r in rows]
+        store = [r[1] for r in rows]
+        last = [r[2] for r in rows]
+        total = [r[0] + r[1] - budget for r in rows]
+        s, o, st, la, to = (stats_ms(x) for x in (snap, ovh, store, last, total))
+        print(f"{f'{samples} x {period * 1e3:g} ms, {settle * 1e3:g} ms':<25} {via:<5} {rate:>7g} "
+              f"{budget * 1e3:>9.1f} {f'{s[1]:.1f} ({s[2]:.1f})':>15} {f'{o[1]:.2f} ({o[2]:.2f})':>15} "
+              f"{o[1] / (budget * 1e3):>10.1%} {la[1]:>13.2f} {f'{st[1]:.2f} ({st[2]:.2f})':>13} "
+              f"{to[1] / (budget * 1e3):>18.1%}")
+
+    print("\nRead latency per device inside the snapshots (all rows of that kind), ms: "
+          "median (p95)\n")
+    print(f"{'CAN':<5} {'incl Hz':>7} {'drives':>15} {'inclinometer':>15} {'drawwire':>15}")
+    merged: dict[tuple, dict[str, list[float]]] = {}
+    for (_, _, via, rate), reads in read_rows.items():
+        m = merged.setdefault((via, rate), {})
+        for name, xs in reads.items():
+            m.setdefault(name, []).extend(xs)
+    for (via, rate), m in merged.items():
+        cells = [stats_ms(m[n]) for n in ("drives", "inclinometer", "drawwire")]
+        print(f"{via:<5} {rate:>7g} " + " ".join(f"{f'{c[1]:.3f} ({c[2]:.3f})':>15}" for c in cells))
+
+    print(f"\nCANopen positions of the 4 drives, bare reads, n = {a.n}, ms\n")
+    print(f"{'read':<28} {'mean':>8} {'median':>8} {'p95':>8}")
+    bs = {name: stats_ms(xs) for name, xs in bare.items()}
+    for name, (mean, med, p95) in bs.items():
+        print(f"{name:<28} {mean:>8.3f} {med:>8.3f} {p95:>8.3f}")
+    (tp, sd) = bs.values()
+    print(f"SDO / TPDO, median: {sd[1] / tp[1]:.2f}x")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,311 @@
+"""The common part of the station's CANopen devices (python-can + canopen).
+
+Every node is a canopen ``RemoteNode`` on one ``canopen.Network``; SDO, PDO and
+NMT are the library's. Positions are sampled together: the master sends one
+SYNC and waits for every node's TPDO1 (transmission type 1, mapping statusword
+0x6041 + position actual value 0x6064, or position value 0x6004 for an
+encoder). A TPDO is attributed to the last SYNC sent before it arrived (the
+synchronous window is the read timeout); a node whose TPDO does not come in
+time gives :class:`DeviceTimeout` naming it, never an older value. Heartbeats
+(producer time 0x1017, set by the master) are watched: a silent node is
+``"canopen node 3: heartbeat lost ..."``.
+
+Units: positions in actuator units ``Qm`` = increments / ``resolution``
+(increments per actuator unit, one for all nodes or one per node); times in
+seconds. The profiles are :class:`drivers.canopen_drives.CanopenActuators`
+(CiA 402) and :class:`drivers.canopen_encoders.CanopenEncoders` (CiA 406).
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import math
+import threading
+import time
+from collections.abc import Sequence
+
+import can
+import canopen
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from calibration.errors import ConfigError
+from drivers.base import Device, Sample
+from drivers.canopen_od import NMT_OPERATIONAL, standard_od
+from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
+
+
+class CanopenNodes(Device):
+    """Common part of the CANopen devices: network, NMT, heartbeat consumer, EMCY,
+    SYNC + TPDO sampling and SDO fallback. Subclasses set the profile.
+
+    nodes:             node ids (1..127), one per channel ``qm1..qmN``.
+    resolution:        increments per actuator unit, one number or one per node.
+    interface, channel, bus_options: python-can ``can.Bus`` arguments, e.g.
+                       ``interface="socketcand", channel="can0", bus_options={"host": ..., "port": ...}``.
+    timeout:           seconds for one SDO answer and for one SYNC's TPDOs.
+    heartbeat_ms:      producer heartbeat time written to 0x1017 (ms).
+    heartbeat_timeout: seconds without heartbeat before a node is lost (default 5 periods).
+    read_via:          ``"tpdo"`` (SYNC + TPDO, default) or ``"sdo"`` (SDO upload per node).
+    """
+
+    profile = 0x0192                      # low word of 0x1000
+    position_object = 0x6064
+    tpdo_objects: tuple[tuple[int, int], ...] = ((0x6041, 16), (0x6064, 32))
+
+    def __init__(self, nodes: Sequence[int], resolution: float | Sequence[float], *,
+                 interface: str = "socketcan", channel: str = "can0", bus_options: dict | None = None,
+                 timeout: float = 1.0, heartbeat_ms: int = 100, heartbeat_timeout: float | None = None,
+                 read_via: str = "tpdo", name: str = "canopen"):
+        super().__init__(name, timeout)
+        self.nodes = [int(n) for n in nodes]
+        if not self.nodes or len(set(self.nodes)) != len(self.nodes) or not all(1 <= n <= 127 for n in self.nodes):
+            raise ConfigError(f"need distinct node ids in 1..127, got {list(nodes)}", key="nodes")
+        res = [float(resolution)] * len(self.nodes) if isinstance(resolution, (int, float)) else list(resolution)
+        if len(res) != len(self.nodes) or not all(math.isfinite(r) and r != 0 for r in res):
+            raise ConfigError(f"need one finite non-zero value per node, got {resolution!r}", key="resolution")
+        if read_via not in ("tpdo", "sdo"):
+            raise ConfigError(f"must be 'tpdo' or 'sdo', got {read_via!r}", key="read_via")
+        self.resolution = res
+        self.channels = tuple(f"qm{i + 1}" for i in range(len(self.nodes)))
+        self.bus_config = dict(bus_options or {}, interface=interface, channel=channel)
+        if interface == "socketcand":   # TCP_NODELAY/QUICKACK: else Nagle holds frames ~40 ms
+            self.bus_config.setdefault("tcp_tune", True)
+        self.heartbeat_ms = int(heartbeat_ms)
+        self.heartbeat_timeout = heartbeat_timeout or 5 * self.heartbeat_ms / 1000.0
+        self.read_via = read_via
+        self.network: canopen.Network | None = None
+        self.remote: dict[int, canopen.RemoteNode] = {}
+        self._cv = threading.Condition()
+        self._last_hb: dict[int, float] = {}
+        self._hb_state: dict[int, int] = {}
+        self._emcy: dict[int, canopen.emcy.EmcyError | None] = {}
+        self._sync_no = 0
+        self._pending: set[int] = set()
+        self._fresh: dict[int, tuple] = {}
+        self.unsolicited_tpdos = 0        # TPDOs that came outside a SYNC window (late or extra)
+
+    @classmethod
+    def from_endpoint(cls, endpoint: dict, resolution, **options):
+        """Build from an endpoint record as ``app.py simulate --endpoints`` writes it."""
+        ep = dict(endpoint)
+        nodes = ep.pop("nodes")
+        return cls(nodes, resolution, interface=ep.pop("interface"), channel=ep.pop("channel", "can0"),
+                   bus_options=ep, **options)
+
+    @classmethod
+    def from_config(cls, cfg, **options):
+        """Build from a :class:`drivers.config.CanopenConfig` (its bus, nodes, resolutions,
+        timeouts, heartbeat; profile velocity/acceleration for drives)."""
+        bus = cfg.bus_kwargs()
+        kw = dict(interface=bus.pop("interface"), channel=bus.pop("channel"), bus_options=bus,
+                  timeout=cfg.sdo_timeout, heartbeat_ms=round(cfg.heartbeat_period * 1000),
+                  heartbeat_timeout=cfg.heartbeat_timeout)
+        kw.update(cls._config_options(cfg))
+        return cls(cfg.nodes, cfg.increments_per_unit, **dict(kw, **options))
+
+    @classmethod
+    def _config_options(cls, cfg) -> dict:
+        """Profile-specific constructor arguments taken from a CanopenConfig (none here)."""
+        return {}
+
+    def node_name(self, nid: int) -> str:
+        return f"canopen node {nid}"
+
+    # -- lifecycle ------------------------------------------------------------
+    def _open_internal(self) -> None:
+        self._last_hb.clear(), self._hb_state.clear(), self._emcy.clear()
+        network = canopen.Network()
+        try:
+            network.connect(**self.bus_config)
+        except (can.CanError, OSError, ValueError, ImportError) as e:
+            raise DeviceError(f"cannot open CAN bus {self.bus_config}: {e}", device=self.name) from e
+        self.network = network
+        try:
+            for nid in self.nodes:
+                node = canopen.RemoteNode(nid, standard_od())
+                network.add_node(node)
+                node.sdo.RESPONSE_TIMEOUT = self.timeout
+                node.nmt.add_heartbeat_callback(functools.partial(self._on_heartbeat, nid))
+                node.emcy.add_callback(functools.partial(self._on_emcy, nid))
+                self.remote[nid] = node
+            for nid in self.nodes:
+                self._configure(nid)
+            for nid in self.nodes:
+                self.remote[nid].nmt.state = "OPERATIONAL"
+            self._await_operational()
+        except BaseException:
+            self._close_internal()
+            raise
+
+    def _configure(self, nid: int) -> None:
+        node = self.remote[nid]
+        with self._io(nid, "reading device type 0x1000"):
+            dev_type = node.sdo[0x1000].raw
+        if dev_type & 0xFFFF != self.profile:
+            raise DeviceError(f"device type 0x{dev_type:08X} is not CiA {self.profile} (0x{self.profile:04X})",
+                              device=self.node_name(nid))
+        with self._io(nid, "configuring heartbeat and TPDO1"):
+            node.nmt.state = "PRE-OPERATIONAL"
+            node.sdo[0x1017].raw = self.heartbeat_ms
+            tpdo = node.tpdo[1]
+            tpdo.clear()
+            for index, bits in self.tpdo_objects:
+                tpdo.add_variable(index, 0, bits)
+            tpdo.cob_id, tpdo.trans_type, tpdo.enabled = 0x180 + nid, 1, True
+            tpdo.save()
+            tpdo.add_callback(functools.partial(self._on_tpdo, nid))
+
+    def _await_operational(self) -> None:
+        limit = self.timeout + 3 * self.heartbeat_ms / 1000.0
+        end = time.monotonic() + limit
+        with self._cv:
+            while any(self._hb_state.get(n) != NMT_OPERATIONAL for n in self.nodes):
+                if not self._cv.wait(max(0.0, end - time.monotonic())):
+                    late = [n for n in self.nodes if self._hb_state.get(n) != NMT_OPERATIONAL][0]
+                    raise DeviceTimeout(f"no OPERATIONAL heartbeat within {limit:.2g} s after NMT start",
+                                        device=self.node_name(late))
+
+    def _close_internal(self) -> None:
+        network, self.network = self.network, None
+        self.remote = {}
+        if network is not None:
+            with contextlib.suppress(Exception):
+                network.disconnect()
+
+    # -- callbacks (receive thread) -----------------------------------------------
+    def _on_heartbeat(self, nid: int, state: int) -> None:
+        with self._cv:
+            self._last_hb[nid] = time.monotonic()
+            self._hb_state[nid] = state
+            self._cv.notify_all()
+
+    def _on_emcy(self, nid: int, entry) -> None:
+        with self._cv:
+            self._emcy[nid] = None if entry.code & 0xFF00 == 0 else entry
+            self._cv.notify_all()
+
+    def _on_tpdo(self, nid: int, pdo_map) -> None:
+        values = tuple(var.raw for var in pdo_map.map)
+        with self._cv:
+            if nid in self._pending:
+                self._fresh[nid] = values
+                self._pending.discard(nid)
+                self._cv.notify_all()
+            else:
+                self.unsolicited_tpdos += 1
+
+    # -- health -------------------------------------------------------------------
+    def check_health(self) -> None:
+        """Raise if the receive thread died, a heartbeat is lost or a node left OPERATIONAL."""
+        if self.network is None:
+            raise DeviceError("device is not open", device=self.name)
+        try:
+            self.network.check()
+        except Exception as e:
+            raise DeviceError(f"CAN receive thread stopped: {e!r}", device=self.name) from e
+        for nid in self.nodes:
+            self._check_heartbeat(nid)
+
+    def _check_heartbeat(self, nid: int, settle: bool = False) -> None:
+        """With ``settle``, wait until a new heartbeat proves the node alive or it is overdue."""
+        t0 = time.monotonic()
+        with self._cv:
+            while True:
+                age = time.monotonic() - self._last_hb.get(nid, t0)
+                if age > self.heartbeat_timeout:
+                    raise DeviceTimeout(f"heartbeat lost (none for {age:.2f} s, limit {self.heartbeat_timeout:.2f} s)",
+                                        device=self.node_name(nid))
+                state = self._hb_state.get(nid)
+                if state is not None and state != NMT_OPERATIONAL:
+                    label = canopen.nmt.NMT_STATES.get(state, state)
+                    raise DeviceError(f"left OPERATIONAL (heartbeat says {label})", device=self.node_name(nid))
+                if not settle or self._last_hb.get(nid, 0.0) > t0:
+                    return
+                self._cv.wait(0.02)
+
+    @contextlib.contextmanager
+    def _io(self, nid: int, what: str):
+        """Map canopen/python-can errors of one exchange with node ``nid`` to station errors."""
+        try:
+            yield
+        except SdoAbortedError as e:
+            raise ProtocolError(f"SDO abort while {what}", code=e.code,
+                                text=SdoAbortedError.CODES.get(e.code, "unknown abort code"),
+                                device=self.node_name(nid)) from e
+        except SdoCommunicationError as e:
+            raise DeviceTimeout(f"no SDO answer while {what} ({e})", device=self.node_name(nid)) from e
+        except (can.CanError, OSError) as e:
+            raise DeviceError(f"CAN bus error while {what}: {e}", device=self.node_name(nid)) from e
+
+    # -- reading --------------------------------------------------------------------
+    def sdo_read(self, nid: int, index: int, subindex: int = 0):
+        """One SDO upload (decoded with the standard object dictionary)."""
+        with self._io(nid, f"reading 0x{index:04X}:{subindex:02X}"):
+            obj = self.remote[nid].sdo[index]
+            return (obj[subindex] if subindex else obj).raw
+
+    def sdo_write(self, nid: int, index: int, value, subindex: int = 0) -> None:
+        with self._io(nid, f"writing 0x{index:04X}:{subindex:02X} = {value}"):
+            obj = self.remote[nid].sdo[index]
+            (obj[subindex] if subindex else obj).raw = value
+
+    def _to_units(self, i: int, increments: int) -> float:
+        return increments / self.resolution[i]
+
+    def sync_sample(self, timeout: float | None = None) -> dict[int, tuple]:
+        """Send one SYNC; return each node's TPDO values of that SYNC (``{nid: (values...)}``)."""
+        timeout = self.timeout if timeout is None else float(timeout)
+        self.check_health()
+        with self._cv:
+            self._sync_no += 1
+            self._pending, self._fresh = set(self.nodes), {}
+        try:
+            self.network.sync.transmit()
+        except (can.CanError, OSError) as e:
+            raise DeviceError(f"cannot send SYNC: {e}", device=self.name) from e
+        end = time.monotonic() + timeout
+        with self._cv:
+            while self._pending and self._cv.wait(max(0.0, end - time.monotonic())):
+                pass
+            missing, fresh = sorted(self._pending), self._fresh
+            self._pending = set()
+        for nid in missing:
+            self._check_heartbeat(nid, settle=True)
+        if missing:
+            also = f" (also nodes {missing[1:]})" if len(missing) > 1 else ""
+            raise DeviceTimeout(f"no TPDO for SYNC #{self._sync_no} within {timeout:.3g} s; stale sample refused"
+                                f"{also}", device=self.node_name(missing[0]))
+        return fresh
+
+    def _read_internal(self, timeout: float) -> Sample:
+        if self.read_via == "sdo":
+            return self.read_sdo(timeout)
+        fresh = self.sync_sample(timeout)
+        t = time.monotonic()
+        pos = [o for o, _ in self.tpdo_objects].index(self.position_object)
+        raw = {nid: fresh[nid][pos] for nid in self.nodes}
+        values = {ch: self._to_units(i, self._decode(raw[n])) for i, (ch, n) in enumerate(zip(self.channels, self.nodes))}
+        return Sample(t, values, seq=self._sync_no, info=self._info(fresh, "tpdo"))
+
+    def read_sdo(self, timeout: float | None = None) -> Sample:
+        """Positions by one SDO upload per node (the fallback; not one common instant)."""
+        if not self.is_open:
+            raise DeviceError("device is not open", device=self.name)
+        self.check_health()
+        raw = {}
+        for nid in self.nodes:
+            self.remote[nid].sdo.RESPONSE_TIMEOUT = self.timeout if timeout is None else float(timeout)
+            try:
+                raw[nid] = self.sdo_read(nid, self.position_object)
+            finally:
+                self.remote[nid].sdo.RESPONSE_TIMEOUT = self.timeout
+        values = {ch: self._to_units(i, self._decode(raw[n])) for i, (ch, n) in enumerate(zip(self.channels, self.nodes))}
+        self._sync_no += 1
+        return Sample(time.monotonic(), values, seq=self._sync_no, info={"source": "sdo", "increments": raw})
+
+    def _decode(self, raw: int) -> int:
+        return raw
+
+    def _info(self, fresh: dict[int, tuple], source: str) -> dict:
+        pos = [o for o, _ in self.tpdo_objects].index(self.position_object)
+        return {"source": source, "sync": self._sync_no, "increments": {n: v[pos] for n, v in fresh.items()}}

@@ -1,0 +1,113 @@
+"""``python app.py devices check``: connect to the configured devices, print live readings.
+
+    app.py devices check --config stations/lab.toml
+    app.py devices check --config fixtures/stations/sim-sm.toml --endpoints ep.json
+    app.py devices check --simulate --robot agebot-pm
+
+Each device is opened on its own, so that one missing cable does not hide the
+others; what is wrong is said with what to check. Exit 0 only if every device
+answered.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from calibration.errors import ConfigError, StationError
+from drivers.config import load_endpoints, load_station_config, with_endpoints
+from drivers.errors import DeviceError, DeviceTimeout
+from drivers.rig import Rig
+
+HINTS = {
+    "canopen": "check the CAN cable and termination, the bus interface and bitrate in "
+               "[canopen], and that every node id in canopen.nodes is powered",
+    "inclinometer": "check the serial cable, inclinometer.port and inclinometer.baudrate",
+    "draw-wire": "check the Modbus link (drawwire.host/port or serial_port), device_id "
+                 "and that the sensor is powered",
+}
+
+
+def hint_for(device: str) -> str:
+    for key, text in HINTS.items():
+        if device.startswith(key):
+            return text
+    return "check the device's cable and its section of the station config"
+
+
+def _config(args):
+    if args.config is None and not args.endpoints:
+        raise ConfigError("give --config FILE (the station config), or --simulate to check "
+                          "the simulated station")
+    from drivers.sim.server import default_config_path
+
+    path = args.config
+    endpoints = load_endpoints(args.endpoints) if args.endpoints else None
+    if path is None:
+        path = default_config_path(endpoints.get("robot", args.robot))
+    config = load_station_config(path)
+    if endpoints is not None:
+        config = with_endpoints(config, endpoints, source=args.endpoints)
+    return config
+
+
+def check(config, seconds: float = 3.0, out=sys.stdout) -> bool:
+    """Open each device, print readings for ``seconds``; True if all answered."""
+    rig = Rig(config)
+    ok: dict[str, str | None] = {}
+    for d in rig.devices:
+        try:
+            d.open()
+            ok[d.name] = None
+        except (DeviceError, OSError) as e:
+            ok[d.name] = str(e)
+    if rig.can_move and ok.get(rig.actuators.name) is None:
+        try:
+            sw = {nid: rig.actuators.statusword(nid) for nid in rig.actuators.nodes}
+            from drivers.canopen_drives import state_name
+
+            print("drives: " + ", ".join(f"node {n} {state_name(s)}" for n, s in sw.items()),
+                  file=out)
+        except DeviceError as e:
+            ok[rig.actuators.name] = str(e)
+    try:
+        end = time.monotonic() + seconds
+        while True:
+            parts = []
+            for d in rig.devices:
+                if ok[d.name] is not None:
+                    continue
+                try:
+                    s = d.read()
+                    parts.append(", ".join(f"{ch} {v:.6g}" for ch, v in s.values.items()))
+                except (DeviceError, DeviceTimeout) as e:
+                    ok[d.name] = str(e)
+            print(" | ".join(parts) if parts else "(no device answers)", file=out, flush=True)
+            if time.monotonic() >= end:
+                break
+            time.sleep(min(0.5, max(0.0, end - time.monotonic())))
+    finally:
+        rig.close()
+    print("", file=out)
+    for name, err in ok.items():
+        if err is None:
+            print(f"  OK    {name}", file=out)
+        else:
+            print(f"  FAIL  {name}: {err}\n        -> {hint_for(name)}", file=out)
+    return all(v is None for v in ok.values())
+
+
+def main(args: argparse.Namespace) -> int:
+    if getattr(args, "simulate", False):
+        from drivers.sim.server import SimulatorProcess, default_config_path
+
+        with SimulatorProcess(args.robot, config=args.config) as sim:
+            config = with_endpoints(load_station_config(args.config or
+                                                        default_config_path(args.robot)),
+                                    sim.endpoints, source="simulator")
+            good = check(config, args.seconds)
+    else:
+        good = check(_config(args), args.seconds)
+    if not good:
+        raise StationError("some devices did not answer (see above)")
+    return 0

@@ -1,0 +1,172 @@
+"""The station's devices, built from one :class:`~drivers.config.StationConfig`.
+
+:class:`Rig` owns the actuators (CANopen drives or encoders), the inclinometer
+and the draw-wire of a station, opens and closes them together, and offers the
+few operations a session needs: move and wait, one live reading of every
+channel, one checked snapshot of a pose, zeroing the draw-wire. The session and
+``app.py devices check`` use it; nothing here knows a method or a widget.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Sequence
+
+from drivers.base import Device
+from drivers.canopen_drives import CanopenActuators, CanopenNodes, canopen_device
+from drivers.config import StationConfig
+from drivers.drawwire import DrawWire
+from drivers.errors import DeviceError
+from drivers.inclinometer import Inclinometer
+from drivers.snapshot import Snapshot, snapshot_with
+
+log = logging.getLogger("drivers.rig")
+
+WORD_ORDER = {"high-first": "big", "low-first": "little"}
+
+
+def inclinometer_from_config(cfg) -> Inclinometer:
+    """The inclinometer an :class:`~drivers.config.InclinometerConfig` describes (not opened)."""
+    axes = {ch: (a.raw, a.sign, a.offset_rad) for ch, a in cfg.axes.items()}
+    return Inclinometer(cfg.port, axes, baudrate=cfg.baudrate, timeout=cfg.timeout,
+                        name="inclinometer")
+
+
+def drawwire_from_config(cfg) -> DrawWire:
+    """The draw-wire a :class:`~drivers.config.DrawwireConfig` describes (not opened)."""
+    kw = dict(metres_per_count=cfg.metres_per_count, offset_m=cfg.offset_m,
+              device_id=cfg.device_id, word_order=WORD_ORDER[cfg.word_order],
+              timeout=cfg.timeout, name="draw-wire")
+    if cfg.mode == "tcp":
+        return DrawWire(host=cfg.host, tcp_port=cfg.port, **kw)
+    return DrawWire(port=cfg.serial_port, baudrate=cfg.baudrate, **kw)
+
+
+@dataclass(frozen=True)
+class DeviceStatus:
+    """How one device is: ``ok``, and a sentence (its readings, or what is wrong and
+    what to do about it)."""
+
+    name: str
+    ok: bool
+    text: str
+
+
+class Rig:
+    """Every device of a station (config resolved: no ``"@endpoints"`` left).
+
+    ``actuators`` is a :class:`CanopenActuators` (the station moves the robot) or
+    :class:`~drivers.canopen_drives.CanopenEncoders` (read only); ``inclinometer`` and
+    ``drawwire`` are None where the station has none.
+    """
+
+    def __init__(self, config: StationConfig):
+        self.config = config.require_resolved()
+        self.actuators: CanopenNodes = canopen_device(config.canopen)
+        self.inclinometer = (inclinometer_from_config(config.inclinometer)
+                             if config.inclinometer is not None else None)
+        self.drawwire = (drawwire_from_config(config.drawwire)
+                         if config.drawwire is not None else None)
+
+    @property
+    def devices(self) -> list[Device]:
+        return [d for d in (self.actuators, self.inclinometer, self.drawwire) if d is not None]
+
+    @property
+    def can_move(self) -> bool:
+        return isinstance(self.actuators, CanopenActuators)
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def open(self) -> "Rig":
+        """Open every device (drives are enabled); on a failure, close those already
+        opened and raise the device's error."""
+        opened = []
+        try:
+            for d in self.devices:
+                d.open()
+                opened.append(d)
+            if self.can_move:
+                self.actuators.enable(self.config.canopen.sdo_timeout * 4)
+        except BaseException:
+            for d in reversed(opened):
+                _close_quietly(d)
+            raise
+        return self
+
+    def close(self) -> None:
+        for d in reversed(self.devices):
+            _close_quietly(d)
+
+    def __enter__(self):
+        return self.open()
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def status(self) -> list[DeviceStatus]:
+        """One read of every device, as sentences (``devices check``, the GUI's setup page)."""
+        out = []
+        for d in self.devices:
+            if not d.is_open:
+                out.append(DeviceStatus(d.name, False, "not connected"))
+                continue
+            try:
+                s = d.read()
+            except DeviceError as e:
+                out.append(DeviceStatus(d.name, False, str(e)))
+                continue
+            out.append(DeviceStatus(d.name, True, ", ".join(
+                f"{ch} {v:.6g}" for ch, v in s.values.items())))
+        return out
+
+    # -- readings --------------------------------------------------------------------------
+    def read(self) -> dict[str, float]:
+        """One fresh reading of every channel of every device."""
+        values: dict[str, float] = {}
+        for d in self.devices:
+            values.update(d.read().values)
+        return values
+
+    def qm(self) -> list[float]:
+        s = self.actuators.read()
+        return [s.values[ch] for ch in self.actuators.channels]
+
+    def snapshot(self, **overrides) -> Snapshot:
+        """One checked measurement of the current pose with the configured settle,
+        samples and limits (:func:`drivers.snapshot.snapshot_with`)."""
+        return snapshot_with(self.devices, self.config.snapshot, **overrides)
+
+    # -- motion ----------------------------------------------------------------------------
+    def move_to(self, qm: Sequence[float], timeout: float | None = None) -> None:
+        """Move every actuator to ``qm`` (actuator units) and wait for target reached."""
+        if not self.can_move:
+            raise DeviceError("the actuators are read-only encoders (canopen.mode = "
+                              "\"cia406\"): move the robot with its own controller",
+                              device=self.actuators.name)
+        t = self.config.canopen.move_timeout if timeout is None else timeout
+        t0 = time.monotonic()
+        self.actuators.move_to(qm, timeout=self.config.canopen.sdo_timeout * 4)
+        self.actuators.wait_target_reached(max(0.1, t - (time.monotonic() - t0)))
+
+    def fault_reset(self) -> None:
+        if self.can_move:
+            self.actuators.fault_reset(self.config.canopen.sdo_timeout * 4)
+
+    def zero_drawwire(self) -> None:
+        if self.drawwire is None:
+            raise DeviceError("this station has no draw-wire ([drawwire] in the station "
+                              "config)", device="draw-wire")
+        self.drawwire.zero()
+
+    def reconnect(self) -> None:
+        """Close and open every device again (after a cable was re-plugged)."""
+        self.close()
+        self.open()
+
+
+def _close_quietly(d: Device) -> None:
+    try:
+        d.close()
+    except Exception as e:  # a device that is gone cannot be closed cleanly
+        log.warning("%s: close failed: %s", d.name, e)

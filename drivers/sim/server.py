@@ -1,0 +1,364 @@
+"""The simulated station as one process: ``python app.py simulate --robot R``.
+
+One :class:`~drivers.sim.robot.SimulatedAgebot` (true parameters from a truth
+file) behind the simulated devices, each speaking its real wire protocol:
+
+* CANopen CiA 402 drives (or CiA 406 encoders) on a socketcand hub (TCP, 127.0.0.1);
+* the inclinometer on a pseudo-terminal (and ``socket://`` TCP);
+* the draw-wire as a Modbus TCP server (and RTU over a pseudo-terminal).
+
+The station config (``--config``, default ``fixtures/stations/sim-<robot>.toml``)
+shapes the devices the way the station will expect them: node ids, encoder
+resolution, draw-wire scale, offset and word order. The endpoints (cli.md) are
+printed as one JSON line and, with ``--endpoints FILE``, written atomically to
+that file; they include ``control``, a JSON-lines TCP port through which tests
+and demos inject faults and look at the simulated truth::
+
+    {"faults": {"drop_prob": 0.2}}   {"clear": true}   {"state": true}
+    {"move": [qm...]}  (the robot's own controller, for CiA 406 encoders)
+    {"drop_drawwire": true}  (close the Modbus TCP connections once)
+
+Every command answers one JSON line: ``{"ok": true, ...}`` or ``{"error": "..."}``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import socket
+import socketserver
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calibration.errors import ConfigError
+from drivers.config import StationConfig, load_station_config
+from drivers.sim.cia402_drive import start_canopen_sim
+from drivers.sim.drawwire_sim import SimDrawWire
+from drivers.sim.faults import FaultPlan
+from drivers.sim.inclinometer_sim import SimInclinometer
+from drivers.sim.robot import SimulatedAgebot
+from drivers.sim.truth import SimTruth, load_truth, report_truth
+
+log = logging.getLogger("drivers.sim")
+
+ROOT = Path(__file__).resolve().parents[2]
+FIXTURES = ROOT / "fixtures"
+WORD_ORDER = {"high-first": "big", "low-first": "little"}
+
+
+def default_config_path(robot: str) -> Path:
+    return FIXTURES / "stations" / f"sim-{robot.removeprefix('agebot-')}.toml"
+
+
+def default_truth_path(robot: str) -> Path:
+    return FIXTURES / "truth" / f"{robot}.json"
+
+
+class SimStation:
+    """The simulated robot and its devices, in this process (threads).
+
+    truth:  what the robot really is. config: the station config to look like
+    (endpoint placeholders are ignored: the simulator picks free ports).
+    inclinometer_hz: frame cycles per second. rtu: also serve Modbus RTU on a pty.
+    """
+
+    def __init__(self, truth: SimTruth, config: StationConfig, *, seed: int | None = None,
+                 inclinometer_hz: float = 100.0, rtu: bool = True, control: bool = True):
+        if config.robot != truth.robot:
+            raise ConfigError(f"the station config is for {config.robot}, the truth file for "
+                              f"{truth.robot}", source=config.source, key="robot")
+        self.truth, self.config = truth, config
+        self.plan = FaultPlan(seed=seed)
+        cc = config.canopen
+        self.robot = SimulatedAgebot(truth, faults=self.plan, seed=seed,
+                                     velocity=cc.profile_velocity or None,
+                                     acceleration=cc.profile_acceleration or None)
+        self._inclinometer_hz, self._rtu, self._control = inclinometer_hz, rtu, control
+        self.canopen = self.inclinometer = self.drawwire = None
+        self._server: socketserver.ThreadingTCPServer | None = None
+        self._stopped = threading.Event()
+
+    # -- lifecycle ---------------------------------------------------------------------
+    def start(self) -> "SimStation":
+        try:
+            cc = self.config.canopen
+            self.canopen = start_canopen_sim(
+                self.robot.axes, cc.nodes, list(cc.increments_per_unit), self.plan,
+                channel=cc.channel, profile=cc.mode, increments=self.robot.encoder_increments)
+            if self.config.inclinometer is not None:
+                self.inclinometer = SimInclinometer(
+                    self.robot.inclinometer_angles_deg, rate_hz=self._inclinometer_hz,
+                    faults=self.plan, tcp=True).start()
+            dw = self.config.drawwire
+            if dw is not None:
+                self.drawwire = SimDrawWire(
+                    self.robot.drawwire_length, zero=self.robot.zero_drawwire,
+                    metres_per_count=dw.metres_per_count, offset_m=dw.offset_m,
+                    word_order=WORD_ORDER[dw.word_order], device_id=dw.device_id,
+                    rtu=self._rtu, baudrate=dw.baudrate, faults=self.plan).start()
+            if self._control:
+                self._server = _ControlServer(("127.0.0.1", 0), _ControlHandler)
+                self._server.station = self
+                threading.Thread(target=self._server.serve_forever, name="sim control",
+                                 daemon=True).start()
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def stop(self) -> None:
+        """Stop every simulated device (idempotent)."""
+        if self._server is not None:
+            self._server.shutdown()
+            self._server.server_close()
+            self._server = None
+        for dev in (self.drawwire, self.inclinometer, self.canopen):
+            if dev is not None:
+                try:
+                    dev.stop()
+                except Exception as e:
+                    log.warning("stopping %s: %s", type(dev).__name__, e)
+        self.canopen = self.inclinometer = self.drawwire = None
+        self._stopped.set()
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    # -- what clients need -------------------------------------------------------------
+    @property
+    def endpoints(self) -> dict[str, Any]:
+        """The endpoints record of cli.md (plus ``control``, ``robot`` and RTU/TCP extras)."""
+        out: dict[str, Any] = {"robot": self.truth.robot, "canopen": self.canopen.endpoint}
+        if self.inclinometer is not None:
+            out["inclinometer"] = {"port": self.inclinometer.port, "url": self.inclinometer.url,
+                                   "baudrate": self.config.inclinometer.baudrate}
+        if self.drawwire is not None:
+            out["drawwire"] = {"host": self.drawwire.host, "port": self.drawwire.port,
+                               "device_id": self.drawwire.device_id,
+                               "rtu_port": self.drawwire.rtu_port}
+        if self._server is not None:
+            host, port = self._server.server_address[:2]
+            out["control"] = {"host": host, "port": port}
+        return out
+
+    def command(self, cmd: dict) -> dict:
+        """One control command (module docstring); raises ValueError/KeyError/TypeError."""
+        if not isinstance(cmd, dict):
+            raise TypeError("a command is a JSON object")
+        known = {"faults", "clear", "state", "move", "drop_drawwire"}
+        unknown = set(cmd) - known
+        if unknown:
+            raise KeyError(f"unknown command {sorted(unknown)} (known: {sorted(known)})")
+        if cmd.get("clear"):
+            self.plan.clear()
+        if "faults" in cmd:
+            self.plan.update(**cmd["faults"])
+        if self.drawwire is not None and ("faults" in cmd or cmd.get("clear")):
+            self.drawwire.apply_faults()
+        if "move" in cmd:
+            qm = np.asarray(cmd["move"], dtype=float)
+            if qm.shape != (len(self.robot.axes),):
+                raise ValueError(f"move: need {len(self.robot.axes)} actuator values")
+            self.robot.move_to(qm)
+        if cmd.get("drop_drawwire") and self.drawwire is not None:
+            self.drawwire.drop_connections()
+        answer: dict[str, Any] = {"ok": True, "faults": self.plan.as_dict()}
+        if cmd.get("state"):
+            answer.update(qm=self.robot.qm().tolist(), pose=self.robot.ee_pose().tolist(),
+                          anchor=self.robot.anchor.tolist(),
+                          target_reached=self.robot.target_reached(),
+                          drawwire_zero_calls=getattr(self.drawwire, "zero_calls", 0))
+        return answer
+
+    def wait(self, timeout: float | None = None) -> bool:
+        return self._stopped.wait(timeout)
+
+
+class _ControlServer(socketserver.ThreadingTCPServer):
+    daemon_threads = True
+    allow_reuse_address = True
+    station: SimStation
+
+
+class _ControlHandler(socketserver.StreamRequestHandler):
+    def handle(self) -> None:
+        for line in self.rfile:
+            if not line.strip():
+                continue
+            try:
+                answer = self.server.station.command(json.loads(line))
+            except Exception as e:  # any failure is an answer, never a dropped connection
+                log.exception("control command %r failed", line)
+                answer = {"error": f"{type(e).__name__}: {e}"}
+            self.wfile.write((json.dumps(answer) + "\n").encode())
+            self.wfile.flush()
+
+
+class SimControl:
+    """Client of a running simulator's control port (tests, demos, the headless run)."""
+
+    def __init__(self, host: str, port: int, timeout: float = 10.0):
+        self._sock = socket.create_connection((host, int(port)), timeout=timeout)
+        self._file = self._sock.makefile("rwb")
+
+    @classmethod
+    def from_endpoints(cls, endpoints: dict) -> "SimControl":
+        c = endpoints.get("control")
+        if not c:
+            raise ConfigError("the endpoints give no simulator control port", key="control")
+        return cls(c["host"], c["port"])
+
+    def call(self, **command) -> dict:
+        self._file.write((json.dumps(command) + "\n").encode())
+        self._file.flush()
+        line = self._file.readline()
+        if not line:
+            raise ConnectionError("the simulator closed its control port")
+        answer = json.loads(line)
+        if "error" in answer:
+            raise RuntimeError(f"simulator: {answer['error']}")
+        return answer
+
+    def close(self) -> None:
+        for f in (self._file, self._sock):
+            try:
+                f.close()
+            except OSError:
+                pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def write_endpoints(path: str | Path, endpoints: dict) -> None:
+    """Write the endpoints JSON atomically (a reader never sees half a file)."""
+    from station.params_file import write_atomic  # one atomic writer in the project
+
+    write_atomic(Path(path), (json.dumps(endpoints, indent=2) + "\n").encode())
+
+
+def build(robot: str, truth: str | None = None, config: str | None = None, *,
+          seed: int | None = None) -> SimStation:
+    """A :class:`SimStation` from file names (defaults: the fixtures), not started."""
+    t = load_truth(truth) if truth else load_truth(default_truth_path(robot))
+    if t.robot != robot:
+        raise ConfigError(f"the truth file is for {t.robot}, not {robot}", source=t.source,
+                          key="robot")
+    c = load_station_config(config or default_config_path(robot))
+    return SimStation(t, c, seed=seed)
+
+
+def main(args: argparse.Namespace) -> int:
+    """``app.py simulate``: start, print endpoints, run until SIGINT/SIGTERM."""
+    station = build(args.robot, args.truth, args.config, seed=getattr(args, "seed", None))
+    stop = threading.Event()
+    parent = os.getppid() if getattr(args, "exit_with_parent", False) else None
+
+    def on_signal(signum, frame):
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with station:
+            ep = station.endpoints
+            if args.endpoints:
+                write_endpoints(args.endpoints, ep)
+            print(json.dumps(ep), flush=True)
+            print(f"simulated {args.robot} running (truth: {station.truth.source or 'report'}); "
+                  f"CANopen socketcand {ep['canopen']['host']}:{ep['canopen']['port']}, "
+                  f"inclinometer {ep.get('inclinometer', {}).get('port')}, draw-wire Modbus TCP "
+                  f"{ep.get('drawwire', {}).get('port')}; Ctrl-C stops", file=sys.stderr,
+                  flush=True)
+            while not stop.wait(0.2):
+                if parent is not None and os.getppid() != parent:
+                    break       # the station that started us died (even by SIGKILL)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        if args.endpoints:
+            Path(args.endpoints).unlink(missing_ok=True)
+    return 0
+
+
+__all__ = ["SimStation", "SimControl", "build", "main", "write_endpoints", "report_truth"]
+
+
+class SimulatorProcess:
+    """``app.py simulate`` in a child process: the simulated devices in their own
+    process, as at a real station. ``endpoints`` is what it printed; :meth:`stop`
+    ends it (SIGTERM, then SIGKILL)."""
+
+    def __init__(self, robot: str, truth: str | None = None, config: str | None = None, *,
+                 seed: int | None = None, timeout: float = 20.0):
+        import subprocess
+
+        cmd = [sys.executable, str(ROOT / "app.py"), "simulate", "--robot", robot,
+               "--exit-with-parent"]
+        if truth:
+            cmd += ["--truth", str(truth)]
+        if config:
+            cmd += ["--config", str(config)]
+        if seed is not None:
+            cmd += ["--seed", str(seed)]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     stdin=subprocess.DEVNULL, start_new_session=True)
+        try:
+            self.endpoints = self._first_line(timeout)
+        except BaseException:
+            self.stop()
+            raise
+        self.stderr_tail: list[str] = []
+        for stream in (self.proc.stdout, self.proc.stderr):
+            threading.Thread(target=self._consume, args=(stream,), daemon=True).start()
+
+    def _first_line(self, timeout: float) -> dict:
+        import select
+
+        if not select.select([self.proc.stdout], [], [], timeout)[0]:
+            raise RuntimeError(f"the simulator did not start within {timeout:.0f} s")
+        line = self.proc.stdout.readline()
+        if not line:
+            err = self.proc.stderr.read().decode(errors="replace").strip().splitlines()
+            raise RuntimeError("the simulator exited: " + (err[-1] if err else
+                                                         f"code {self.proc.wait()}"))
+        return json.loads(line)
+
+    def _consume(self, stream) -> None:
+        try:
+            for line in stream:
+                if stream is self.proc.stderr:
+                    self.stderr_tail = (self.stderr_tail + [line.decode(errors="replace")])[-20:]
+        except (OSError, ValueError):
+            pass
+
+    def control(self) -> SimControl:
+        return SimControl.from_endpoints(self.endpoints)
+
+    def stop(self) -> None:
+        import subprocess
+
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()

@@ -1,0 +1,215 @@
+"""The HTML calibration report (station/report.py): one self-contained file,
+written atomically, escaped, with the figures embedded as PNG."""
+import base64
+import json
+import os
+import re
+import shutil
+import warnings
+from html.parser import HTMLParser
+
+import pytest
+
+import app
+from station.batch import calibrate_trace
+from station.report import ReportError, write_report
+
+pytest.importorskip("matplotlib")
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+TRACES = os.path.join(ROOT, "fixtures", "traces")
+PNG = b"\x89PNG\r\n\x1a\n"
+IMG = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
+GROUPS = ("Identifiable (", "Not identifiable, without influence (",
+          "Not identifiable, with influence (")
+VALIDATION = [
+    {"channel": "dx", "unit": "mm", "n": 12, "rms_before": 31.25, "rms_after": 0.0417,
+     "max_before": 77.5, "max_after": 0.0931},
+    {"channel": "dy", "unit": "mm", "n": 12, "rms_before": 18.5, "rms_after": 0.0388,
+     "max_before": 40.25, "max_after": 0.0875},
+]
+EVIL = "<script>alert('x')</script> drive 2 & \"3\""
+
+
+def calibrate(path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return calibrate_trace(str(path))
+
+
+class Tags(HTMLParser):
+    """Counts open/close tags so that the structure can be checked."""
+
+    VOID = frozenset({"meta", "img", "br", "hr", "link", "input"})
+
+    def __init__(self):
+        super().__init__()
+        self.stack, self.errors, self.tags = [], [], []
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append((tag, dict(attrs)))
+        if tag not in self.VOID:
+            self.stack.append(tag)
+
+    def handle_endtag(self, tag):
+        if not self.stack or self.stack[-1] != tag:
+            self.errors.append(f"</{tag}> closes {self.stack[-1:]}")
+        else:
+            self.stack.pop()
+
+
+def check_html(text):
+    assert text.startswith("<!DOCTYPE html>")
+    assert text.rstrip().endswith("</html>")
+    p = Tags()
+    p.feed(text)
+    p.close()
+    assert not p.errors, p.errors[:5]
+    assert not p.stack, p.stack
+    # self-contained: no scripts, no stylesheets or images from elsewhere
+    names = [t for t, _ in p.tags]
+    assert "script" not in names and "link" not in names and "iframe" not in names
+    for _, attrs in p.tags:
+        for key in ("src", "href"):
+            assert not attrs.get(key, "data:").lower().startswith(("http:", "https:", "//")), attrs
+    return p
+
+
+def pngs(text):
+    out = [base64.b64decode(b, validate=True) for b in IMG.findall(text)]
+    assert all(b.startswith(PNG) for b in out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def sm_report(tmp_path_factory):
+    """sm-self-redundancy (all three identifiability classes), with an event
+    recorded in the trace, one given, validation and a session."""
+    d = tmp_path_factory.mktemp("sm")
+    trace = d / "sm-self-redundancy.jsonl"
+    shutil.copyfile(os.path.join(TRACES, "sm-self-redundancy.jsonl"), trace)
+    with open(trace, "a", encoding="utf-8") as f:
+        f.write(json.dumps({"record": "event", "t": "2026-01-02T10:00:00Z", "kind": "fault",
+                            "message": "recorded <b>fault</b> & retry"}) + "\n")
+    outcome = calibrate(trace)
+    out = write_report(d / "report.html", outcome, validation=VALIDATION,
+                       events=[{"t": "2026-01-02T10:05:00Z", "kind": "operator", "message": EVIL}],
+                       session={"station config": "sim-sm.toml", "operator": "<Jan & Eva>",
+                                "devices": {"drive": "sim-cia402", "inclinometer": "sim"}},
+                       title="Calibration of <AGEBOT>")
+    return outcome, out, out.read_text(encoding="utf-8")
+
+
+@pytest.fixture(scope="module")
+def pm_report(tmp_path_factory):
+    outcome = calibrate(os.path.join(TRACES, "pm-ik.jsonl"))
+    out = write_report(tmp_path_factory.mktemp("pm") / "pm.html", outcome)
+    return outcome, out, out.read_text(encoding="utf-8")
+
+
+def test_sm_report_content(sm_report):
+    outcome, path, text = sm_report
+    assert path.is_file() and path.suffix == ".html"
+    check_html(text)
+    for name in outcome.result.names:
+        assert f'<td class="name">{name}</td>' in text
+    for group in GROUPS:  # sm-self-redundancy has all three classes
+        assert group in text
+    assert len(pngs(text)) >= 6  # 4 iteration figures, residuals, validation
+    assert "sm-self-redundancy.jsonl" in text and outcome.document is None
+    assert "Eq. 60 minimum poses" in text and "Condition number" in text
+    for key in ("dx", "dy"):
+        assert f'<td class="name">{key}</td>' in text
+    # the title is escaped too
+    assert "Calibration of &lt;AGEBOT&gt;" in text and "<AGEBOT>" not in text
+
+
+def test_validation_table(sm_report):
+    _, _, text = sm_report
+    sec = text[text.index('<section id="validation">'):]
+    sec = sec[:sec.index("</section>")]
+    for row in VALIDATION:
+        for key in ("channel", "unit", "n", "rms_before", "rms_after", "max_before", "max_after"):
+            assert f">{row[key]}<" in sec, (key, row[key])
+    assert ">-99.9 %<" in sec and ">-99.8 %<" in sec  # RMS change of dx, dy
+    assert len(pngs(sec)) == 1
+
+
+def test_events_and_session_are_escaped(sm_report):
+    _, _, text = sm_report
+    assert "<script" not in text
+    assert "&lt;script&gt;alert(&#x27;x&#x27;)&lt;/script&gt; drive 2 &amp; &quot;3&quot;" in text
+    assert "recorded &lt;b&gt;fault&lt;/b&gt; &amp; retry" in text  # from the trace
+    assert "&lt;Jan &amp; Eva&gt;" in text and "sim-cia402" in text
+
+
+def test_pm_report(pm_report):
+    outcome, _, text = pm_report
+    check_html(text)
+    for name in outcome.result.names:
+        assert f'<td class="name">{name}</td>' in text
+    assert GROUPS[0] in text and GROUPS[2] in text and GROUPS[1] not in text
+    assert len(pngs(text)) >= 5
+    assert "q3_off and k3" in text  # the method's note
+    assert 'id="validation"' not in text and 'id="events"' not in text
+
+
+def test_batch_cli_writes_the_report(tmp_path, capsys):
+    params, report = tmp_path / "p.json", tmp_path / "r.html"
+    rc = app.main(["batch", os.path.join(TRACES, "sm-distance-tilt.jsonl"), "--out", str(params),
+                   "--report", str(report)])
+    assert rc == 0
+    assert "report written to" in capsys.readouterr().out
+    text = report.read_text(encoding="utf-8")
+    check_html(text)
+    assert len(pngs(text)) >= 5
+    assert json.loads(params.read_text())["checksum"] in text  # the parameter file it goes with
+    assert "Base frame" in text  # sm-distance-tilt's frame statement
+    assert sorted(os.listdir(tmp_path)) == ["p.json", "r.html"]
+
+
+def test_unwritable_path_is_a_clear_error_and_leaves_nothing(tmp_path, sm_report):
+    outcome = sm_report[0]
+    missing = tmp_path / "no-such-folder" / "r.html"
+    with pytest.raises(ReportError, match="report .*no-such-folder.*does not exist"):
+        write_report(missing, outcome)
+    assert not missing.parent.exists()
+    target = tmp_path / "a-folder"  # an existing directory cannot be replaced by the file
+    target.mkdir()
+    (target / "keep.txt").write_text("x")
+    with pytest.raises(ReportError, match="cannot write the report .*a folder"):
+        write_report(target, outcome)
+    assert sorted(os.listdir(tmp_path)) == ["a-folder"]
+    assert os.listdir(target) == ["keep.txt"]
+
+
+def test_failed_write_leaves_no_partial_file(tmp_path, sm_report, monkeypatch):
+    """A failure while writing (disk full, ...) removes the temporary file and
+    keeps a previous report as it was."""
+    import station.params_file
+    import station.report
+
+    monkeypatch.setattr(station.report, "render_report", lambda *a, **k: "<!DOCTYPE html>" * 1000)
+    old = tmp_path / "r.html"
+    old.write_text("previous report")
+
+    def full(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(station.params_file.os, "replace", full)
+    with pytest.raises(ReportError, match="No space left on device"):
+        write_report(old, sm_report[0])
+    assert os.listdir(tmp_path) == ["r.html"] and old.read_text() == "previous report"
+
+
+def test_batch_cli_unwritable_report_is_one_line(tmp_path, capsys, monkeypatch):
+    import station.report
+
+    monkeypatch.setattr(station.report, "render_report", lambda *a, **k: "<!DOCTYPE html>")
+    bad = tmp_path / "missing" / "r.html"
+    rc = app.main(["batch", os.path.join(TRACES, "sm-distance-tilt.jsonl"),
+                   "--out", str(tmp_path / "p.json"), "--report", str(bad)])
+    err = capsys.readouterr().err
+    assert rc != 0
+    assert err.startswith("error: cannot write the report") and len(err.strip().splitlines()) == 1
+    assert not bad.parent.exists()
