@@ -87,12 +87,26 @@ def params_document(result, *, robot: str, nominal: np.ndarray, trace_path: str 
     return doc
 
 
+def process_umask() -> int:
+    """The process umask without changing it (os.umask would race with other threads):
+    from /proc on Linux, else the usual 022."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0o022
+
+
 def write_atomic(path, data: bytes) -> None:
     """Temporary file in the same folder, fsync, rename, fsync the folder."""
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
     try:
+        os.fchmod(fd, 0o666 & ~process_umask())   # as open() would; mkstemp makes 0600
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()

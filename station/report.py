@@ -95,10 +95,6 @@ def write_report(path, outcome, *, validation=None, events=(), title=None,
     except OSError as e:
         reason = e.strerror or str(e)
         raise ReportError(f"cannot write the report {path}: {reason}") from None
-    try:  # the temporary file was private (0600); a report is for reading
-        os.chmod(path, 0o666 & ~_umask())
-    except OSError:
-        pass
     return path
 
 
@@ -113,18 +109,6 @@ def _check_writable(path: Path) -> None:
         reason = f"no permission to write in {folder}"
     if reason:
         raise ReportError(f"cannot write the report {path}: {reason}")
-
-
-def _umask() -> int:
-    """The process umask without changing it (Linux /proc), else the usual 022."""
-    try:
-        with open("/proc/self/status", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError, IndexError):
-        pass
-    return 0o022
 
 
 def render_report(outcome, *, validation=None, events=(), title=None, session=None) -> str:

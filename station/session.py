@@ -24,6 +24,7 @@ called from that worker thread.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import threading
@@ -490,6 +491,7 @@ class Session:
         self._event("export", f"parameter file {self.out / PARAMS} ({doc['checksum']})")
         from station.report import write_report
 
+        o = self.outcome = dataclasses.replace(o, document=doc)
         events = list(self.events)
         write_report(self.out / REPORT, o, validation=self.validation, events=events,
                      session={"robot": self.robot.name, "method": self.method,
