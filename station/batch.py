@@ -90,7 +90,7 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
               residual: str | None = None, options: SolverOptions | None = None,
               callback=None) -> BatchOutcome:
     """Calibrate the fit poses of ``trace``; write the parameter file ``out`` if given.
-    ``callback(iteration)`` is called after every iteration (live plots)."""
+    ``callback(k, iteration)`` is called after every iteration (live plots)."""
     trace_path = trace.path
     model, nominal = make_model(trace, method=method, residual=residual)
     opts = options or SolverOptions()

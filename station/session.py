@@ -152,7 +152,8 @@ class Session:
         for ev in tr.events:
             self.events.append(ev)
             if ev.get("kind") == "plan":
-                self.plan_poses += [PlannedPose.from_record(r) for r in ev.get("poses", ())]
+                poses = [PlannedPose.from_record(r) for r in ev.get("poses", ())]
+                self.plan_poses = poses if ev.get("replace", True) else self.plan_poses + poses
             elif ev.get("kind") == "skip" and "plan_index" in ev:
                 self.skipped.add(int(ev["plan_index"]))
         for p in tr.poses:
@@ -305,6 +306,16 @@ class Session:
             return euler_from_ypr(r["roll"], r["pitch"], r["yaw"])
         return np.array([r.get("roll", 0.0), r.get("pitch", 0.0), 0.0])
 
+    def set_plan(self, poses: list[PlannedPose]) -> None:
+        """Replace the plan (edited by the operator) while none of its poses is measured;
+        the new plan is recorded in the trace."""
+        if any(p.index in self.measured for p in self.plan_poses):
+            raise StationError("poses of the current plan are recorded already: a new plan "
+                               "needs a new session")
+        if len({p.index for p in poses}) != len(poses):
+            raise StationError("planned poses must have distinct indices")
+        self._set_plan(list(poses), replace=True)
+
     def _set_plan(self, poses: list[PlannedPose], replace: bool) -> None:
         if replace:
             self.plan_poses = list(poses)
@@ -396,6 +407,7 @@ class Session:
                 if action == "skip":
                     self.skipped.add(pose.index)
                     self._event("skip", f"pose {pose.index} skipped", plan_index=pose.index)
+                    self._recover(e)      # the next pose must not meet the same fault
                     return False
                 attempt += 1
                 self._event("retry", f"pose {pose.index}: retry {attempt}",
@@ -446,7 +458,8 @@ class Session:
 
     # -- calibration, validation, export ------------------------------------------------------------
     def calibrate(self, callback=None) -> BatchOutcome:
-        """Calibrate the recorded fit poses (Algorithm 2); ``callback(iteration)`` per step."""
+        """Calibrate the recorded fit poses (Algorithm 2); ``callback(k, iteration)`` after
+        every iteration (:class:`calibration.solver.Iteration`: live plots)."""
         if self._writer is not None:
             self._writer.close()
             self._writer = None

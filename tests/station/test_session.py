@@ -219,3 +219,42 @@ def test_device_faults_mid_session_are_survived_and_recorded(tmp_path):
     assert any("canopen node 2" in m or "FAULT" in m or "0x8611" in m for m in faults), faults
     assert len(trace.poses) + len(s.skipped) == 13
     assert s.outcome.result.converged
+
+
+def test_a_replaced_plan_is_the_plan_after_resume(tmp_path):
+    """Regenerating the plan before measuring replaces it, also for a resumed session."""
+    from station.trace import TraceWriter
+
+    robot = get_robot("agebot-sm")
+    config = load_station_config(FIX / "stations" / "sim-sm.toml")
+    out = tmp_path / "run"
+    out.mkdir()
+    qref = robot.ik(np.array([0.5, 1.0, 0.8, 0.0]), robot.nominal, elbow=-1)
+    with TraceWriter.create(out / "trace.jsonl", {"robot": "agebot-sm",
+                                                  "method": "sm-distance-tilt"}) as w:
+        w.append({"record": "reference", "role": "base-origin", "qm": qref.tolist()})
+    with Session(config, "sm-distance-tilt", out, request=PlanRequest(count=10, validation=3)) as s:
+        first = s.plan()
+        s.request.seed = 9
+        second = s.plan()
+        assert [p.qm for p in first] != [p.qm for p in second]
+    with Session(config, "sm-distance-tilt", out) as again:
+        assert again.resumed and [p.qm for p in again.pending] == [p.qm for p in second]
+
+
+def test_a_skipped_pose_leaves_no_fault_behind(tmp_path):
+    """A drive fault answered 'skip': the drive is reset, the next poses are measured."""
+    cfg = fast_config(tmp_path, "agebot-sm")
+    with SimulatorProcess("agebot-sm", config=str(cfg), seed=8) as sim:
+        with sim.control() as ctl:
+            with Session(_session_config(sim, cfg), "sm-distance-tilt", tmp_path / "run",
+                         fault_policy=lambda pose, err, attempt: "skip",
+                         request=PlanRequest(count=4, validation=0, seed=4)) as s:
+                s.connect()
+                s.move_to(s.reference_target()[0])
+                s.capture_reference()
+                s.plan()
+                ctl.call(faults={"drive_fault_node": 3})     # at the first pose's move
+                s.execute()
+    assert s.skipped == {s.plan_poses[0].index} and len(s.measured) == 3
+    assert [e["kind"] for e in s.events].count("fault") == 1

@@ -1,0 +1,41 @@
+"""``python app.py`` / ``python app.py gui [--simulate] [--config FILE]``: the wizard."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from calibration.errors import ConfigError
+
+
+def create(simulate: bool = False, config: str | None = None, settings=None):
+    """The controller and main window (the Qt application must exist)."""
+    from PySide6.QtCore import QSettings
+
+    from station.gui.controller import Controller
+    from station.gui.window import MainWindow
+
+    if settings is None:
+        settings = QSettings("calstation", "station")
+    controller = Controller(simulate=simulate, config_path=config, settings=settings)
+    return MainWindow(controller)
+
+
+def main(args: argparse.Namespace) -> int:
+    try:
+        from PySide6.QtCore import QTimer
+        from PySide6.QtWidgets import QApplication
+    except ImportError as e:  # the GUI extra is not installed
+        raise SystemExit(f"the GUI needs PySide6 ({e}): pip install -e '.[gui]'") from None
+    config = getattr(args, "config", None)
+    if config:
+        from pathlib import Path
+
+        if not Path(config).is_file():
+            raise ConfigError(f"no such station config: {config}", source=config)
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+    app.setApplicationName("Calibration station")
+    app.setOrganizationName("calstation")
+    window = create(bool(getattr(args, "simulate", False)), config)
+    window.show()
+    QTimer.singleShot(0, window.offer_resume)
+    return int(app.exec())

@@ -1,0 +1,407 @@
+"""The GUI's one link to the station: a :class:`~station.session.Session`, its
+devices (simulated in their own process with ``--simulate``) and the workers.
+
+Everything that touches a device or solves runs on :attr:`Controller.jobs`
+(one worker thread, in order); live readings come from :attr:`Controller.poller`
+on a timer. What the session reports through its ``observer`` (called on the
+worker) arrives on the GUI thread as the signals below. No widget here: the
+pages call these methods and listen to these signals.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass
+from collections.abc import Callable
+from pathlib import Path
+
+from PySide6.QtCore import QObject, QTimer, Signal
+
+from station.gui.worker import FaultQuestion, JobRunner, LockedRig, limited_jog, poll_devices
+
+log = logging.getLogger("station.gui")
+
+ROBOTS = {"agebot-sm": "AGEBOT serial arm (SM)", "agebot-pm": "AGEBOT wrist (PM)"}
+POLL_MS = 400
+
+
+@dataclass(frozen=True)
+class TraceSummary:
+    """What a session folder holds (for the resume question)."""
+
+    folder: Path
+    robot: str
+    method: str
+    measured: int
+    skipped: int
+    pending: int
+    planned: int
+    exported: bool
+    error: str | None = None
+
+    @property
+    def unfinished(self) -> bool:
+        return self.error is None and not self.exported
+
+    def sentence(self) -> str:
+        if self.error:
+            return f"{self.folder} holds a trace that cannot be read: {self.error}"
+        return (f"{self.folder} holds a {self.robot} {self.method} session: {self.measured} "
+                f"poses recorded, {self.skipped} skipped, {self.pending} of {self.planned} "
+                f"planned still to measure"
+                + ("; its parameter file was written" if self.exported else ""))
+
+
+def summarize_folder(folder) -> TraceSummary | None:
+    """The session in ``folder`` (None if it holds no trace)."""
+    from station.session import TRACE
+    from station.trace import read_trace
+
+    folder = Path(folder)
+    path = folder / TRACE
+    if not path.exists():
+        return None
+    try:
+        tr = read_trace(path)
+    except Exception as e:  # noqa: BLE001 - said to the operator
+        return TraceSummary(folder, "", "", 0, 0, 0, 0, False, str(e))
+    planned, skipped = set(), set()
+    exported = False
+    for ev in tr.events:
+        if ev.get("kind") == "plan":
+            if ev.get("replace", True):
+                planned = set()
+            planned |= {int(p["index"]) for p in ev.get("poses", ())}
+        elif ev.get("kind") == "skip" and "plan_index" in ev:
+            skipped.add(int(ev["plan_index"]))
+        elif ev.get("kind") == "export":
+            exported = True
+    measured = {int(p["plan_index"]) for p in tr.poses if "plan_index" in p}
+    pending = len(planned - measured - skipped)
+    return TraceSummary(folder, tr.robot, tr.method, len(measured), len(skipped), pending,
+                        len(planned), exported)
+
+
+def iteration_sink(signal):
+    """The solver's ``callback(k, iteration)`` as a signal carrying the iteration."""
+    def callback(*args):
+        signal.emit(args[-1])
+    return callback
+
+
+class Controller(QObject):
+    """Owns the simulator, the session and the workers of one GUI.
+
+    simulate: start the simulated devices (``app.py simulate``) for the chosen robot.
+    config_path: the station config (default with ``simulate``: the fixture of the robot).
+    """
+
+    progressed = Signal(object)        # station.session.Progress
+    eventLogged = Signal(dict)         # a trace event {t, kind, message, ...}
+    stateChanged = Signal(str)         # "connected", "planned", "measuring", ...
+    polled = Signal(object)            # list[DeviceReading] of one polling round
+    valuesChanged = Signal(dict)       # channel -> value (after a jog or a pose)
+    sessionChanged = Signal()          # a session was opened or closed
+    iterated = Signal(object)          # calibration.solver.Iteration (the session's)
+    iterated_offline = Signal(object)  # the same, of the Offline page's calibration
+    busyChanged = Signal(bool)
+
+    def __init__(self, *, simulate: bool = False, config_path: str | None = None,
+                 endpoints_path: str | None = None, sim_seed: int | None = None,
+                 settings=None, parent: QObject | None = None):
+        super().__init__(parent)
+        self.settings = settings        # QSettings: the last session folder
+        self.simulate = simulate
+        self.config_path = config_path
+        self.endpoints_path = endpoints_path
+        self.sim_seed = sim_seed
+        self.sim = None                 # drivers.sim.server.SimulatorProcess
+        self.sim_robot: str | None = None
+        self.config = None              # drivers.config.StationConfig (resolved)
+        self.session = None             # station.session.Session
+        self.rig: LockedRig | None = None
+        self.rezeroed = False           # a resumed distance session went back to its reference
+        self.last_readings: dict = {}
+        self.faults = FaultQuestion(self)
+        self.jobs = JobRunner("session", self)
+        self.poller = JobRunner("poll", self)
+        self.offline = JobRunner("offline", self)
+        self.jobs.busyChanged.connect(self.busyChanged)
+        self._jog_stop = threading.Event()
+        self._timer = QTimer(self)
+        self._timer.setInterval(POLL_MS)
+        self._timer.timeout.connect(self._poll)
+        self._closed = False
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # -- session lifecycle -----------------------------------------------------------
+    @property
+    def connected(self) -> bool:
+        s = self.session
+        return bool(s is not None and s.rig is not None and s.rig.devices
+                    and all(d.is_open for d in s.rig.devices))
+
+    def robot_of_config(self, path) -> str:
+        from drivers.config import load_station_config
+
+        return load_station_config(path).robot
+
+    def open_session(self, *, robot: str, method: str, out_dir, request,
+                     on_done: Callable | None = None, on_error: Callable | None = None,
+                     nominal: dict | None = None) -> None:
+        """Start the devices (the simulator first, with ``simulate``), open a
+        :class:`Session` on ``out_dir`` (resuming a trace there) and connect."""
+        self._timer.stop()
+        self.faults.reopen()
+        old = self.session
+        self.session = None
+
+        def job():
+            if old is not None:
+                old.close()
+            return self._open(robot, method, Path(out_dir), request, nominal)
+
+        def done(session):
+            self.session = session
+            self.rezeroed = False
+            self._timer.start()
+            self.sessionChanged.emit()
+            if on_done:
+                on_done(session)
+
+        def failed(e):
+            self.sessionChanged.emit()
+            if on_error:
+                on_error(e)
+
+        self.jobs.submit(job, done, failed)
+
+    def _open(self, robot, method, out: Path, request, nominal):
+        from drivers.config import load_endpoints, load_station_config, with_endpoints
+        from drivers.rig import Rig
+        from station.session import Session
+
+        if self.simulate:
+            from drivers.sim.server import SimulatorProcess, default_config_path
+
+            if self.sim is not None and self.sim_robot != robot:
+                self.sim.stop()
+                self.sim = None
+            if self.sim is None:
+                self.sim = SimulatorProcess(robot, config=self.config_path, seed=self.sim_seed)
+                self.sim_robot = robot
+            config = load_station_config(self.config_path or default_config_path(robot))
+            config = with_endpoints(config, self.sim.endpoints, source="simulator")
+        else:
+            from calibration.errors import ConfigError
+
+            if not self.config_path:
+                raise ConfigError("no station config: choose the station's config file, or "
+                                  "start the station with --simulate")
+            config = load_station_config(self.config_path)
+            if self.endpoints_path:
+                config = with_endpoints(config, load_endpoints(self.endpoints_path),
+                                        source=self.endpoints_path)
+        if config.robot != robot:
+            from calibration.errors import ConfigError
+
+            raise ConfigError(f"the station config is for {config.robot}, not {robot}",
+                              source=config.source, key="robot")
+        self.config = config
+        rig = LockedRig(Rig(config))
+        session = Session(config, method, out, request=request, observer=self._observe,
+                          fault_policy=self._fault_policy, rig=rig, nominal=nominal)
+        try:
+            session.connect()
+        except BaseException:
+            session.close()
+            raise
+        self.rig = rig
+        return session
+
+    def remember_folder(self, folder) -> None:
+        if self.settings is not None:
+            self.settings.setValue("last_session", str(folder))
+            self.settings.sync()
+
+    def last_folder(self) -> str | None:
+        if self.settings is None:
+            return None
+        value = self.settings.value("last_session")
+        return str(value) if value else None
+
+    def close_session(self, on_done: Callable | None = None) -> None:
+        self._timer.stop()
+        s, self.session = self.session, None
+
+        def job():
+            if s is not None:
+                s.close()
+
+        def done(_):
+            self.sessionChanged.emit()
+            if on_done:
+                on_done()
+
+        self.jobs.submit(job, done, lambda e: done(None))
+
+    def shutdown(self, timeout_s: float = 20.0) -> None:
+        """The window closes: stop jogging and measuring (the trace already holds
+        every recorded pose), close the devices, stop the simulator. Blocks."""
+        if self._closed:
+            return
+        self._closed = True
+        self._timer.stop()
+        self._jog_stop.set()
+        self.faults.cancel_all()
+        s = self.session
+        if s is not None:
+            s.abort()
+        self.jobs.wait(int(timeout_s * 1000))
+        self.poller.wait(3000)
+        self.offline.wait(int(timeout_s * 1000))
+        if s is not None:
+            try:
+                s.close()
+            except Exception as e:  # noqa: BLE001 - closing must go on
+                log.warning("closing the session: %s", e)
+        self.session = None
+        if self.sim is not None:
+            self.sim.stop()
+            self.sim = None
+
+    # -- what the session reports (worker thread -> signals) --------------------------------
+    def _observe(self, kind: str, payload) -> None:
+        if kind == "progress":
+            self.progressed.emit(payload)
+            if getattr(payload, "readings", None):
+                self.valuesChanged.emit(dict(payload.readings))
+        elif kind == "event":
+            self.eventLogged.emit(dict(payload))
+        elif kind == "state":
+            self.stateChanged.emit(str(payload))
+
+    def _fault_policy(self, pose, error, attempt) -> str:
+        """Ask the operator (:class:`FaultQuestion`); the session recovers the device
+        (drive fault reset or reconnect) after a retry or a skip."""
+        return self.faults(pose, error, attempt)
+
+    def _poll(self) -> None:
+        if self.poller.busy or self.rig is None or self.session is None:
+            return
+        rig = self.rig
+        self.poller.submit(lambda: poll_devices(rig), self._polled, lambda e: None)
+
+    def _polled(self, result) -> None:
+        if result is None:
+            return
+        values = {}
+        for r in result:
+            values.update(r.values)
+        self.last_readings.update(values)
+        self.polled.emit(result)
+
+    # -- device work on the session worker ----------------------------------------------------
+    def run(self, fn: Callable, on_done: Callable | None = None,
+            on_error: Callable | None = None) -> None:
+        """``fn(session)`` on the session worker."""
+        s = self.session
+        self.jobs.submit(lambda: fn(s), on_done, on_error)
+
+    def jog(self, axis: int, delta: float, speed: float, on_done=None, on_error=None) -> None:
+        """A step of ``delta`` actuator units at no more than ``speed`` units/s."""
+        self._jog_stop.clear()
+
+        def job(s):
+            limited_jog(s, axis, delta, speed, self._jog_stop)
+            values = s.readings()
+            self.valuesChanged.emit(values)
+            return values
+
+        self.run(job, on_done, on_error)
+
+    def jog_continuous(self, axis: int, direction: int, speed: float, on_done=None,
+                       on_error=None, dt: float = 0.1) -> None:
+        """Move ``axis`` at ``speed`` units/s in ``direction`` until :meth:`stop_jog`."""
+        self._jog_stop.clear()
+
+        def job(s):
+            import time
+
+            n = 0
+            while not self._jog_stop.is_set():
+                t0 = time.monotonic()
+                s.jog(axis, direction * speed * dt)
+                n += 1
+                if n % 3 == 0:
+                    self.valuesChanged.emit(s.readings())
+                rest = dt - (time.monotonic() - t0)
+                if rest > 0:
+                    time.sleep(rest)
+            values = s.readings()
+            self.valuesChanged.emit(values)
+            return values
+
+        self.run(job, on_done, on_error)
+
+    def stop_jog(self) -> None:
+        self._jog_stop.set()
+
+    def move_to(self, qm, on_done=None, on_error=None) -> None:
+        def job(s):
+            s.move_to(qm)
+            values = s.readings()
+            self.valuesChanged.emit(values)
+            return values
+
+        self.run(job, on_done, on_error)
+
+    def rezero(self, on_done=None, on_error=None) -> None:
+        """A resumed distance session: back to the reference, zero the draw-wire there."""
+        def job(s):
+            with self.rig.lock:
+                s.rezero_at_reference()
+            return s.readings()
+
+        def done(values):
+            self.rezeroed = True
+            if on_done:
+                on_done(values)
+
+        self.run(job, done, on_error)
+
+    @property
+    def needs_rezero(self) -> bool:
+        s = self.session
+        return bool(s is not None and s.resumed and not self.rezeroed
+                    and s.reference_qm is not None and s.pending
+                    and "distance" in s.info.channels)
+
+    def execute(self, on_done=None, on_error=None) -> None:
+        """Measure the pending poses (after a resume of a distance session, first
+        back to the reference to zero the draw-wire again)."""
+        rezero = self.needs_rezero
+
+        def job(s):
+            if rezero:
+                with self.rig.lock:
+                    s.rezero_at_reference()
+                self.rezeroed = True
+            return s.execute()
+
+        self.run(job, on_done, on_error)
+
+    def calibrate(self, on_done=None, on_error=None) -> None:
+        def job(s):
+            outcome = s.calibrate(callback=iteration_sink(self.iterated))
+            validation = s.validate()
+            return outcome, validation
+
+        self.run(job, on_done, on_error)
+
+    def set_plan(self, poses) -> None:
+        """Replace the plan by an edited one (no pose of it measured yet)."""
+        self.session.set_plan(list(poses))

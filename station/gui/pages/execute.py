@@ -1,0 +1,239 @@
+"""Page 4, Execute: measure the planned poses with progress, the current pose
+and live readings; pause, resume, abort; a device fault asks Retry / Skip /
+Abort. Every recorded pose is in the trace at once (closing loses none)."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from PySide6.QtCore import Qt
+from PySide6.QtGui import QColor
+from PySide6.QtWidgets import (QGroupBox, QHBoxLayout, QListWidget, QListWidgetItem,
+                               QMessageBox, QProgressBar, QPushButton, QVBoxLayout)
+
+from station.gui.pages.base import Page, error_text
+from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, ReadingsPanel, note
+
+EVENT_COLOR = {"fault": BAD_COLOR, "abort": BAD_COLOR, "skip": WARN_COLOR, "retry": WARN_COLOR,
+               "warning": WARN_COLOR}
+
+
+class ExecutePage(Page):
+    title = "Execute"
+    subtitle = ("The robot drives to each planned pose, waits until it settles and records "
+                "the readings. Each pose is written to the trace at once: closing the window "
+                "loses none, and opening the same session folder again resumes.")
+
+    def __init__(self, controller, parent=None):
+        super().__init__(controller, parent)
+        self.progress = QProgressBar()
+        self.progress.setFormat("%v of %m poses")
+        self.layout_.addWidget(self.progress)
+        self.current = note("")
+        self.layout_.addWidget(self.current)
+        buttons = QHBoxLayout()
+        self.start_button = QPushButton("&Start measuring")
+        self.pause_button = QPushButton("&Pause")
+        self.resume_button = QPushButton("Res&ume")
+        self.abort_button = QPushButton("&Abort")
+        for b, slot in ((self.start_button, self.start), (self.pause_button, self.pause),
+                        (self.resume_button, self.resume), (self.abort_button, self.abort)):
+            b.setAutoDefault(False)
+            b.clicked.connect(slot)
+            buttons.addWidget(b)
+        buttons.addStretch(1)
+        self.layout_.addLayout(buttons)
+        row = QHBoxLayout()
+        box = QGroupBox("Readings (the last pose recorded, or live)")
+        self.readings = ReadingsPanel()
+        inner = QVBoxLayout(box)
+        inner.addWidget(self.readings)
+        inner.addStretch(1)
+        row.addWidget(box, 1)
+        box = QGroupBox("What happened")
+        self.log = QListWidget()
+        self.log.setMinimumHeight(220)
+        self.log.setWordWrap(True)
+        self.log.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        QVBoxLayout(box).addWidget(self.log)
+        row.addWidget(box, 2)
+        self.layout_.addLayout(row, 1)
+        self.status = note("")
+        self.layout_.addWidget(self.status)
+        self.running = False
+        self.finished = False
+        self.fault_box: QMessageBox | None = None
+        self.faults_asked = 0
+        controller.progressed.connect(self._progress)
+        controller.eventLogged.connect(self._event)
+        controller.stateChanged.connect(self._state)
+        controller.valuesChanged.connect(self._values)
+        controller.polled.connect(self._polled)
+        controller.faults.asked.connect(self.ask_fault)
+        controller.sessionChanged.connect(self._session_changed)
+
+    def initialize_page(self) -> None:
+        s = self.session
+        if s is None:
+            return
+        self.readings.set_channels([f"qm{i + 1}" for i in range(s.robot.n_actuators)]
+                                   + list(self._channels(s)))
+        if not self.running and s.plan_poses and not s.pending and (
+                s.robot.name != "agebot-pm" or any(p.round == 1 for p in s.plan_poses)):
+            self.finished = True
+        self._update_progress()
+        self._buttons()
+
+    @staticmethod
+    def _channels(s):
+        if s.robot.name == "agebot-sm":
+            return ("tilt", "distance")
+        return ("roll", "pitch", "yaw")
+
+    def _session_changed(self) -> None:
+        self.finished = False
+        self.running = False
+        self.log.clear()
+
+    def _update_progress(self) -> None:
+        s = self.session
+        if s is None:
+            return
+        done = len(s.measured) + len(s.skipped)
+        self.progress.setMaximum(max(1, len(s.plan_poses)))
+        self.progress.setValue(done)
+        if not self.running:
+            pending = len(s.pending)
+            if pending:
+                self.current.setText(f"{len(s.measured)} poses recorded, {len(s.skipped)} "
+                                     f"skipped, {pending} to measure.")
+            else:
+                self.current.setText(f"All planned poses done: {len(s.measured)} recorded, "
+                                     f"{len(s.skipped)} skipped.")
+
+    def _buttons(self) -> None:
+        s = self.session
+        paused = bool(s is not None and s.paused)
+        self.start_button.setEnabled(s is not None and not self.running and not self.finished)
+        self.start_button.setText("&Continue measuring" if s is not None and s.measured
+                                  and not self.running else "&Start measuring")
+        self.pause_button.setEnabled(self.running and not paused)
+        self.resume_button.setEnabled(self.running and paused)
+        self.abort_button.setEnabled(self.running)
+        self.completeChanged.emit()
+
+    def is_complete(self) -> bool:
+        return self.finished and not self.running
+
+    # -- actions --------------------------------------------------------------------------------
+    def start(self) -> None:
+        if self.session is None or self.running:
+            return
+        self.running = True
+        self.status.setText("Measuring\u2026")
+        self.status.setStyleSheet("")
+        self._buttons()
+        self.controller.execute(self._done, self._failed)
+
+    def pause(self) -> None:
+        self.session.pause()
+        self.status.setText("Paused after the current pose. Resume to go on.")
+        self._buttons()
+
+    def resume(self) -> None:
+        self.session.resume()
+        self.status.setText("Measuring\u2026")
+        self._buttons()
+
+    def abort(self) -> None:
+        self.session.abort()
+        self.status.setText("Aborting after the current pose\u2026")
+
+    def _done(self, recorded: int) -> None:
+        self.running = False
+        self.finished = not self.session.pending
+        self.status.setText(f"\u2713 Done: {recorded} poses recorded in this run. Press Next "
+                            "to calibrate.")
+        self.status.setStyleSheet(f"color: {OK_COLOR};")
+        self._update_progress()
+        self._buttons()
+
+    def _failed(self, e) -> None:
+        from station.session import SessionAborted
+
+        self.running = False
+        self._update_progress()
+        self._buttons()
+        if isinstance(e, SessionAborted):
+            self.status.setText(f"Stopped: {error_text(e)}. Continue measuring picks up the "
+                                "poses not yet measured.")
+        else:
+            self.status.setText(f"Measuring stopped: {error_text(e)}")
+            self.show_error("Measuring stopped", e)
+        self.status.setStyleSheet(f"color: {BAD_COLOR};")
+
+    # -- a device fault: Retry / Skip / Abort ---------------------------------------------------
+    def ask_fault(self, request) -> None:
+        """The worker waits for the answer; the dialog is window-modal, not blocking."""
+        self.faults_asked += 1
+        pose = request.pose
+        box = QMessageBox(self)
+        box.setObjectName("faultDialog")
+        box.setIcon(QMessageBox.Icon.Warning)
+        box.setWindowTitle("Device fault")
+        box.setText(f"Pose {pose.index} could not be measured (attempt {request.attempt + 1}).")
+        box.setInformativeText(
+            f"{error_text(request.error)}\n\nRetry: reset the drive or reconnect the device and "
+            "measure the pose again.\nSkip: leave this pose out and go on.\nAbort: stop here; "
+            "the recorded poses stay in the trace and you can continue later.")
+        retry = box.addButton("&Retry", QMessageBox.ButtonRole.AcceptRole)
+        skip = box.addButton("S&kip pose", QMessageBox.ButtonRole.ActionRole)
+        abort = box.addButton("&Abort", QMessageBox.ButtonRole.RejectRole)
+        box.setDefaultButton(retry)
+        box.setEscapeButton(abort)
+        answers = {retry: "retry", skip: "skip", abort: "abort"}
+        box.answer_buttons = {v: k for k, v in answers.items()}
+
+        def clicked(button):
+            self.controller.faults.answer(request, answers.get(button, "abort"))
+            self.fault_box = None
+
+        box.buttonClicked.connect(clicked)
+        box.rejected.connect(lambda: request.event.is_set()
+                             or self.controller.faults.answer(request, "abort"))
+        self.fault_box = box
+        box.open()
+
+    # -- what the session reports ----------------------------------------------------------------
+    def _progress(self, p) -> None:
+        self.progress.setMaximum(max(1, p.total))
+        self.progress.setValue(p.done)
+        if p.pose is not None:
+            target = np.round(np.asarray(p.pose.target, dtype=float), 3).tolist()
+            use = "held out" if p.pose.use == "validation" else "fit"
+            self.current.setText(f"Pose {p.pose.index} ({use}): {p.message}; target {target}")
+
+    def _event(self, ev: dict) -> None:
+        if ev.get("kind") == "plan":
+            text = ev.get("message", "")
+        else:
+            text = f"[{ev.get('kind')}] {ev.get('message', '')}"
+        item = QListWidgetItem(f"{time.strftime('%H:%M:%S')}  {text}")
+        color = EVENT_COLOR.get(ev.get("kind", ""))
+        if color:
+            item.setForeground(QColor(color))
+        self.log.addItem(item)
+        self.log.scrollToBottom()
+        self._update_progress()
+
+    def _state(self, state: str) -> None:
+        self._buttons()
+
+    def _values(self, values: dict) -> None:
+        self.readings.set_values(values)
+
+    def _polled(self, readings) -> None:
+        values = {}
+        for r in readings:
+            values.update(r.values)
+        self.readings.set_values(values)

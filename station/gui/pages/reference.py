@@ -1,0 +1,276 @@
+"""Page 2, Reference: jog the actuators (step or continuous, under a speed
+limit), watch distance and tilt live, see what to do, capture the reference;
+for the wrist, the inclinometer mounting check."""
+from __future__ import annotations
+
+import numpy as np
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import (QButtonGroup, QCheckBox, QDoubleSpinBox, QFormLayout,
+                               QGridLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton,
+                               QRadioButton, QVBoxLayout, QWidget)
+
+from station.gui.pages.base import Page
+from station.gui.pictures import ArmPicture, LevelPicture
+from station.gui.widgets import OK_COLOR, ReadingsPanel, channel_text, note
+
+
+class JogPanel(QGroupBox):
+    """Per actuator: its value now and - / + buttons; step or continuous (hold)."""
+
+    def __init__(self, page: ReferencePage, n: int, velocities, step: float):
+        super().__init__("Jog the actuators")
+        self.page, self.velocities = page, list(velocities) or [1.0] * n
+        lay = QVBoxLayout(self)
+        modes = QHBoxLayout()
+        self.step_mode = QRadioButton("S&tep")
+        self.continuous_mode = QRadioButton("Contin&uous (hold the button)")
+        self.step_mode.setChecked(True)
+        group = QButtonGroup(self)
+        group.addButton(self.step_mode)
+        group.addButton(self.continuous_mode)
+        modes.addWidget(self.step_mode)
+        modes.addWidget(self.continuous_mode)
+        lay.addLayout(modes)
+        form = QFormLayout()
+        self.step = QDoubleSpinBox()
+        self.step.setRange(0.001, 1000.0)
+        self.step.setDecimals(3)
+        self.step.setValue(step)
+        self.step.setSuffix(" u")
+        form.addRow("Step si&ze:", self.step)
+        self.speed = QDoubleSpinBox()
+        self.speed.setRange(1, 100)
+        self.speed.setValue(25)
+        self.speed.setSuffix(" % of the drive's profile velocity")
+        form.addRow("Speed &limit:", self.speed)
+        lay.addLayout(form)
+        grid = QGridLayout()
+        self.values: list[QLabel] = []
+        self.buttons: list[tuple[QPushButton, QPushButton]] = []
+        for i in range(n):
+            grid.addWidget(QLabel(f"qm{i + 1}"), i, 0)
+            val = QLabel("\u2013")
+            val.setMinimumWidth(110)
+            val.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+            grid.addWidget(val, i, 1)
+            self.values.append(val)
+            pair = []
+            for c, sign in ((2, -1), (3, +1)):
+                b = QPushButton("\u2212" if sign < 0 else "+")
+                b.setAutoDefault(False)
+                b.setMinimumWidth(48)
+                b.setToolTip(f"move qm{i + 1} {'down' if sign < 0 else 'up'}")
+                b.setAccessibleName(f"jog qm{i + 1} {'minus' if sign < 0 else 'plus'}")
+                b.clicked.connect(lambda _=False, a=i, s=sign: self._clicked(a, s))
+                b.pressed.connect(lambda a=i, s=sign: self._pressed(a, s))
+                b.released.connect(self._released)
+                grid.addWidget(b, i, c)
+                pair.append(b)
+            self.buttons.append(tuple(pair))
+        lay.addLayout(grid)
+        self.stop = QPushButton("&Stop")
+        self.stop.setAutoDefault(False)
+        self.stop.clicked.connect(page.controller.stop_jog)
+        lay.addWidget(self.stop)
+
+    def speed_of(self, axis: int) -> float:
+        return self.velocities[axis] * self.speed.value() / 100.0
+
+    def _clicked(self, axis: int, sign: int) -> None:
+        if self.step_mode.isChecked() and not self.page.controller.jobs.busy:
+            self.page.controller.jog(axis, sign * self.step.value(), self.speed_of(axis),
+                                     on_error=self.page.jog_failed)
+
+    def _pressed(self, axis: int, sign: int) -> None:
+        if self.continuous_mode.isChecked() and not self.page.controller.jobs.busy:
+            self.page.controller.jog_continuous(axis, sign, self.speed_of(axis),
+                                                on_error=self.page.jog_failed)
+
+    def _released(self) -> None:
+        if self.continuous_mode.isChecked():
+            self.page.controller.stop_jog()
+
+    def set_values(self, values: dict) -> None:
+        for i, lab in enumerate(self.values):
+            v = values.get(f"qm{i + 1}")
+            if v is not None:
+                lab.setText(" ".join(channel_text("qm", v)))
+
+
+class ReferencePage(Page):
+    title = "Reference"
+    subtitle = ("Bring the robot to the reference and capture it. The picture shows what to do "
+                "and follows the robot as you jog.")
+
+    def __init__(self, controller, parent=None):
+        super().__init__(controller, parent)
+        self.container = QWidget()
+        self.layout_.addWidget(self.container, 1)
+        self._built_for = None
+        self.jog = self.picture = self.readings = None
+        self.capture_button = self.goto_button = self.rezero_button = self.confirm = None
+        self.status = note("")
+        self.layout_.addWidget(self.status)
+        controller.valuesChanged.connect(self._values)
+        controller.polled.connect(self._polled)
+        controller.busyChanged.connect(self._busy)
+
+    # -- building for the session's robot -------------------------------------------------
+    def _build(self, session) -> None:
+        old = self.container
+        self.container = QWidget()
+        self.layout_.replaceWidget(old, self.container)
+        old.deleteLater()
+        lay = QHBoxLayout(self.container)
+        lay.setContentsMargins(0, 0, 0, 0)
+        left = QVBoxLayout()
+        cfg = self.controller.config
+        vel = list(cfg.canopen.profile_velocity) if cfg is not None else []
+        n = session.robot.n_actuators
+        if len(vel) == 1:
+            vel = vel * n
+        sm = session.robot.name == "agebot-sm"
+        self.jog = JogPanel(self, n, vel, 1.0 if sm else 10.0)
+        left.addWidget(self.jog)
+        box = QGroupBox("Live readings")
+        QVBoxLayout(box).addWidget(ReadingsPanel(("distance", "tilt") if sm
+                                                 else ("roll", "pitch", "yaw")))
+        self.readings = box.findChild(ReadingsPanel)
+        left.addWidget(box)
+        left.addStretch(1)
+        lay.addLayout(left, 0)
+        right = QVBoxLayout()
+        _, _, text = session.reference_target()
+        if sm:
+            self.picture = ArmPicture(session.robot, session.nominal)
+        else:
+            self.picture = LevelPicture()
+        right.addWidget(self.picture, 1)
+        right.addWidget(note(text))
+        buttons = QHBoxLayout()
+        if session.needs_reference:
+            self.goto_button = QPushButton("&Go to the suggested point")
+            self.goto_button.clicked.connect(self.go_to_target)
+            self.capture_button = QPushButton("C&apture reference")
+            self.capture_button.clicked.connect(self.capture)
+            self.rezero_button = QPushButton("Return to the reference and &re-zero")
+            self.rezero_button.clicked.connect(self.rezero)
+            for b in (self.goto_button, self.capture_button, self.rezero_button):
+                b.setAutoDefault(False)
+                buttons.addWidget(b)
+        else:
+            self.confirm = QCheckBox("I &checked: mounted flat, x axis along the platform's x axis")
+            self.confirm.toggled.connect(lambda _: self._refresh())
+            buttons.addWidget(self.confirm)
+        buttons.addStretch(1)
+        right.addLayout(buttons)
+        lay.addLayout(right, 1)
+        self._built_for = id(session)
+
+    def initialize_page(self) -> None:
+        s = self.session
+        if s is None:
+            return
+        if self._built_for != id(s):
+            self._build(s)
+        if isinstance(self.picture, ArmPicture):
+            qm, _, _ = s.reference_target()
+            self.picture.set_state(target_qm=s.reference_qm if s.reference_qm is not None
+                                   else qm, captured=s.reference_qm is not None)
+        self._values(self.controller.last_readings)
+        self._refresh()
+
+    def _refresh(self) -> None:
+        s, c = self.session, self.controller
+        if s is None or self.jog is None:
+            return
+        busy = c.jobs.busy
+        if s.needs_reference:
+            captured = s.reference_qm is not None
+            self.capture_button.setEnabled(not captured and not busy)
+            self.goto_button.setEnabled(not captured and not busy)
+            self.rezero_button.setVisible(c.needs_rezero or (s.resumed and c.rezeroed))
+            self.rezero_button.setEnabled(c.needs_rezero and not busy)
+            if captured:
+                qm = np.round(s.reference_qm, 3).tolist()
+                text = f"\u2713 Reference captured at qm {qm}."
+                if c.needs_rezero:
+                    text += (" The session was resumed: the draw-wire may have lost its zero. "
+                             "Leave the cable attached and press \u2018Return to the reference "
+                             "and re-zero\u2019 (Execute also does it before the first pose).")
+                self._say(text, OK_COLOR)
+            else:
+                self._say("Reference not captured yet.", None)
+        else:
+            level = self.picture.level
+            if self.confirm.isChecked():
+                self._say("\u2713 Mounting checked.", OK_COLOR)
+            elif level is False:
+                self._say("Roll or pitch is not near 0 at the home pose: check the mount, "
+                          "then confirm.", None)
+            else:
+                self._say("Check the mounting, then confirm.", None)
+        self.completeChanged.emit()
+
+    def _say(self, text: str, color) -> None:
+        self.status.setText(text)
+        self.status.setStyleSheet(f"color: {color};" if color else "")
+
+    def is_complete(self) -> bool:
+        s = self.session
+        if s is None:
+            return False
+        if s.needs_reference:
+            return s.reference_qm is not None
+        return bool(self.confirm is not None and self.confirm.isChecked())
+
+    def leave_page(self) -> None:
+        self.controller.stop_jog()
+
+    # -- actions -----------------------------------------------------------------------------
+    def go_to_target(self) -> None:
+        qm, _, _ = self.session.reference_target()
+        if qm is not None:
+            self.controller.move_to(qm, on_error=self.jog_failed)
+
+    def capture(self) -> None:
+        self.controller.run(lambda s: s.capture_reference(), self._captured,
+                            lambda e: self.show_error("The reference was not captured", e))
+
+    def _captured(self, qm) -> None:
+        if isinstance(self.picture, ArmPicture):
+            self.picture.set_state(target_qm=qm, captured=True)
+        self._refresh()
+
+    def rezero(self) -> None:
+        self.controller.rezero(lambda _: self._refresh(),
+                               lambda e: self.show_error("Re-zeroing failed", e))
+
+    def jog_failed(self, e) -> None:
+        self.show_error("The move failed", e)
+
+    # -- live values --------------------------------------------------------------------------
+    def _polled(self, readings) -> None:
+        values = {}
+        for r in readings:
+            values.update(r.values)
+        self._values(values)
+
+    def _values(self, values: dict) -> None:
+        if self.jog is None or not values:
+            return
+        self.jog.set_values(values)
+        self.readings.set_values(values)
+        n = len(self.jog.values)
+        qm = [values.get(f"qm{i + 1}") for i in range(n)]
+        if isinstance(self.picture, ArmPicture) and None not in qm:
+            self.picture.set_state(qm=qm)
+        elif isinstance(self.picture, LevelPicture) and "roll" in values:
+            was = self.picture.level
+            self.picture.set_angles(values["roll"], values.get("pitch", 0.0))
+            if was != self.picture.level:
+                self._refresh()
+
+    def _busy(self, _busy: bool) -> None:
+        if self.isVisible():
+            self._refresh()

@@ -1,0 +1,289 @@
+"""Page 1, Setup: robot and method, station config, session folder, device
+connection with live status; what is missing is said in words with the fix."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from PySide6.QtWidgets import (QComboBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
+                               QLineEdit, QMessageBox, QPushButton, QSpinBox, QWidget)
+
+from calibration.methods import METHODS
+from station.gui.controller import ROBOTS, summarize_folder
+from station.gui.pages.base import Page, error_text
+from station.gui.widgets import BAD_COLOR, OK_COLOR, DeviceTable, note
+from station.planner import SESSION_METHODS, PlanRequest
+
+METHOD_TEXT = {
+    "sm-distance-tilt": "distance to a base origin you choose + tilt of the last link "
+                        "(report 7.5): every parameter identifiable",
+    "sm-distance": "distance to a reference point (report 7.2)",
+    "pm-fk": "wrist orientation from the inclinometer, forward kinematics (report 10.2)",
+    "pm-ik": "wrist orientation from the inclinometer, inverse kinematics (report 10.1)",
+    "pm-tilt": "wrist roll and pitch only (10.2 with a physical inclinometer)",
+}
+
+
+def default_folder() -> str:
+    return str(Path.home() / "calstation-sessions" / time.strftime("%Y%m%d-%H%M%S"))
+
+
+def _row(*widgets) -> QWidget:
+    w = QWidget()
+    lay = QHBoxLayout(w)
+    lay.setContentsMargins(0, 0, 0, 0)
+    for x in widgets:
+        lay.addWidget(x, 1 if isinstance(x, QLineEdit) else 0)
+    return w
+
+
+class SetupPage(Page):
+    title = "Setup"
+    subtitle = ("Choose the robot and the calibration method, the station and a folder for "
+                "this session, then connect the devices. The list below says what is still "
+                "missing and how to fix it.")
+
+    def __init__(self, controller, parent=None):
+        super().__init__(controller, parent)
+        c = controller
+        box = QGroupBox("Robot and method")
+        form = QFormLayout(box)
+        self.robot = QComboBox()
+        for key, text in ROBOTS.items():
+            self.robot.addItem(text, key)
+        self.method = QComboBox()
+        self.method_text = note("")
+        form.addRow("&Robot:", self.robot)
+        form.addRow("&Method:", self.method)
+        form.addRow("", self.method_text)
+        self.layout_.addWidget(box)
+
+        box = QGroupBox("Station")
+        form = QFormLayout(box)
+        self.config = QLineEdit(c.config_path or "")
+        self.config.setPlaceholderText("the station's config file (TOML)")
+        browse = QPushButton("Bro&wse\u2026")
+        browse.clicked.connect(self.browse_config)
+        self.endpoints = QLineEdit(c.endpoints_path or "")
+        self.endpoints.setPlaceholderText("optional: a running simulator's endpoints file")
+        browse_ep = QPushButton("Browse\u2026")
+        browse_ep.clicked.connect(self.browse_endpoints)
+        if c.simulate:
+            form.addRow("Devices:", note("simulated: the simulator starts in its own process "
+                                         "when you connect (app.py simulate)"))
+            if c.config_path:
+                form.addRow("Station conf&ig:", self.config)
+            self.config.setReadOnly(True)
+        else:
+            form.addRow("Station conf&ig:", _row(self.config, browse))
+            form.addRow("&Endpoints:", _row(self.endpoints, browse_ep))
+        self.layout_.addWidget(box)
+
+        box = QGroupBox("Session")
+        form = QFormLayout(box)
+        self.folder = QLineEdit(default_folder())
+        browse_f = QPushButton("Br&owse\u2026")
+        browse_f.clicked.connect(self.browse_folder)
+        form.addRow("Session fol&der:", _row(self.folder, browse_f))
+        self.count = QSpinBox()
+        self.count.setRange(0, 500)
+        self.count.setSpecialValueText("automatic (twice the minimum of eq. 60)")
+        self.count.setMinimumWidth(280)
+        form.addRow("&Poses to fit:", self.count)
+        self.layout_.addWidget(box)
+
+        self.connect_button = QPushButton("&Connect")
+        self.connect_button.setDefault(True)
+        self.connect_button.clicked.connect(self.connect_session)
+        self.disconnect_button = QPushButton("Disconnec&t")
+        self.disconnect_button.clicked.connect(self.disconnect_session)
+        self.layout_.addWidget(_row(self.connect_button, self.disconnect_button))
+
+        box = QGroupBox("Devices (live)")
+        lay = QHBoxLayout(box)
+        self.devices = DeviceTable()
+        lay.addWidget(self.devices)
+        self.layout_.addWidget(box)
+        self.missing = note("")
+        self.missing.setObjectName("missing")
+        self.layout_.addWidget(self.missing)
+        self.layout_.addStretch(1)
+
+        self.robot.currentIndexChanged.connect(self._robot_changed)
+        self.method.currentIndexChanged.connect(self._method_changed)
+        self.folder.textChanged.connect(self.update_missing)
+        self.config.textChanged.connect(self.update_missing)
+        c.polled.connect(self._polled)
+        c.sessionChanged.connect(self._session_changed)
+        c.busyChanged.connect(self._busy)
+        self._connecting = False
+        self._checked = None            # the session whose devices all answered once
+        self._error: str | None = None
+        if c.config_path and not c.simulate:
+            self._robot_from_config(c.config_path)
+        self._robot_changed()
+        self.update_missing()
+
+    # -- choices ---------------------------------------------------------------------
+    @property
+    def robot_key(self) -> str:
+        return self.robot.currentData()
+
+    @property
+    def method_name(self) -> str:
+        return self.method.currentData()
+
+    def set_choice(self, robot: str, method: str) -> None:
+        self.robot.setCurrentIndex(self.robot.findData(robot))
+        self.method.setCurrentIndex(self.method.findData(method))
+
+    def _robot_changed(self, *_):
+        self.method.clear()
+        for m in SESSION_METHODS:
+            if METHODS[m].robot == self.robot_key:
+                self.method.addItem(f"{m} (report {METHODS[m].section})", m)
+        self._method_changed()
+
+    def _method_changed(self, *_):
+        self.method_text.setText(METHOD_TEXT.get(self.method_name or "", ""))
+
+    def _robot_from_config(self, path) -> None:
+        try:
+            robot = self.controller.robot_of_config(path)
+        except Exception as e:  # noqa: BLE001 - said below
+            self._error = f"The station config cannot be read: {error_text(e)}"
+            return
+        self.robot.setCurrentIndex(self.robot.findData(robot))
+        self.robot.setEnabled(False)
+
+    def browse_config(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Station config", self.config.text(),
+                                              "Station config (*.toml);;All files (*)")
+        if path:
+            self.config.setText(path)
+            self.controller.config_path = path
+            self._error = None
+            self._robot_from_config(path)
+            self.update_missing()
+
+    def browse_endpoints(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Simulator endpoints", "",
+                                              "Endpoints (*.json);;All files (*)")
+        if path:
+            self.endpoints.setText(path)
+
+    def browse_folder(self) -> None:
+        path = QFileDialog.getExistingDirectory(self, "Session folder", self.folder.text())
+        if path:
+            self.folder.setText(path)
+
+    # -- what is missing, in words -------------------------------------------------------
+    def missing_items(self) -> list[str]:
+        c, out = self.controller, []
+        if not c.simulate and not self.config.text().strip():
+            out.append("No station config: choose the station's config file (Browse\u2026 "
+                       "next to Station config), or start the station with --simulate.")
+        if not self.folder.text().strip():
+            out.append("No session folder: choose where the trace, the parameter file and "
+                       "the report go (Browse\u2026 next to Session folder).")
+        if self._error:
+            out.append(self._error)
+        if c.session is None and not self._connecting and not out:
+            out.append("Not connected: press Connect.")
+        for name, ok in self.devices.states.items():
+            if not ok:
+                out.append(f"{name} does not answer: see its row above for what to check.")
+        return out
+
+    def update_missing(self, *_):
+        items = self.missing_items()
+        if self._connecting:
+            self.missing.setText("Connecting\u2026")
+            self.missing.setStyleSheet("")
+        elif items:
+            self.missing.setText("\n".join(f"\u2022 {t}" for t in items))
+            self.missing.setStyleSheet(f"color: {BAD_COLOR};")
+        else:
+            s = self.controller.session
+            self.missing.setText(f"\u2713 Connected; session folder {s.out}"
+                                 + (f" (resumed: {len(s.measured)} poses recorded)"
+                                    if s.resumed else "") + ". Press Next.")
+            self.missing.setStyleSheet(f"color: {OK_COLOR};")
+        self.completeChanged.emit()
+
+    def is_complete(self) -> bool:
+        """Connected, and every device answered once (a device that fails later is
+        said here and in the fault dialog, without locking the later steps)."""
+        s = self.controller.session
+        return bool(s is not None and self._checked is s)
+
+    # -- connecting ----------------------------------------------------------------------
+    def ask_resume(self, summary) -> bool:
+        answer = QMessageBox.question(
+            self, "Resume the session?",
+            f"{summary.sentence()}.\n\nResume it? (No: choose another folder for a new "
+            "session; the recorded poses stay where they are.)",
+            QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No,
+            QMessageBox.StandardButton.Yes)
+        return answer == QMessageBox.StandardButton.Yes
+
+    def connect_session(self) -> None:
+        self._error = None
+        if not self.folder.text().strip() or (not self.controller.simulate
+                                               and not self.config.text().strip()):
+            self.update_missing()
+            return
+        folder = Path(self.folder.text().strip()).expanduser()
+        summary = summarize_folder(folder)
+        if summary is not None:
+            if summary.error:
+                self._error = summary.sentence() + ": choose another folder."
+                self.update_missing()
+                return
+            if not self.ask_resume(summary):
+                self._error = (f"{folder} holds a session you chose not to resume: choose "
+                               "another folder for a new session.")
+                self.update_missing()
+                return
+            self.set_choice(summary.robot, summary.method)
+        if not self.controller.simulate:
+            self.controller.config_path = self.config.text().strip()
+            self.controller.endpoints_path = self.endpoints.text().strip() or None
+        request = PlanRequest(count=self.count.value() or None)
+        self._connecting = True
+        self.devices.clear_devices()
+        self.update_missing()
+        self.controller.open_session(robot=self.robot_key, method=self.method_name,
+                                     out_dir=folder, request=request,
+                                     on_done=self._connected, on_error=self._failed)
+
+    def _connected(self, session) -> None:
+        self._connecting = False
+        self.controller.remember_folder(session.out)
+        self.update_missing()
+
+    def _failed(self, e) -> None:
+        from drivers.check import hint_for
+
+        self._connecting = False
+        device = getattr(e, "device", None)
+        self._error = (f"Could not connect: {error_text(e)}"
+                       + (f" \u2014 {hint_for(device)}." if device else ""))
+        self.update_missing()
+
+    def disconnect_session(self) -> None:
+        self.devices.clear_devices()
+        self.controller.close_session(self.update_missing)
+
+    def _polled(self, readings) -> None:
+        self.devices.set_devices(readings)
+        if readings and all(r.ok for r in readings):
+            self._checked = self.controller.session
+        self.update_missing()
+
+    def _session_changed(self) -> None:
+        self.update_missing()
+
+    def _busy(self, busy: bool) -> None:
+        self.connect_button.setEnabled(not busy)
+        self.disconnect_button.setEnabled(not busy and self.controller.session is not None)

@@ -1,0 +1,160 @@
+"""Plots (matplotlib's Qt canvas): the calibration's convergence, live, and the
+planned poses in the workspace."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+from PySide6.QtCore import QTimer
+from PySide6.QtWidgets import QSizePolicy
+
+COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2",
+          "#7f7f7f", "#bcbd22", "#17becf", "#393b79", "#637939", "#843c39", "#7b4173",
+          "#3182bd", "#e6550d")
+
+
+class Canvas(FigureCanvasQTAgg):
+    """A figure in a widget, sized by the layout (``min_height`` pixels at least)."""
+
+    def __init__(self, min_height: int = 220, parent=None):
+        self.figure = Figure(dpi=96, layout="constrained")
+        super().__init__(self.figure)
+        self.setParent(parent)
+        self.setMinimumHeight(min_height)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+
+
+def _style(ax, title: str, ylabel: str = "") -> None:
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("iteration k", fontsize=8)
+    if ylabel:
+        ax.set_ylabel(ylabel, fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(True, alpha=0.3, lw=0.5)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+
+
+class ConvergencePlots(Canvas):
+    """Three plots filled while Algorithm 2 iterates: each parameter's step in
+    units of its std (convergence), each parameter's variance (eq. 52) and the
+    condition number of the scaled, weighted observation matrix."""
+
+    def __init__(self, parent=None):
+        super().__init__(230, parent)
+        self.setMaximumHeight(300)
+        self.history: list = []
+        self.names: tuple[str, ...] = ()
+        self.x0 = None
+        self._pending = False
+        self.draws = 0
+        self.reset()
+
+    def reset(self, x0=None) -> None:
+        self.history, self.names, self.x0 = [], (), None if x0 is None else np.asarray(x0)
+        self._draw()
+
+    def add(self, iteration) -> None:
+        """One solver iteration (any thread's signal, delivered on the GUI thread)."""
+        self.history.append(iteration)
+        if not self._pending:           # at most ~8 redraws a second
+            self._pending = True
+            QTimer.singleShot(120, self._draw)
+
+    def finish(self, result, x0=None) -> None:
+        """The final result: its whole history, with the parameter names."""
+        self.history = list(result.history)
+        self.names = tuple(result.names)
+        self.x0 = np.asarray(x0 if x0 is not None else getattr(result, "x0", None), dtype=float)
+        self._draw()
+
+    def _draw(self) -> None:
+        self._pending = False
+        self.draws += 1
+        fig = self.figure
+        fig.clear()
+        a1, a2, a3 = fig.subplots(1, 3)
+        h = self.history
+        _style(a1, "convergence: |step| / std", "parameter step / std")
+        _style(a2, "variance of each parameter", "variance [SI\u00b2]")
+        _style(a3, "condition number", "")
+        if h:
+            X = np.array([np.asarray(it.x, dtype=float) for it in h])
+            V = np.array([np.asarray(it.variance, dtype=float) for it in h])
+            start = self.x0 if self.x0 is not None and self.x0.shape == X[0].shape else X[0]
+            prev = np.vstack([start, X[:-1]])
+            k = np.arange(1, len(h) + 1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                S = np.abs(X - prev) / np.sqrt(V)
+            lines = []
+            for j in range(X.shape[1]):
+                c = COLORS[j % len(COLORS)]
+                s = np.where(np.isfinite(S[:, j]) & (S[:, j] > 0), S[:, j], np.nan)
+                v = np.where(np.isfinite(V[:, j]) & (V[:, j] > 0), V[:, j], np.nan)
+                if np.isfinite(s).any():
+                    a1.semilogy(k, np.maximum(s, 1e-6), color=c, lw=1.1, marker=".", ms=3)
+                if np.isfinite(v).any():
+                    (ln,) = a2.semilogy(k, v, color=c, lw=1.1, marker=".", ms=3)
+                    lines.append((ln, self.names[j] if j < len(self.names) else f"#{j + 1}"))
+            a1.axhline(1.0, color="k", lw=0.7, ls="--")
+            cond = np.array([float(it.condition_number) for it in h])
+            ok = np.isfinite(cond) & (cond > 0)
+            if ok.any():
+                a3.plot(k[ok], cond[ok], color="#1f77b4", lw=1.2, marker=".", ms=4)
+                if cond[ok].max() / cond[ok].min() > 10:
+                    a3.set_yscale("log")
+                a3.set_title(f"condition number ({cond[ok][-1]:.4g})", fontsize=9)
+            if self.names and lines:
+                fig.legend([ln for ln, _ in lines], [n for _, n in lines], loc="outside right",
+                           fontsize=7, frameon=False, ncol=1 if len(lines) <= 14 else 2)
+        else:
+            for ax in (a1, a2, a3):
+                ax.text(0.5, 0.5, "waiting for the first iteration", ha="center",
+                        va="center", fontsize=8, color="#777", transform=ax.transAxes)
+        self.draw_idle()
+
+
+class WorkspacePlot(Canvas):
+    """The planned poses in the workspace: SM end-effector positions (m), PM wrist
+    orientations (deg); fit and held-out poses, measured filled."""
+
+    def __init__(self, parent=None):
+        super().__init__(260, parent)
+        self.count = 0
+
+    def show_plan(self, poses, robot: str, measured=(), reference=None) -> None:
+        fig = self.figure
+        fig.clear()
+        ax = fig.add_subplot(projection="3d")
+        self.count = len(poses)
+        if robot == "agebot-sm":
+            labels, scale = ("x [m]", "y [m]", "z (rail) [m]"), 1.0
+        else:
+            labels, scale = ("alpha [\u00b0]", "beta [\u00b0]", "gamma [\u00b0]"), 180 / math.pi
+        measured = set(measured)
+        for use, color, name in (("fit", "#1f77b4", "fit"), ("validation", "#ff7f0e", "held out")):
+            for done in (False, True):
+                P = np.array([p.target[:3] for p in poses
+                              if p.use == use and (p.index in measured) == done], dtype=float)
+                if P.size == 0:
+                    continue
+                P = P * scale
+                ax.scatter(P[:, 0], P[:, 1], P[:, 2], s=28, color=color if done else "none",
+                           edgecolors=color, linewidths=1.2,
+                           label=f"{name} ({'measured' if done else 'to measure'})")
+        if reference is not None:
+            r = np.asarray(reference, dtype=float)[:3] * scale
+            ax.scatter([r[0]], [r[1]], [r[2]], marker="*", s=120, color="#2ca02c",
+                       label="reference")
+        if len(poses) > 1:
+            T = np.array([p.target[:3] for p in poses], dtype=float) * scale
+            ax.plot(T[:, 0], T[:, 1], T[:, 2], color="#999", lw=0.6, alpha=0.7)
+        for setter, lab in zip((ax.set_xlabel, ax.set_ylabel, ax.set_zlabel), labels):
+            setter(lab, fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.set_title("planned poses in the workspace (line: order of travel)", fontsize=9)
+        if poses:
+            ax.legend(fontsize=7, loc="upper left", frameon=False)
+        self.draw_idle()

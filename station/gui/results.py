@@ -1,0 +1,206 @@
+"""A calibration's result as the report shows it: the live convergence plots,
+the identifiability table in the style of the report's Table 3 and the
+validation errors before and after (used by the Calibrate and Offline pages)."""
+from __future__ import annotations
+
+import html
+import math
+
+from PySide6.QtCore import Qt
+from PySide6.QtGui import QColor, QFont
+from PySide6.QtWidgets import (QHeaderView, QTableWidget, QTableWidgetItem, QVBoxLayout,
+                               QWidget)
+
+from station.gui.plots import ConvergencePlots
+from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, heading, note
+from station.report import DISPLAY, IDENT_GROUPS, IDENT_SYMBOL, PARAM_UNITS
+
+GROUP_COLOR = {"identifiable": OK_COLOR, "no-influence": "#555555", "influence": BAD_COLOR}
+
+
+def group_of(status) -> str:
+    if status.identifiable:
+        return "identifiable"
+    return "influence" if status.influences_model else "no-influence"
+
+
+def _num(v, fmt=".7g") -> str:
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return "\u2013"
+    return format(v, fmt) if math.isfinite(v) else "\u2013"
+
+
+def _table(rows: int, headers) -> QTableWidget:
+    t = QTableWidget(rows, len(headers))
+    t.setHorizontalHeaderLabels(list(headers))
+    t.verticalHeader().setVisible(False)
+    t.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+    t.setSelectionBehavior(QTableWidget.SelectionBehavior.SelectRows)
+    t.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+    t.horizontalHeader().setStretchLastSection(True)
+    return t
+
+
+def _fit_height(t: QTableWidget) -> None:
+    t.resizeRowsToContents()
+    h = t.horizontalHeader().height() + sum(t.rowHeight(r) for r in range(t.rowCount()))
+    t.setMinimumHeight(min(h + 4, 560))
+    t.setMaximumHeight(h + 4)
+
+
+class CalibrationView(QWidget):
+    """Plots while iterating, then the parameter table and the validation errors."""
+
+    def __init__(self, parent=None):
+        super().__init__(parent)
+        lay = QVBoxLayout(self)
+        lay.setContentsMargins(0, 0, 0, 0)
+        self.plots = ConvergencePlots()
+        lay.addWidget(self.plots)
+        self.summary = note("")
+        lay.addWidget(self.summary)
+        lay.addWidget(heading("Identifiability (report Table 3)"))
+        self.strip = _table(1, [])
+        self.strip.verticalHeader().setVisible(True)
+        lay.addWidget(self.strip)
+        legend = " \u2003 ".join(f"{IDENT_SYMBOL[k]} {t.lower()}" for k, t, _ in IDENT_GROUPS)
+        lay.addWidget(note(legend))
+        self.params = _table(0, ["parameter", "unit", "start", "calibrated", "std",
+                                 "identifiability"])
+        lay.addWidget(self.params)
+        lay.addWidget(heading("Validation on held-out poses"))
+        self.validation = _table(0, ["channel", "poses", "RMS before", "RMS after", "change",
+                                     "max before", "max after"])
+        lay.addWidget(self.validation)
+        self.notes = note("", WARN_COLOR)
+        lay.addWidget(self.notes)
+        self.outcome = None
+        self.clear()
+
+    def clear(self) -> None:
+        self.plots.reset()
+        self.summary.setText("Not calibrated yet.")
+        self.strip.setColumnCount(0)
+        self.params.setRowCount(0)
+        self.validation.setRowCount(0)
+        self.notes.setText("")
+        self.outcome = None
+
+    def add_iteration(self, iteration) -> None:
+        self.plots.add(iteration)
+
+    def show_outcome(self, outcome, validation=None) -> None:
+        self.outcome = outcome
+        res, model = outcome.result, outcome.model
+        self.plots.finish(res, outcome.nominal)
+        sig = ", ".join(f"{k} {v:.3g}" for k, v in res.sigma.items())
+        self.summary.setText(
+            f"<b>{html.escape(res.message)}</b> \u2014 {res.n_identifiable} of "
+            f"{len(res.names)} parameters identifiable, {model.n_poses} poses, condition "
+            f"number {res.condition_number:.4g}; sigma "
+            f"({'from the trace' if res.sigma_known else 'estimated, eq. 51'}): "
+            f"{html.escape(sig)}")
+        self.summary.setTextFormat(Qt.TextFormat.RichText)
+        self._show_strip(res)
+        self._show_params(outcome)
+        self.show_validation(validation or [])
+        notes = list(getattr(model, "notes", ()) or ())
+        if outcome.trace.method == "sm-distance-tilt":
+            notes.append("theta0, a0 and q1_off refer to the captured base origin.")
+        self.notes.setText("\n".join(f"Note: {n}" for n in notes))
+
+    def _show_strip(self, res) -> None:
+        t = self.strip
+        t.setColumnCount(len(res.names))
+        t.setHorizontalHeaderLabels(list(res.names))
+        t.setVerticalHeaderLabels([res.method])
+        big = QFont(t.font())
+        big.setPointSizeF(big.pointSizeF() * 1.3)
+        for j, st in enumerate(res.status):
+            g = group_of(st)
+            item = QTableWidgetItem(IDENT_SYMBOL[g])
+            item.setTextAlignment(Qt.AlignmentFlag.AlignCenter)
+            item.setForeground(QColor(GROUP_COLOR[g]))
+            item.setFont(big)
+            item.setToolTip(f"{res.names[j]}: {st.label}")
+            t.setItem(0, j, item)
+        t.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
+        _fit_height(t)
+
+    def _show_params(self, outcome) -> None:
+        res, t = outcome.result, self.params
+        units = PARAM_UNITS.get(outcome.trace.robot, {})
+        groups = [group_of(st) for st in res.status]
+        rows = []
+        for key, label, expl in IDENT_GROUPS:
+            idx = [j for j, g in enumerate(groups) if g == key]
+            if idx:
+                rows.append((key, label, expl, None))
+                rows += [(key, label, expl, j) for j in idx]
+        t.clearSpans()
+        t.setRowCount(len(rows))
+        for r, (key, label, expl, j) in enumerate(rows):
+            if j is None:
+                item = QTableWidgetItem(f"{IDENT_SYMBOL[key]} {label} "
+                                        f"({groups.count(key)}) \u2013 {expl}")
+                f = QFont(item.font())
+                f.setBold(True)
+                item.setFont(f)
+                item.setForeground(QColor(GROUP_COLOR[key]))
+                t.setItem(r, 0, item)
+                t.setSpan(r, 0, 1, t.columnCount())
+                continue
+            std = res.std[j] if key == "identifiable" else float("nan")
+            cells = (res.names[j], units.get(res.names[j], ""), _num(outcome.nominal[j]),
+                     _num(res.x[j]), _num(std, ".3g"), res.status[j].label)
+            for c, text in enumerate(cells):
+                item = QTableWidgetItem(text)
+                if 2 <= c <= 4:
+                    item.setTextAlignment(Qt.AlignmentFlag.AlignRight
+                                          | Qt.AlignmentFlag.AlignVCenter)
+                t.setItem(r, c, item)
+        _fit_height(t)
+
+    def show_validation(self, validation) -> None:
+        t = self.validation
+        t.clearSpans()
+        t.setRowCount(len(validation))
+        for r, v in enumerate(validation):
+            unit, factor = DISPLAY.get(v.get("unit", ""), (v.get("unit", ""), 1.0))
+
+            def f(x, factor=factor, unit=unit):
+                return "n/a" if x is None else f"{float(x) * factor:.4g} {unit}"
+
+            rb, ra = v.get("rms_before"), v.get("rms_after")
+            change = (f"{(ra / rb - 1) * 100:+.1f} %" if rb not in (None, 0) and ra is not None
+                      else "\u2013")
+            cells = (v["channel"], str(v.get("n", "")), f(rb), f(ra), change,
+                     f(v.get("max_before")), f(v.get("max_after")))
+            for c, text in enumerate(cells):
+                item = QTableWidgetItem(text)
+                if c >= 1:
+                    item.setTextAlignment(Qt.AlignmentFlag.AlignRight
+                                          | Qt.AlignmentFlag.AlignVCenter)
+                if c == 3 and rb is not None and ra is not None:
+                    item.setForeground(QColor(OK_COLOR if ra < rb else BAD_COLOR))
+                t.setItem(r, c, item)
+        if not validation:
+            t.setRowCount(1)
+            t.setItem(0, 0, QTableWidgetItem("no held-out poses in this trace"))
+            t.setSpan(0, 0, 1, t.columnCount())
+        _fit_height(t)
+
+
+def validation_rows(outcome) -> list[dict]:
+    """Validation errors of an offline outcome (the session's own function)."""
+    from station.session import validation_errors
+
+    try:
+        return validation_errors(outcome)
+    except Exception as e:  # noqa: BLE001 - shown, the calibration itself stands
+        return [{"channel": "(validation failed)", "n": 0, "rms_before": None,
+                 "rms_after": None, "unit": "", "error": str(e)}]
+
+

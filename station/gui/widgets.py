@@ -1,0 +1,140 @@
+"""Small widgets the pages share: live readings, device status, headings."""
+from __future__ import annotations
+
+import math
+
+from PySide6.QtCore import Qt
+from PySide6.QtGui import QColor, QFont
+from PySide6.QtWidgets import (QFrame, QGridLayout, QHeaderView, QLabel, QScrollArea,
+                               QSizePolicy, QTableWidget, QTableWidgetItem, QWidget)
+
+OK_COLOR, BAD_COLOR, WARN_COLOR = "#1b7a2f", "#b3261e", "#8a5a00"
+
+
+def channel_text(channel: str, value: float) -> tuple[str, str]:
+    """A reading as the operator reads it: ``(value, unit)``; distance in mm,
+    angles in degrees, actuator values in actuator units (u)."""
+    if value is None or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return "\u2013", ""
+    if channel == "distance":
+        return f"{value * 1e3:.3f}", "mm"
+    if channel in ("tilt", "roll", "pitch", "yaw"):
+        return f"{math.degrees(value):.3f}", "\u00b0"
+    return f"{value:.3f}", "u"
+
+
+def channel_label(channel: str) -> str:
+    return {"tilt": "tilt (last link)", "distance": "distance (draw-wire)"}.get(channel, channel)
+
+
+def heading(text: str) -> QLabel:
+    lab = QLabel(text)
+    f = lab.font()
+    f.setBold(True)
+    f.setPointSizeF(f.pointSizeF() * 1.15)
+    lab.setFont(f)
+    return lab
+
+
+def note(text: str, color: str | None = None) -> QLabel:
+    lab = QLabel(text)
+    lab.setWordWrap(True)
+    lab.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+    if color:
+        lab.setStyleSheet(f"color: {color};")
+    return lab
+
+
+def scrolled(widget: QWidget) -> QScrollArea:
+    area = QScrollArea()
+    area.setWidgetResizable(True)
+    area.setFrameShape(QFrame.Shape.NoFrame)
+    area.setWidget(widget)
+    return area
+
+
+class ReadingsPanel(QFrame):
+    """Channel -> value in large type, updated live (``set_values``).
+
+    channels: the channels to show, in order (others are added as they come).
+    """
+
+    def __init__(self, channels=(), large: bool = True, parent=None):
+        super().__init__(parent)
+        self.setFrameShape(QFrame.Shape.StyledPanel)
+        self._grid = QGridLayout(self)
+        self._grid.setHorizontalSpacing(12)
+        self._rows: dict[str, tuple[QLabel, QLabel]] = {}
+        self._large = large
+        self.values: dict[str, float] = {}
+        for ch in channels:
+            self._row(ch)
+
+    def _row(self, ch: str):
+        if ch not in self._rows:
+            name = QLabel(channel_label(ch))
+            value = QLabel("\u2013")
+            value.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+            value.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+            value.setAccessibleName(f"{ch} reading")
+            if self._large:
+                f = QFont(value.font())
+                f.setPointSizeF(f.pointSizeF() * 1.5)
+                f.setFamily("DejaVu Sans Mono")
+                value.setFont(f)
+            value.setMinimumWidth(120)
+            r = len(self._rows)
+            self._grid.addWidget(name, r, 0)
+            self._grid.addWidget(value, r, 1)
+            self._rows[ch] = (name, value)
+        return self._rows[ch]
+
+    def set_channels(self, channels) -> None:
+        for ch in channels:
+            self._row(ch)
+
+    def set_values(self, values: dict) -> None:
+        for ch, v in values.items():
+            if ch in self._rows or not self._rows:
+                self.values[ch] = v
+                text, unit = channel_text(ch, v)
+                self._row(ch)[1].setText(f"{text} {unit}")
+
+    def text_of(self, ch: str) -> str:
+        return self._rows[ch][1].text() if ch in self._rows else ""
+
+
+class DeviceTable(QTableWidget):
+    """One row per device: name, state, its readings or what is wrong and what to do."""
+
+    def __init__(self, parent=None):
+        super().__init__(0, 3, parent)
+        self.setHorizontalHeaderLabels(["device", "state", "readings / what to do"])
+        self.verticalHeader().setVisible(False)
+        self.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+        self.setWordWrap(True)
+        h = self.horizontalHeader()
+        h.setSectionResizeMode(0, QHeaderView.ResizeMode.ResizeToContents)
+        h.setSectionResizeMode(1, QHeaderView.ResizeMode.ResizeToContents)
+        h.setSectionResizeMode(2, QHeaderView.ResizeMode.Stretch)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Preferred)
+        self.setMinimumHeight(120)
+        self.states: dict[str, bool] = {}
+
+    def set_devices(self, readings) -> None:
+        """``readings``: list of :class:`station.gui.worker.DeviceReading`."""
+        self.setRowCount(len(readings))
+        for r, dev in enumerate(readings):
+            self.states[dev.name] = dev.ok
+            state = QTableWidgetItem("\u2713 OK" if dev.ok else "\u2717 fault")
+            state.setForeground(QColor(OK_COLOR if dev.ok else BAD_COLOR))
+            text = (", ".join(f"{ch} {' '.join(channel_text(ch, v))}"
+                              for ch, v in dev.values.items()) if dev.ok else dev.text)
+            for c, item in enumerate((QTableWidgetItem(dev.name), state, QTableWidgetItem(text))):
+                item.setToolTip(text)
+                self.setItem(r, c, item)
+        self.resizeRowsToContents()
+
+    def clear_devices(self) -> None:
+        self.setRowCount(0)
+        self.states = {}

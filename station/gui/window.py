@@ -1,0 +1,196 @@
+"""The main window: the steps on the left, the page, Back / Next below.
+
+A step can be opened once every step before it is complete; the Offline page
+(a recorded trace) is always open. Closing the window stops measuring after
+the current pose (the trace holds every recorded pose), closes the devices and
+stops the simulator; the next start offers to resume an unfinished session.
+"""
+from __future__ import annotations
+
+from PySide6.QtCore import QSize, Qt
+from PySide6.QtGui import QAction, QFont, QKeySequence
+from PySide6.QtWidgets import (QHBoxLayout, QLabel, QListWidget, QListWidgetItem, QMainWindow,
+                               QMessageBox, QPushButton, QStackedWidget, QVBoxLayout, QWidget)
+
+from station.gui.controller import Controller, summarize_folder
+from station.gui.pages import TITLES, PageId
+from station.gui.pages.calibrate import CalibratePage
+from station.gui.pages.execute import ExecutePage
+from station.gui.pages.export import ExportPage
+from station.gui.pages.offline import OfflinePage
+from station.gui.pages.plan import PlanPage
+from station.gui.pages.reference import ReferencePage
+from station.gui.pages.setup import SetupPage
+
+PAGES = {PageId.SETUP: SetupPage, PageId.REFERENCE: ReferencePage, PageId.PLAN: PlanPage,
+         PageId.EXECUTE: ExecutePage, PageId.CALIBRATE: CalibratePage,
+         PageId.EXPORT: ExportPage, PageId.OFFLINE: OfflinePage}
+WIZARD = [p for p in PageId if p != PageId.OFFLINE]
+
+
+class MainWindow(QMainWindow):
+    def __init__(self, controller: Controller, parent=None):
+        super().__init__(parent)
+        self.controller = controller
+        self.setWindowTitle("Calibration station" + (" (simulated devices)"
+                                                     if controller.simulate else ""))
+        f = QFont(self.font())
+        f.setPointSizeF(max(f.pointSizeF(), 10.0))
+        self.setFont(f)
+        self.pages = {pid: cls(controller) for pid, cls in PAGES.items()}
+        self.stack = QStackedWidget()
+        for pid in PageId:
+            self.stack.addWidget(self.pages[pid])
+        self.steps = QListWidget()
+        self.steps.setFixedWidth(210)
+        self.steps.setAccessibleName("steps")
+        for pid in PageId:
+            item = QListWidgetItem(TITLES[pid])
+            item.setData(Qt.ItemDataRole.UserRole, int(pid))
+            item.setSizeHint(QSize(200, 34))
+            self.steps.addItem(item)
+        self.steps.currentRowChanged.connect(self._step_clicked)
+        self.back_button = QPushButton("< &Back")
+        self.next_button = QPushButton("&Next >")
+        self.next_button.setDefault(True)
+        self.back_button.clicked.connect(self.back)
+        self.next_button.clicked.connect(self.next)
+        self.busy = QLabel("")
+        nav = QHBoxLayout()
+        nav.addWidget(self.busy, 1)
+        nav.addWidget(self.back_button)
+        nav.addWidget(self.next_button)
+        right = QVBoxLayout()
+        right.addWidget(self.stack, 1)
+        right.addLayout(nav)
+        central = QWidget()
+        lay = QHBoxLayout(central)
+        lay.addWidget(self.steps)
+        lay.addLayout(right, 1)
+        self.setCentralWidget(central)
+        self._menus()
+        for page in self.pages.values():
+            page.completeChanged.connect(self._update_nav)
+        controller.busyChanged.connect(self._busy)
+        controller.eventLogged.connect(self._event)
+        controller.sessionChanged.connect(self._update_nav)
+        controller.iterated_offline.connect(self.pages[PageId.OFFLINE].add_iteration)
+        self.current = PageId.SETUP
+        self.resize(1280, 720)
+        self._update_nav()
+
+    def _menus(self) -> None:
+        m = self.menuBar().addMenu("&File")
+        a = QAction("&Open a recorded trace\u2026", self)
+        a.setShortcut(QKeySequence.StandardKey.Open)
+        a.triggered.connect(self.open_trace)
+        m.addAction(a)
+        m.addSeparator()
+        a = QAction("&Quit", self)
+        a.setShortcut(QKeySequence.StandardKey.Quit)
+        a.triggered.connect(self.close)
+        m.addAction(a)
+        m = self.menuBar().addMenu("&Help")
+        a = QAction("&About", self)
+        a.triggered.connect(lambda: QMessageBox.about(
+            self, "Calibration station",
+            "Robot calibration station: reference, IK-planned poses, Algorithm 2 calibration "
+            "with identifiability, parameter file and report."))
+        m.addAction(a)
+
+    # -- navigation ---------------------------------------------------------------------------
+    def page(self, pid: PageId):
+        return self.pages[PageId(pid)]
+
+    def reachable(self, pid: PageId) -> bool:
+        if pid == PageId.OFFLINE:
+            return True
+        return all(self.pages[p].is_complete() for p in WIZARD if p < pid)
+
+    def go_to(self, pid: PageId) -> bool:
+        pid = PageId(pid)
+        if not self.reachable(pid):
+            return False
+        if pid != self.current:
+            self.pages[self.current].leave_page()
+        self.current = pid
+        self.stack.setCurrentWidget(self.pages[pid])
+        self.steps.blockSignals(True)
+        self.steps.setCurrentRow(int(pid))
+        self.steps.blockSignals(False)
+        self.pages[pid].initialize_page()
+        self._update_nav()
+        return True
+
+    def next(self) -> None:
+        if self.current in WIZARD and self.current != WIZARD[-1]:
+            self.go_to(PageId(self.current + 1))
+
+    def back(self) -> None:
+        if self.current == PageId.OFFLINE:
+            self.go_to(PageId.SETUP)
+        elif self.current > PageId.SETUP:
+            self.go_to(PageId(self.current - 1))
+
+    def _step_clicked(self, row: int) -> None:
+        if row >= 0 and not self.go_to(PageId(row)):
+            self.steps.blockSignals(True)
+            self.steps.setCurrentRow(int(self.current))
+            self.steps.blockSignals(False)
+
+    def _update_nav(self) -> None:
+        for pid in PageId:
+            item = self.steps.item(int(pid))
+            ok = self.reachable(pid)
+            flags = item.flags()
+            item.setFlags(flags | Qt.ItemFlag.ItemIsEnabled if ok
+                          else flags & ~Qt.ItemFlag.ItemIsEnabled)
+            done = pid in WIZARD and self.pages[pid].is_complete() and pid != self.current
+            item.setText(("\u2713 " if done else "   ") + TITLES[pid])
+        cur = self.current
+        self.back_button.setEnabled(cur != PageId.SETUP)
+        self.next_button.setEnabled(cur in WIZARD and cur != WIZARD[-1]
+                                    and self.pages[cur].is_complete())
+
+    def open_trace(self) -> None:
+        self.go_to(PageId.OFFLINE)
+        self.pages[PageId.OFFLINE].browse()
+
+    # -- status -------------------------------------------------------------------------------
+    def _busy(self, busy: bool) -> None:
+        self.busy.setText("Working\u2026" if busy else "")
+
+    def _event(self, ev: dict) -> None:
+        self.statusBar().showMessage(f"{ev.get('kind')}: {ev.get('message', '')}", 15000)
+
+    # -- resume and close ---------------------------------------------------------------------
+    def offer_resume(self) -> bool:
+        """At start: the last session folder holds an unfinished session -> offer it."""
+        folder = self.controller.last_folder()
+        summary = summarize_folder(folder) if folder else None
+        if summary is None or not summary.unfinished:
+            return False
+        setup = self.pages[PageId.SETUP]
+        setup.folder.setText(str(summary.folder))
+        setup.set_choice(summary.robot, summary.method)
+        setup.connect_session()         # asks "Resume the session?"
+        return True
+
+    def closeEvent(self, event) -> None:
+        execute = self.pages[PageId.EXECUTE]
+        if execute.running and not self.controller.closed:
+            answer = QMessageBox.question(
+                self, "Stop measuring?",
+                "Poses are being measured. Stop after the current pose and close? Every "
+                "recorded pose is kept; open the same session folder again to continue.",
+                QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No,
+                QMessageBox.StandardButton.No)
+            if answer != QMessageBox.StandardButton.Yes:
+                event.ignore()
+                return
+        if execute.fault_box is not None:
+            execute.fault_box.close()
+        self.busy.setText("Closing: stopping after the current pose\u2026")
+        self.controller.shutdown()
+        event.accept()
+
