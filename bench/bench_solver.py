@@ -9,32 +9,61 @@ each noise-free and noisy, the same poses for both) it runs
 * ``trf-jac``, ``trf-2pt``  the same with ``method='trf'``;
 * ``lm-jac-w``, ``trf-jac-w``  (noisy multi-channel problems only) the analytic
   runs on the residual weighted per channel with the sigma *our* solver
-  estimated at its solution: the weighted least-squares problem our solver
+  used in its last round: the weighted least-squares problem our solver
   ends on, so the optimum is the same one (the plain runs converge to the
-  unweighted optimum, which differs by O(std) when the channels' noise differs).
+  unweighted optimum, which differs by O(std) when the channels' noise differs);
+* ``*-dtol``     (information only, not in the ratio) the fastest analytic run
+  again with scipy's *default* tolerances (1e-8), to show where they stop.
 
 All scipy runs start from the method's ``x0``, move only the parameters our
 solver found identifiable (the others stay at ``x0``), use
 ``xtol = ftol = gtol = 1e-12`` and ``x_scale='jac'`` by default (the analogue of
-the column scaling H; ``--x-scale 1`` for none). The analytic runs share one
+the column scaling H; ``--x-scale 1`` for none); ours stops when the largest
+step component is below 1e-10 (parameter units). The analytic runs share one
 ``model.evaluate`` between ``fun`` and ``jac`` at the same point; the
 finite-difference runs evaluate the residual by forward kinematics only (no
 observation matrix), a residual identical to ``model.evaluate(x)[0]``.
 
+Timing: every runner is called ``--repeats`` times, the runners interleaved
+round by round (load on the machine hits all alike); the best (shortest) time
+counts, the median is shown beside it. BLAS runs single-threaded (the
+``*_NUM_THREADS`` variables are set to 1 before numpy loads; ``--blas-threads``
+to change). The bench fails (exit 1) if a scipy run on the problem ours solves
+does not converge to our optimum.
+
 Columns: see bench/README.md. Run from the repository root::
 
-    python bench/bench_solver.py            # full bench (< 2 min)
+    python bench/bench_solver.py            # full bench (~10 s)
     python bench/bench_solver.py --quick    # fewer repeats
     python bench/bench_solver.py --profile all
 """
 from __future__ import annotations
 
-import argparse
-import cProfile
 import os
-import pstats
 import sys
-import time
+
+
+def _blas_threads(argv) -> str:
+    """``--blas-threads N`` from the command line (default 1), exported before
+    numpy is imported (it is read when the BLAS library loads)."""
+    n = "1"
+    for i, a in enumerate(argv):
+        if a == "--blas-threads" and i + 1 < len(argv):
+            n = argv[i + 1]
+        elif a.startswith("--blas-threads="):
+            n = a.split("=", 1)[1]
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = n
+    return n
+
+
+BLAS_THREADS = _blas_threads(sys.argv[1:]) if __name__ == "__main__" else None
+
+import argparse  # noqa: E402
+import cProfile  # noqa: E402
+import pstats  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -42,8 +71,11 @@ import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
-from _common import METHODS, make_problems, median_times, table  # noqa: E402
+from _common import METHODS, make_problems, table  # noqa: E402
+from calibration import solver as _solver  # noqa: E402
 from calibration.solver import SolverOptions, solve  # noqa: E402
+
+SCALED_LINE = _solver._Scaled.__init__.__code__.co_firstlineno
 
 TOL = 1e-12
 SAME_ABS, SAME_STD = 1e-9, 1e-3
@@ -82,10 +114,12 @@ class Counted:
         return self._rW
 
     def fun_jac(self, z):  # fun of the analytic runs
-        return self.g * self._eval(z)[0]
+        r = self._eval(z)[0]
+        return r if self.g is None else self.g * r
 
     def jac(self, z):
-        return -(self.g[:, None] * self._eval(z)[1][:, self.active])
+        W = self._eval(z)[1][:, self.active]
+        return -W if self.g is None else -(self.g[:, None] * W)
 
     def fun_fk(self, z):  # fun of the finite-difference runs
         self.fk_calls += 1
@@ -93,20 +127,25 @@ class Counted:
             self.fd_calls += 1
         else:
             self._base = z.copy()
-        return self.g * self.prob.residual(self.full(z))
+        r = self.prob.residual(self.full(z))
+        return r if self.g is None else self.g * r
 
 
-def run_scipy(prob, active, g, method, analytic, x_scale):
+def run_scipy(prob, active, g, method, analytic, x_scale, tol=TOL):
+    """``(counter, once)``: ``once()`` runs least_squares; ``g`` (per-row
+    weights of the residual) None for the plain residual; ``tol`` None for
+    scipy's default tolerances."""
     c = Counted(prob, active, g)
     z0 = c.x0[active]
+    tols = {} if tol is None else {"xtol": tol, "ftol": tol, "gtol": tol}
 
     def once():
         c.reset()
         if analytic:
             return least_squares(c.fun_jac, z0, jac=c.jac, method=method, x_scale=x_scale,
-                                 xtol=TOL, ftol=TOL, gtol=TOL)
+                                 **tols)
         return least_squares(c.fun_fk, z0, jac="2-point", method=method, x_scale=x_scale,
-                             xtol=TOL, ftol=TOL, gtol=TOL)
+                             **tols)
 
     return c, once
 
@@ -150,22 +189,26 @@ def profile_ours(prob, n):
         return t, calls
 
     in_solver = lambda k: k[0].endswith(os.path.join("calibration", "solver.py"))  # noqa: E731
+    in_ident = lambda k: k[0].endswith("identifiability.py")  # noqa: E731
     groups = [
         ("model.evaluate (r and W)", cum(lambda k: k[2] == "evaluate"
                                          and "calibration" in k[0] and "methods" in k[0])),
-        ("identifiability.analyze (3 per solve)", cum(lambda k: k[2] == "analyze"
-                                                      and k[0].endswith("identifiability.py"))),
-        ("np.linalg.lstsq (step, augmented)", cum(lambda k: k[2] == "lstsq", in_solver)),
-        ("np.linalg.svd (cond. number)", cum(lambda k: k[2] == "svd", in_solver)),
-        ("np.linalg.pinv (variance, eq. 52)", cum(lambda k: k[2] == "pinv", in_solver)),
-        ("_channel_sigma / _weights", cum(lambda k: k[2] in ("_channel_sigma", "_weights"),
-                                          in_solver)),
-        ("np.linalg.norm (in solver.py)", cum(lambda k: k[2] == "norm", in_solver)),
+        ("identifiability.classify (start, recheck)", cum(lambda k: k[2] == "classify"
+                                                          and in_ident(k))),
+        ("_Scaled: QR of [G W H, G r], sing. values", cum(lambda k: in_solver(k)
+                                                          and k[1] == SCALED_LINE)),
+        ("_Scaled.step (damped step, eq. 48)", cum(lambda k: k[2] == "step" and in_solver(k))),
+        ("_Scaled.variance_scaled (eq. 52 history)", cum(lambda k: k[2] == "variance_scaled"
+                                                         and in_solver(k))),
+        ("_covariance (final eq. 52, cond.)", cum(lambda k: k[2] == "_covariance"
+                                                  and in_solver(k))),
+        ("sigma / weights (eq. 51, L)", cum(lambda k: k[2] in (
+            "channel_sigma", "_pooled_sigma", "row_weights", "_set_weights") and in_solver(k))),
     ]
     solve_t = cum(lambda k: k[2] == "solve" and in_solver(k))[0]
     parts = [(name, calls / n, 1e3 * t / n) for name, (t, calls) in groups]
     rest = solve_t - sum(t for _name, (t, _c) in groups)
-    parts.append(("rest (vstack/eye, records, dataclasses, ...)", None, 1e3 * rest / n))
+    parts.append(("rest (loop, records, checks, result)", None, 1e3 * rest / n))
     parts.append(("total solve (under cProfile)", None, 1e3 * solve_t / n))
     top = sorted(stats.items(), key=lambda kv: -kv[1][2])[:12]
     trows = [(f"{os.path.basename(k[0])}:{k[1]}({k[2]})", f"{v[1] / n:.1f}",
@@ -198,6 +241,22 @@ def profile_report(probs, n):
 
 
 # -- bench ------------------------------------------------------------------------
+def best_times(fns, repeats: int, warmup: int = 1):
+    """``(best, median)`` seconds of each of ``fns`` over ``repeats`` rounds; each
+    round calls every function once, in turn (interleaved, so that a burst of
+    load on the machine affects all of them alike)."""
+    for _ in range(warmup):
+        for fn in fns:
+            fn()
+    times = [[] for _ in fns]
+    for _ in range(repeats):
+        for i, fn in enumerate(fns):
+            t = time.perf_counter()
+            fn()
+            times[i].append(time.perf_counter() - t)
+    return [(min(t), statistics.median(t)) for t in times]
+
+
 def bench_problem(prob, repeats, x_scale):
     model = prob.model
     res = solve(model)
@@ -217,43 +276,46 @@ def bench_problem(prob, repeats, x_scale):
                   and np.all(dx[~active] == 0))
         return dx.max(), float(np.nanmax(dx[active] / std)), ok
 
-    # cost of one residual evaluation, model.evaluate (r and W) and r by fk
-    # only: timed in the same interleaved rounds as the runners (below)
-    t_model = t_fk = 0.0
-
     rows = [dict(runner="ours", conv=res.converged, iters=res.iterations, nfev=res.nfev,
                  calls=res.nfev, analytic=True, cost=plain_cost(x_ours),
-                 dx=0.0, dxs=0.0, same=True, scipy=False)]
+                 dx=0.0, dxs=0.0, same=True, scipy=False, target=True, info=False)]
     timed = [lambda: solve(model)]
-    ones = np.ones(len(model.row_channel))
-    runs = [(f"{m}-{'jac' if a else '2pt'}", m, a, ones) for m in ("lm", "trf")
+    runs = [(f"{m}-{'jac' if a else '2pt'}", m, a, None) for m in ("lm", "trf")
             for a in (True, False)]
-    if prob.noisy and len(model.channels) > 1:
+    weighted = prob.noisy and len(model.channels) > 1
+    if weighted:
         # the weights of ours' last round (history[-1].sigma); res.sigma is the
         # estimate re-made at the final x, which differs by up to the 5 % that
         # ends the reweighting loop
         last = res.history[-1].sigma
         sig = np.array([last[ch] for ch in model.channels])[model.row_channel]
         runs += [(f"{m}-jac-w", m, True, 1.0 / sig) for m in ("lm", "trf")]
+    # the default-tolerance runs (information): lm, analytic, on ours' problem
+    runs += [(("lm-jac-w" if weighted else "lm-jac") + "-dtol", "lm", True,
+              runs[-2][3] if weighted else None)]
     for name, method, analytic, g in runs:
-        c, once = run_scipy(prob, active, g, method, analytic, x_scale)
+        dtol = name.endswith("-dtol")
+        c, once = run_scipy(prob, active, g, method, analytic, x_scale,
+                            tol=None if dtol else TOL)
         sres = once()
         iters, nfev, calls, x, ok, status = summarize_scipy(c, sres, analytic, method)
         dx, dxs, is_same = same(x)
         timed.append(once)
-        rows.append(dict(runner=name, conv=f"{ok} ({status})", iters=iters, nfev=nfev,
-                         calls=calls, analytic=analytic,
-                         cost=plain_cost(x), dx=dx, dxs=dxs, same=is_same,
-                         scipy=True))
-    # timing: the runners interleaved repeat by repeat, so that load on the
-    # machine hits all of them alike
+        # the runs on the problem ours solves: the weighted ones where there are
+        # any, else the plain ones
+        target = analytic and not dtol and (name.endswith("-w") == weighted)
+        rows.append(dict(runner=name, conv=f"{ok} ({status})", ok=ok, iters=iters, nfev=nfev,
+                         calls=calls, analytic=analytic, cost=plain_cost(x), dx=dx, dxs=dxs,
+                         same=is_same, scipy=True, target=target, info=dtol))
+    # cost of one call, model.evaluate (r and W) and r by fk only, timed in the
+    # same interleaved rounds as the runners
     x0 = model.x0
     timed += [lambda: [model.evaluate(x0) for _ in range(EVAL_BATCH)],
               lambda: [prob.residual(x0) for _ in range(EVAL_BATCH)]]
-    times = median_times(timed, repeats)
-    t_model, t_fk = times[-2] / EVAL_BATCH, times[-1] / EVAL_BATCH
-    for r, t in zip(rows, times):
-        r["t"] = t
+    times = best_times(timed, repeats)
+    t_model, t_fk = times[-2][0] / EVAL_BATCH, times[-1][0] / EVAL_BATCH
+    for r, (t, tmed) in zip(rows, times):
+        r["t"], r["t_med"] = t, tmed
         r["t_eval"] = r["calls"] * (t_model if r.pop("analytic") else t_fk)
     return res, rows, (t_model, t_fk)
 
@@ -261,23 +323,32 @@ def bench_problem(prob, repeats, x_scale):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--repeats", type=int, default=15, help="timed runs per runner (median)")
-    ap.add_argument("--quick", action="store_true", help="3 repeats")
+    ap.add_argument("--repeats", type=int, default=25, help="timed runs per runner (best counts)")
+    ap.add_argument("--quick", action="store_true", help="5 repeats")
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--x-scale", default="jac", help="least_squares x_scale: 'jac' or 1")
+    ap.add_argument("--blas-threads", default="1",
+                    help="BLAS threads (exported before numpy loads; default 1)")
     ap.add_argument("--profile", choices=("auto", "all", "none"), default="auto",
                     help="cProfile our solver: where it is slower than scipy (auto), always, never")
     ap.add_argument("--profile-runs", type=int, default=20)
     args = ap.parse_args(argv)
-    repeats = 3 if args.quick else args.repeats
+    repeats = 5 if args.quick else args.repeats
     x_scale = args.x_scale if args.x_scale == "jac" else float(args.x_scale)
     t_start = time.perf_counter()
+    threads = {v: os.environ.get(v, "unset") for v in ("OPENBLAS_NUM_THREADS",
+                                                       "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
     print(f"numpy {np.__version__}, scipy {scipy.__version__}, python {sys.version.split()[0]}; "
-          f"seed {args.seed}; wall = median of {repeats} runs; x_scale={args.x_scale!r}; "
-          f"tol {TOL:g}; ours: default SolverOptions() = {SolverOptions()}")
+          f"seed {args.seed}; wall = best of {repeats} interleaved runs (median beside it); "
+          f"BLAS threads {threads}")
+    print(f"stopping: ours max|step| < {SolverOptions().epsilon:g} (absolute, parameter units); "
+          f"scipy xtol = ftol = gtol = {TOL:g} (relative), x_scale={args.x_scale!r}; "
+          f"'*-dtol': scipy's default tolerances (1e-8), information only\n"
+          f"ours: default SolverOptions() = {SolverOptions()}")
     problems = make_problems(args.seed, tuple(args.methods))
     summary = []
     to_profile = []
+    failures = []
     for prob in problems:
         res, rows, (t_model, t_fk) = bench_problem(prob, repeats, x_scale)
         t_ours = rows[0]["t"]
@@ -291,36 +362,57 @@ def main(argv=None):
         out = []
         for r in rows:
             out.append((r["runner"], r["conv"], r["iters"], r["nfev"], r["calls"],
-                        f"{1e3 * r['t']:.3f}", f"{1e3 * r['t_eval']:.2f}",
+                        f"{1e3 * r['t']:.3f}", f"{1e3 * r['t_med']:.3f}",
+                        f"{1e3 * r['t_eval']:.2f}",
                         f"{1e3 * (r['t'] - r['t_eval']):.2f}", f"{r['cost']:.6e}", f"{r['dx']:.2e}",
                         f"{r['dxs']:.1e}", "yes" if r["same"] else "NO",
                         f"{r['t'] / t_ours:.2f}"))
-        print(table(out, ["runner", "converged (status)", "iter", "nfev", "calls", "wall ms",
-                          "eval ms", "rest ms", "cost 0.5|r|^2", "max|x-x_ours|", "/std",
-                          "same opt", "t/t_ours"]))
-        sc = [r for r in rows if r["scipy"] and r["same"] and r["conv"].startswith("True")]
-        anyb = min((r for r in rows if r["scipy"]), key=lambda r: r["t"])
+        print(table(out, ["runner", "converged (status)", "iter", "nfev", "calls", "best ms",
+                          "median ms", "eval ms", "rest ms", "cost 0.5|r|^2", "max|x-x_ours|",
+                          "/std", "same opt", "t/t_ours"]))
+        bad = [r["runner"] for r in rows if r["scipy"] and r["target"]
+               and not (r["ok"] and r["same"])]
+        if bad:
+            failures.append(f"{prob.name}: {', '.join(bad)} did not converge to our optimum")
+            print(f"--> ASSERTION: {failures[-1]}")
+        sc = [r for r in rows if r["scipy"] and not r["info"] and r["same"] and r["ok"]]
+        anyb = min((r for r in rows if r["scipy"] and not r["info"]), key=lambda r: r["t"])
         if sc:
             best = min(sc, key=lambda r: r["t"])
             ratio = best["t"] / t_ours
+            ratio_med = best["t_med"] / rows[0]["t_med"]
             print(f"--> best scipy at the same optimum: {best['runner']} {1e3 * best['t']:.3f} ms; "
                   f"ratio wall(best scipy)/wall(ours) = {ratio:.2f} "
-                  f"({'ours faster' if ratio > 1 else 'SCIPY FASTER'}); fastest scipy of all: "
-                  f"{anyb['runner']} ({anyb['t'] / t_ours:.2f})")
+                  f"({'ours faster' if ratio > 1 else 'SCIPY FASTER'}; medians {ratio_med:.2f}); "
+                  f"fastest scipy of all: {anyb['runner']} ({anyb['t'] / t_ours:.2f})")
         else:
-            best, ratio = None, float("nan")
+            best, ratio, ratio_med = None, float("nan"), float("nan")
             print("--> no scipy run reached our optimum")
-        summary.append((prob.name, f"{1e3 * t_ours:.3f}", best["runner"] if best else "-",
-                        f"{1e3 * best['t']:.3f}" if best else "-", f"{ratio:.2f}"))
+        info = [r for r in rows if r["info"]]
+        for r in info:
+            print(f"    {r['runner']}: scipy's default tolerances stop after {r['nfev']} "
+                  f"evaluations, {1e3 * r['t']:.3f} ms ({r['t'] / t_ours:.2f} x ours), "
+                  + ("at the same optimum" if r["same"] else
+                     f"{r['dxs']:.1e} std (max {r['dx']:.1e}) from ours: earlier than ours, "
+                     f"not the same optimum"))
+        summary.append((prob.name, res.nfev, f"{1e3 * t_ours:.3f}",
+                        best["runner"] if best else "-", best["calls"] if best else "-",
+                        f"{1e3 * best['t']:.3f}" if best else "-", f"{ratio:.2f}",
+                        f"{ratio_med:.2f}"))
         if args.profile == "all" or (args.profile == "auto" and not ratio > 1):
             to_profile.append(prob)
-    print("\n=== summary: ratio = wall(best scipy at the same optimum) / wall(ours); > 1: ours faster")
-    print(table(summary, ["problem", "ours ms", "best scipy", "scipy ms", "ratio"]))
+    print("\n=== summary: ratio = wall(best scipy at the same optimum) / wall(ours), best of "
+          f"{repeats}; > 1: ours faster")
+    print(table(summary, ["problem", "ours nfev", "ours ms", "best scipy", "calls", "scipy ms",
+                          "ratio", "(medians)"]))
     if to_profile:
         print(f"\n=== cProfile of ours ({args.profile_runs} solves per problem; the profiler "
               f"inflates many small Python calls, read the shares)")
         print(profile_report(to_profile, args.profile_runs))
     print(f"\nbench wall time {time.perf_counter() - t_start:.1f} s")
+    if failures:
+        print("\nFAILED: " + "; ".join(failures))
+        sys.exit(1)
 
 
 if __name__ == "__main__":

@@ -26,9 +26,11 @@ units (rad, m, or the ratio itself for a transmission ratio).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import lapack
 
 IDENTIFIABLE = "identifiable"
 NO_INFLUENCE = "no influence"
@@ -62,35 +64,108 @@ def analyze(W: np.ndarray, names, *, weights: np.ndarray | None = None,
                 enter the QR).
     residual:   ``(rows,)`` residual at the solution, enabling the statistical test.
     """
+    ident, dep, rdiag, norms = classify(W, weights=weights, candidates=candidates,
+                                        residual=residual, rank_tol=rank_tol, kappa=kappa)
+    return [ParameterStatus(*row) for row in zip(names, ident.tolist(), dep.tolist(),
+                                                 rdiag.tolist(), norms.tolist())]
+
+
+def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
+             candidates: np.ndarray | None = None, residual: np.ndarray | None = None,
+             rank_tol: float = 1e-8, kappa: float = 3.0, return_r: bool = False):
+    """:func:`analyze` as arrays ``(identifiable, influences, r_diag, column_norm)``,
+    each ``(N,)``; ``W`` may also be given already weighted (``weights`` None).
+    ``return_r``: append the triangle ``R`` of the QR of the unit columns of
+    the identifiable parameters (in order), or None where some candidate
+    column was dependent (then no single QR covers them).
+
+    The sequential test "distance of column j from the span of the earlier
+    *kept* columns" is one unpivoted Householder QR of the unit columns in
+    parameter order: ``|R[j, j]|`` is the distance of column j from the span of
+    all earlier columns. Up to the first dependent column they are all kept,
+    so the diagonal is the answer there; the dependent column is then left out
+    (the span of the kept ones projected away) and the QR resumes on the
+    columns after it. One QR when nothing is dependent, one more per
+    dependent column otherwise.
+    """
     W = np.asarray(W, dtype=float)
-    rows, n = W.shape
-    g = np.ones(rows) if weights is None else np.sqrt(np.asarray(weights, dtype=float))
-    Wg = W * g[:, None]
-    norms = np.linalg.norm(Wg, axis=0)
-    cand = np.ones(n, bool) if candidates is None else np.asarray(candidates, bool)
-    floor = rank_tol * (norms[cand].max() if cand.any() else 0.0)
+    n = W.shape[1]
+    if weights is None:
+        g, Wg = None, W
+    else:
+        g = np.sqrt(np.asarray(weights, dtype=float))
+        Wg = W * g[:, None]
+    norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
+    if candidates is None:
+        floor = rank_tol * norms.max() if n else 0.0
+        use = norms > floor
+    else:
+        cand = np.asarray(candidates, bool)
+        floor = rank_tol * (norms.max() if cand.all() else norms.max(initial=0.0, where=cand))
+        use = cand & (norms > floor)
     if residual is not None:
-        floor = max(floor, kappa * float(np.linalg.norm(g * residual)))
-    zero = norms <= floor
-    use = cand & ~zero
-    # QR in parameter order, column by column (Gram-Schmidt with
-    # re-orthogonalisation): R[j, j] is the distance of column j from the span
-    # of the earlier columns that were kept.
-    basis = np.zeros((rows, 0))
-    out = []
-    for j in range(n):
-        if not use[j]:
-            out.append(ParameterStatus(names[j], False, False, 0.0, float(norms[j])))
-            continue
-        v = Wg[:, j] / norms[j]
-        for _ in range(2):
-            v = v - basis @ (basis.T @ v)
-        rjj = float(np.linalg.norm(v))
-        dep = rjj <= rank_tol or rjj * norms[j] <= floor
-        if not dep:
-            basis = np.column_stack([basis, v / rjj])
-        out.append(ParameterStatus(names[j], not dep, dep, rjj, float(norms[j])))
-    return out
+        rg = np.asarray(residual, dtype=float) if g is None else g * residual
+        floor = max(floor, kappa * math.sqrt(float(rg @ rg)))
+        use &= norms > floor
+    rdiag = np.zeros(n)
+    dep = np.zeros(n, bool)
+    R = None
+    if use.all():
+        idx, nidx, T = np.arange(n), norms, Wg / norms
+    else:
+        idx = np.flatnonzero(use)
+        nidx = norms[idx]
+        T = Wg[:, idx] / nidx
+    basis = None  # orthonormal basis of the kept columns before idx[0], once one was dropped
+    while idx.size:
+        d, qr = _r_diagonal(T)
+        bad = (d <= rank_tol) | (d * nidx <= floor)
+        if not bad.any():
+            rdiag[idx] = d
+            if return_r and basis is None and qr is not None:
+                q = len(idx)
+                R = qr[:q, :q] * _upper(q)
+            break
+        j = int(bad.argmax())  # the first dependent column
+        rdiag[idx[:j + 1]] = d[:j + 1]
+        dep[idx[j]] = True
+        if j:
+            Qj = np.linalg.qr(T[:, :j])[0]
+            basis = Qj if basis is None else np.column_stack([basis, Qj])
+        idx, nidx, T = idx[j + 1:], nidx[j + 1:], T[:, j + 1:]
+        if idx.size and basis is not None:
+            for _ in range(2):  # re-orthogonalised, as classical Gram-Schmidt needs
+                T = T - basis @ (basis.T @ T)
+    use &= ~dep
+    if return_r:
+        return use, dep, rdiag, norms, R
+    return use, dep, rdiag, norms
+
+
+_UPPER: dict[int, np.ndarray] = {}
+
+
+def _upper(q: int) -> np.ndarray:
+    """The 0/1 mask of the upper triangle of a ``(q, q)`` matrix (cached)."""
+    m = _UPPER.get(q)
+    if m is None:
+        m = _UPPER[q] = np.asfortranarray(np.triu(np.ones((q, q))))
+    return m
+
+
+def _r_diagonal(T: np.ndarray):
+    """``|R[j, j]|`` of the unpivoted QR of ``T`` (0 past the row count) and the
+    LAPACK QR (None where ``T`` is not tall)."""
+    m, q = T.shape
+    if m >= q:
+        if not q:
+            return np.zeros(0), None
+        qr = lapack.dgeqrf(T)[0]
+        return np.abs(qr.diagonal()), qr
+    d = np.zeros(q)
+    if m:
+        d[:m] = np.abs(lapack.dgeqrf(T)[0].diagonal())
+    return d, None
 
 
 def minimum_poses(n_identifiable: int, p: int) -> int:
