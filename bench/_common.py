@@ -137,10 +137,10 @@ def median_time(fn, repeats: int, warmup: int = 1):
     return statistics.median(times), val
 
 
-def median_times(fns, repeats: int, warmup: int = 1):
-    """Median seconds of each of ``fns`` over ``repeats`` rounds; each round
-    calls every function once, in turn (interleaved, so that a burst of load
-    on the machine affects all of them alike)."""
+def interleaved_times(fns, repeats: int, warmup: int = 1) -> list[list[float]]:
+    """Seconds of each of ``fns`` in each of ``repeats`` rounds; each round calls
+    every function once, in turn (interleaved, so that a burst of load on the
+    machine affects all of them alike)."""
     for _ in range(warmup):
         for fn in fns:
             fn()
@@ -150,7 +150,8 @@ def median_times(fns, repeats: int, warmup: int = 1):
             t = time.perf_counter()
             fn()
             times[i].append(time.perf_counter() - t)
-    return [statistics.median(t) for t in times]
+    return times
+
 
 
 def table(rows, headers, aligns=None) -> str:

@@ -71,7 +71,7 @@ import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
-from _common import METHODS, make_problems, table  # noqa: E402
+from _common import METHODS, interleaved_times, make_problems, table  # noqa: E402
 from calibration import solver as _solver  # noqa: E402
 from calibration.solver import SolverOptions, solve  # noqa: E402
 
@@ -242,19 +242,8 @@ def profile_report(probs, n):
 
 # -- bench ------------------------------------------------------------------------
 def best_times(fns, repeats: int, warmup: int = 1):
-    """``(best, median)`` seconds of each of ``fns`` over ``repeats`` rounds; each
-    round calls every function once, in turn (interleaved, so that a burst of
-    load on the machine affects all of them alike)."""
-    for _ in range(warmup):
-        for fn in fns:
-            fn()
-    times = [[] for _ in fns]
-    for _ in range(repeats):
-        for i, fn in enumerate(fns):
-            t = time.perf_counter()
-            fn()
-            times[i].append(time.perf_counter() - t)
-    return [(min(t), statistics.median(t)) for t in times]
+    """``(best, median)`` seconds of each of ``fns`` over ``repeats`` interleaved rounds."""
+    return [(min(t), statistics.median(t)) for t in interleaved_times(fns, repeats, warmup)]
 
 
 def bench_problem(prob, repeats, x_scale):

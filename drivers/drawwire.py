@@ -26,6 +26,9 @@ from calibration.errors import ConfigError
 from drivers.base import Device, Sample, log
 from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 
+#: station-config word order (``drawwire.word_order``) -> this driver's ``word_order``
+WORD_ORDER = {"high-first": "big", "low-first": "little"}
+
 REG_COUNT = 0x0000
 REG_TURNS = 0x0002
 REG_ZERO = 0x0008

@@ -16,14 +16,13 @@ from typing import Sequence
 from drivers.base import Device
 from drivers.canopen_drives import CanopenActuators, CanopenNodes, canopen_device
 from drivers.config import StationConfig
-from drivers.drawwire import DrawWire
+from drivers.drawwire import WORD_ORDER, DrawWire
 from drivers.errors import DeviceError
 from drivers.inclinometer import Inclinometer
 from drivers.snapshot import Snapshot, snapshot_with
 
 log = logging.getLogger("drivers.rig")
 
-WORD_ORDER = {"high-first": "big", "low-first": "little"}
 
 
 def inclinometer_from_config(cfg) -> Inclinometer:

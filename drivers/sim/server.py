@@ -38,6 +38,7 @@ import numpy as np
 
 from calibration.errors import ConfigError
 from drivers.config import StationConfig, load_station_config
+from drivers.drawwire import WORD_ORDER
 from drivers.sim.cia402_drive import start_canopen_sim
 from drivers.sim.drawwire_sim import SimDrawWire
 from drivers.sim.faults import FaultPlan
@@ -49,7 +50,6 @@ log = logging.getLogger("drivers.sim")
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURES = ROOT / "fixtures"
-WORD_ORDER = {"high-first": "big", "low-first": "little"}
 
 
 def default_config_path(robot: str) -> Path:
