@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from calibration.errors import ConfigError
@@ -24,8 +25,14 @@ def main(args: argparse.Namespace) -> int:
     try:
         from PySide6.QtCore import QTimer
         from PySide6.QtWidgets import QApplication
-    except ImportError as e:  # the GUI extra is not installed
-        raise SystemExit(f"the GUI needs PySide6 ({e}): pip install -e '.[gui]'") from None
+    except ImportError as e:  # a broken install
+        raise SystemExit(f"the GUI needs PySide6 ({e}): pip install -e .") from None
+    if (sys.platform.startswith("linux") and not os.environ.get("QT_QPA_PLATFORM")
+            and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY")):
+        # Qt would abort the process with a core dump; say it in one line instead
+        raise SystemExit("no display for the wizard (DISPLAY and WAYLAND_DISPLAY are unset): "
+                         "run it in a desktop session, or headless use "
+                         "'python app.py run --simulate --robot R --method M --out DIR'")
     config = getattr(args, "config", None)
     if config:
         from pathlib import Path

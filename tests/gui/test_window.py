@@ -80,3 +80,19 @@ def test_entry_point_refuses_a_missing_config(tmp_path):
 
     with pytest.raises(ConfigError, match="no such station config"):
         main(argparse.Namespace(simulate=False, config=str(tmp_path / "none.toml")))
+
+
+def test_entry_point_without_a_display_says_so(tmp_path):
+    """Qt aborts (core dump) without a display; the entry point says it in one line."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("QT_QPA_PLATFORM", "DISPLAY", "WAYLAND_DISPLAY")}
+    app = Path(__file__).resolve().parents[2] / "app.py"
+    r = subprocess.run([sys.executable, str(app)], env=env, capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2
+    assert r.stderr.strip().startswith("error: no display for the wizard")
