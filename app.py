@@ -187,7 +187,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--endpoints", help="without --simulate: fill --config's \"@endpoints\" "
                    "from a running simulator's endpoints file")
     r.add_argument("--nominal", action="append", metavar="NAME=VALUE",
-                   help="a start value the engineer knows (repeatable), e.g. k3=1.111e-4")
+                   help="a start value the engineer knows (repeatable), e.g. k3=1.111e-4; "
+                        "sm-plane also plane_a/plane_b/plane_c")
     r.set_defaults(func=_delegate("station.headless", "main"))
 
     gui = sub.add_parser("gui", help="the operator's Qt wizard")

@@ -6,6 +6,15 @@ model it has, within the robot's joint limits, counted by eq. 60 and ordered to
 keep actuator travel short. Each planned pose is ``fit`` or ``validation``
 (held out: measured, never fitted, used to check the result).
 
+sm-plane and sm-self-redundancy (report 7.4, 7.3) are measured by *guided
+touching*: each planned pose is an approach pose from which the operator (a
+``touch`` callback of the session) brings the tool tip into contact, with a
+physical plane (a contact point on the plane as the engineer measured it
+roughly, approached from 2 cm on the base's side) or with a fixed mark (a pair
+of poses at one ``(x, y)`` with the last link at about -12 and +12 deg, sharing a
+``group``). Their non-identifiable parameters that influence the model must be
+known (:data:`MUST_KNOW`).
+
 The PM wrist is planned in two rounds. The report's nominal wrist cannot reach
 even ``X = 0`` (its rods are too short), so its IK cannot plan the real robot's
 poses. Round one, the *scout*, plans a few poses close to the home pose with
@@ -21,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibration import planning
-from calibration.errors import CalibrationError
+from calibration.errors import CalibrationError, UnreachablePose
 from calibration.identifiability import minimum_poses
 from calibration.methods import METHODS, MethodData
 from calibration.methods.sm_distance_tilt import reframe_nominal
@@ -30,10 +39,20 @@ from calibration.robots import get_robot
 # where the operator puts the end effector for the reference (report 7.2 and 7.5)
 SM_REFERENCE_POINT = np.array([1.0, 1.0, 0.0, 0.2])   # relative to the base offset
 SM_BASE_ORIGIN = np.array([0.5, 1.0, 0.8, 0.0])       # absolute, elbow -1
-# N_R and p of each method (brief section 3) for the pose count of eq. 60
+# N_R and p of each method (brief section 3) for the pose count of eq. 60; for
+# sm-self-redundancy a "pose" of eq. 60 is a pair (its p = 2 rows dx, dy)
 NR_P = {"sm-distance": (9, 1), "sm-distance-tilt": (13, 2), "pm-ik": (8, 3), "pm-fk": (8, 3),
-        "pm-tilt": (10, 2)}
-SESSION_METHODS = tuple(NR_P)
+        "pm-tilt": (10, 2), "sm-self-redundancy": (7, 2), "sm-plane": (10, 1)}
+# methods a session measures unattended (the wizard offers these) and those that
+# need guided touching (a session with a ``touch`` callback)
+SESSION_METHODS = ("sm-distance", "sm-distance-tilt", "pm-ik", "pm-fk", "pm-tilt")
+TOUCH_METHODS = ("sm-self-redundancy", "sm-plane")
+# not identifiable, influencing the model: the session's start values must be right
+MUST_KNOW = {"sm-plane": ("L4", "theta0", "a0", "plane_a", "plane_b", "plane_c"),
+             "sm-self-redundancy": ("L4",)}
+PLANE = ("plane_a", "plane_b", "plane_c")
+TOUCH_STANDOFF = 0.02         # m: sm-plane approach poses this far from the rough plane
+PAIR_PHI_DEG = (8.0, 16.0)    # sm-self-redundancy: |phi| of a pair's two poses, degrees
 PM_SCOUT_COUNT = 12
 PM_SCOUT_SCALE = 0.3          # fraction of the report's +-20 deg box for the scout round
 
@@ -42,22 +61,29 @@ PM_SCOUT_SCALE = 0.3          # fraction of the report's +-20 deg box for the sc
 class PlannedPose:
     """One pose to measure: ``qm`` actuator targets, ``target`` the generalized
     coordinates planned, ``use`` ``"fit"`` or ``"validation"``, ``round`` (0; PM scout 0,
-    main 1) and ``index`` its place in the session's whole plan."""
+    main 1) and ``index`` its place in the session's whole plan. Guided touching:
+    ``qm`` is the approach pose, ``target`` the planned contact (sm-plane: on the rough
+    plane; pairs: the mark's x, y at this pose's phi) and ``group`` the pair."""
 
     index: int
     qm: tuple[float, ...]
     target: tuple[float, ...]
     use: str = "fit"
     round: int = 0
+    group: int | None = None
 
     def record(self) -> dict:
-        return {"index": self.index, "qm": list(self.qm), "target": list(self.target),
-                "use": self.use, "round": self.round}
+        rec = {"index": self.index, "qm": list(self.qm), "target": list(self.target),
+               "use": self.use, "round": self.round}
+        if self.group is not None:
+            rec["group"] = self.group
+        return rec
 
     @classmethod
     def from_record(cls, r: dict) -> "PlannedPose":
+        g = r.get("group")
         return cls(int(r["index"]), tuple(r["qm"]), tuple(r["target"]), r.get("use", "fit"),
-                   int(r.get("round", 0)))
+                   int(r.get("round", 0)), None if g is None else int(g))
 
 
 @dataclass
@@ -75,12 +101,24 @@ class PlanRequest:
 def check_method(method: str) -> None:
     if method not in METHODS:
         raise CalibrationError(f"unknown method {method!r} (known: {', '.join(METHODS)})")
-    if method not in SESSION_METHODS:
+    if method not in SESSION_METHODS + TOUCH_METHODS:
         raise CalibrationError(
-            f"method {method} needs measurements this station does not take unattended "
-            f"({'a pose tracker' if method == 'sm-full-pose' else 'guided touching'}); record "
+            f"method {method} needs a pose tracker, which this station does not have; record "
             f"its trace elsewhere and calibrate it with app.py batch. Station sessions "
-            f"support: {', '.join(SESSION_METHODS)}")
+            f"support: {', '.join(SESSION_METHODS + TOUCH_METHODS)}")
+
+
+def touch_instructions(method: str) -> str:
+    """What the operator does at each pose of a guided-touching method."""
+    if method == "sm-plane":
+        return ("The arm stops about 2 cm from the plane. Jog the tool tip towards the plane "
+                "until it just touches it (feeler gauge), then confirm: the actuator values are "
+                "recorded. Touch at every planned point, spread over the plane.")
+    if method == "sm-self-redundancy":
+        return ("Poses come in pairs. At the first pose of a pair touch the mark (the pin) with "
+                "the tool tip and confirm; at the second the last link is turned the other way: "
+                "bring the tip onto the same mark again and confirm. Only x and y must match.")
+    return ""
 
 
 def minimum_count(method: str, components=None) -> int:
@@ -111,12 +149,20 @@ def reference_pose(method: str, nominal) -> tuple[np.ndarray | None, str | None,
                         "axis: at the home pose it should read roll and pitch near 0.")
 
 
-def plan_sm(method: str, nominal, reference_qm, req: PlanRequest) -> list[PlannedPose]:
+def plan_sm(method: str, nominal, reference_qm, req: PlanRequest, *,
+            plane=None) -> list[PlannedPose]:
+    """The poses of an SM method (``reference_qm``: where travel starts). sm-plane needs
+    ``plane`` ``(a, b, c)``; sm-self-redundancy counts pairs (``req.count`` pairs to fit,
+    ``req.validation`` pairs held out)."""
     robot = get_robot("agebot-sm")
     rng = np.random.default_rng(req.seed)
     count = req.count or int(np.ceil(req.margin * minimum_count(method)))
     n_val = req.validation if req.validation is not None else max(3, count // 5)
     total = count + n_val
+    if method == "sm-plane":
+        return _plane_poses(robot, nominal, plane, count, n_val, rng, reference_qm)
+    if method == "sm-self-redundancy":
+        return _pair_poses(robot, nominal, count, n_val, rng, reference_qm)
     if method == "sm-distance-tilt":
         framed = reframe_nominal(robot, nominal, reference_qm)
         elbow = robot.elbow_of(reference_qm, nominal)
@@ -127,6 +173,78 @@ def plan_sm(method: str, nominal, reference_qm, req: PlanRequest) -> list[Planne
         plan = planning.sample_poses(robot, nominal, planning.box_array(robot, planning.SM_BOX_7_1,
                                                                         off), total, rng)
     return _finish(robot, plan.targets, plan.qm, n_val, rng, reference_qm, 0, 0)
+
+
+def _sm_box(robot, nominal) -> np.ndarray:
+    return planning.box_array(robot, planning.SM_BOX_7_1, np.r_[robot.base_offset(nominal), 0.0])
+
+
+def _plane_poses(robot, nominal, plane, count, n_val, rng, start_qm) -> list[PlannedPose]:
+    """Contact points on the rough plane inside the 7.1 box (the plane's steepest
+    coordinate solved for), each approached from ``TOUCH_STANDOFF`` on the base side."""
+    if plane is None:
+        raise CalibrationError("sm-plane needs the plane (plane_a, plane_b, plane_c) to plan")
+    a = np.asarray(plane, dtype=float)
+    if not np.all(np.isfinite(a)) or not np.any(a):
+        raise CalibrationError(f"the plane {a.tolist()} is not a plane a x + b y + c z + 1 = 0")
+    normal = a / np.linalg.norm(a)       # towards a x + b y + c z + 1 > 0: the base's side
+    box = _sm_box(robot, nominal)
+    k = int(np.argmax(np.abs(a)))
+    rest = [i for i in range(3) if i != k]
+    targets, qm = [], []
+    draws, total = 0, count + n_val
+    while len(qm) < total:
+        draws += 1
+        if draws > 400 * total:
+            raise CalibrationError(f"only {len(qm)} of {total} contact points on the plane "
+                                   f"{a.tolist()} are reachable inside the workspace box: is "
+                                   "the plane measured in the robot's base frame?")
+        X = rng.uniform(box[:, 0], box[:, 1])
+        X[k] = -(1.0 + a[rest] @ X[rest]) / a[k]
+        if not box[k, 0] <= X[k] <= box[k, 1]:
+            continue
+        approach = X.copy()
+        approach[:3] += TOUCH_STANDOFF * normal
+        try:
+            q = robot.ik(approach, nominal, elbow=1)
+        except UnreachablePose:
+            continue
+        targets.append(X)
+        qm.append(q)
+    return _finish(robot, np.array(targets), np.array(qm), n_val, rng, start_qm, 0, 0)
+
+
+def _pair_poses(robot, nominal, count, n_val, rng, start_qm) -> list[PlannedPose]:
+    """``count + n_val`` pairs at one (x, y, z) each, phi in -16..-8 and 8..16 degrees
+    (one elbow); pairs held out whole and visited whole, first pose first."""
+    box = _sm_box(robot, nominal)
+    lo, hi = np.radians(PAIR_PHI_DEG)
+    pairs = []
+    draws, total = 0, count + n_val
+    while len(pairs) < total:
+        draws += 1
+        if draws > 400 * total:
+            raise CalibrationError(f"only {len(pairs)} of {total} pose pairs are reachable "
+                                   "inside the workspace box")
+        X = rng.uniform(box[:, 0], box[:, 1])
+        X1, X2 = X.copy(), X.copy()
+        X1[3], X2[3] = -rng.uniform(lo, hi), rng.uniform(lo, hi)
+        try:
+            q1, q2 = robot.ik(X1, nominal, elbow=1), robot.ik(X2, nominal, elbow=1)
+        except UnreachablePose:
+            continue
+        pairs.append((X1, X2, q1, q2))
+    use = np.array(["fit"] * total, dtype=object)
+    if n_val:
+        use[rng.choice(total, size=n_val, replace=False)] = "validation"
+    order = planning.order_for_travel(np.array([p[2] for p in pairs]), start=start_qm)
+    out = []
+    for g, i in enumerate(order):
+        X1, X2, q1, q2 = pairs[i]
+        for X, q in ((X1, q1), (X2, q2)):
+            out.append(PlannedPose(len(out), tuple(float(v) for v in q),
+                                   tuple(float(v) for v in X), str(use[i]), 0, g))
+    return out
 
 
 def plan_pm_scout(home_qm, home_orientation, req: PlanRequest) -> list[PlannedPose]:

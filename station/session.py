@@ -11,6 +11,16 @@ Workflow (each step may be repeated; the trace records everything)::
     s.execute()                                        # move, settle, snapshot, append+fsync
     s.calibrate(); s.validate(); s.export()            # params.json, report.html
 
+Guided touching (sm-plane, sm-self-redundancy; report 7.4, 7.3): the session
+drives to each planned approach pose and calls ``touch(session, pose)``, which
+brings the tool tip into contact (an operator jogging with :meth:`Session.jog` /
+:meth:`Session.move_to` until the tip touches the plane, or the pair's mark) and
+returns; the session then snapshots and records ``qm`` (and ``group``). ``touch``
+raises :class:`TouchFailed` where the contact cannot be made (the pose is
+skipped, with its pair) and :class:`SessionAborted` to stop. Which operator
+touches is not the session's business (:mod:`station.sim_operator` is the
+simulated one).
+
 Crash safety: the trace (file-formats.md) is the session's only state. The
 plan is recorded as an ``event`` of kind ``plan`` (with its poses), each
 measured pose carries ``plan_index``, skipped poses an event of kind ``skip``;
@@ -35,8 +45,8 @@ from typing import Callable
 
 import numpy as np
 
-from calibration.errors import CalibrationError, ConfigError, StationError
-from calibration.methods import METHODS, build
+from calibration.errors import ConfigError, StationError
+from calibration.methods import METHODS
 from calibration.robots import get_robot
 from calibration.robots.agebot_pm import euler_from_ypr
 from drivers.config import StationConfig
@@ -46,6 +56,7 @@ from station.batch import BatchOutcome, calibrate, frame_statement
 from station.params_file import params_document, write_params
 from station.planner import PlannedPose, PlanRequest
 from station.trace import TraceWriter, read_trace, utc_now
+from station.validation import validation_errors
 
 log = logging.getLogger("station.session")
 
@@ -55,6 +66,10 @@ COMPONENTS = ("alpha", "beta", "gamma")
 
 class SessionAborted(StationError):
     """The operator (or the fault policy) aborted; the trace is intact and resumable."""
+
+
+class TouchFailed(StationError):
+    """The operator could not bring the tool into contact at this pose: skip it."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +86,7 @@ class Progress:
 
 Observer = Callable[[str, object], None]           # (kind, payload): "progress", "event", "state"
 FaultPolicy = Callable[[PlannedPose, DeviceError, int], str]   # -> "retry" | "skip" | "abort"
+Touch = Callable[["Session", PlannedPose], None]   # brings the tool into contact, then returns
 
 
 def retry_then_skip(retries: int = 2) -> FaultPolicy:
@@ -92,14 +108,17 @@ class Session:
     fault_policy: what to do when a pose fails (default: retry twice, then skip).
     rig:      devices to use (default: built from ``config`` at :meth:`connect`).
     nominal:  parameter name -> start value over the robot model's nominal (values the
-              engineer knows, e.g. a gear ratio from the datasheet); a resumed trace
-              keeps its own.
+              engineer knows, e.g. a gear ratio from the datasheet), and the method's
+              extra parameters (sm-plane: ``plane_a, plane_b, plane_c``, the plane as
+              measured); a resumed trace keeps its own. Written into the trace header.
+    touch:    guided touching (sm-plane, sm-self-redundancy): ``touch(session, pose)``
+              brings the tool into contact from the approach pose (module docstring).
     """
 
     def __init__(self, config: StationConfig, method: str, out_dir, *,
                  request: PlanRequest | None = None, observer: Observer | None = None,
                  fault_policy: FaultPolicy | None = None, rig=None,
-                 nominal: dict | None = None):
+                 nominal: dict | None = None, touch: Touch | None = None):
         planner.check_method(method)
         mi = METHODS[method]
         if config.robot != mi.robot:
@@ -112,11 +131,16 @@ class Session:
         self.observer = observer
         self.fault_policy = fault_policy or retry_then_skip()
         self.rig = rig
-        self.nominal = self.robot.params(dict(nominal or {}), source="nominal")
+        self.touch = touch
+        given = dict(nominal or {})
+        self.extra = {k: float(given.pop(k)) for k in mi.extra_params if k in given}
+        self.nominal = self.robot.params(given, source="nominal")
+        self.known = set(given) | set(self.extra)    # start values the engineer gave
         self.components = tuple(self.request.components) if method == "pm-fk" else None
         self.reference_qm: np.ndarray | None = None
         self.plan_poses: list[PlannedPose] = []
         self.measured: dict[int, dict] = {}        # plan index -> pose record
+        self._held: dict[int, dict] = {}           # pair poses touched, written with the pair
         self.skipped: set[int] = set()
         self.events: list[dict] = []
         self.outcome: BatchOutcome | None = None
@@ -144,7 +168,10 @@ class Session:
             raise ConfigError(f"this trace is a {tr.robot} {tr.method} session, not "
                               f"{self.robot.name} {self.method}: choose another folder",
                               source=str(self.trace_path))
-        self.nominal = tr.nominal_vector(self.robot)
+        self.nominal = tr.nominal_vector(self.robot, self.info.extra_params)[:self.robot.n_params]
+        nom = tr.header.get("nominal") or {}
+        self.extra = {k: float(nom[k]) for k in self.info.extra_params if k in nom}
+        self.known = set(nom)
         if tr.header.get("components"):
             self.components = tuple(tr.header["components"])
         if tr.reference is not None:
@@ -167,7 +194,7 @@ class Session:
         if self._writer is None:
             self.out.mkdir(parents=True, exist_ok=True)
             header = {"robot": self.robot.name, "method": self.method,
-                      "nominal": self.robot.as_dict(self.nominal),
+                      "nominal": {**self.robot.as_dict(self.nominal), **self.extra},
                       "station": {"config": self.config.source, "software": "calstation",
                                   "devices": [d.name for d in self.rig.devices] if self.rig
                                   else []}}
@@ -226,6 +253,15 @@ class Session:
         qm[axis] += float(delta)
         self.move_to(qm)
 
+    def qm(self) -> np.ndarray:
+        """The actuator values now (one reading)."""
+        return np.array(self._rig().qm(), dtype=float)
+
+    def check_abort(self) -> None:
+        """For a ``touch`` callback between jogs: raise SessionAborted if abort was asked."""
+        if self._abort.is_set():
+            raise SessionAborted("aborted by the operator while touching")
+
     def _rig(self):
         if self.rig is None or not all(d.is_open for d in self.rig.devices):
             raise StationError("the devices are not connected: connect first")
@@ -272,11 +308,47 @@ class Session:
         self._event("reference", f"back at the reference: draw-wire read {before:.6g} m, "
                     "zeroed again")
 
+    # -- guided touching ----------------------------------------------------------------------
+    @property
+    def touching(self) -> bool:
+        """True for the methods measured by guided touching (a ``touch`` callback)."""
+        return self.method in planner.TOUCH_METHODS
+
+    @property
+    def plane(self) -> np.ndarray | None:
+        """sm-plane: the plane ``(a, b, c)`` given as start values (None if not given)."""
+        if not all(k in self.extra for k in planner.PLANE):
+            return None
+        return np.array([self.extra[k] for k in planner.PLANE])
+
+    @property
+    def touch_instructions(self) -> str:
+        return planner.touch_instructions(self.method)
+
+    def group_of(self, pose: PlannedPose) -> list[PlannedPose]:
+        """The planned poses of ``pose``'s pair (sm-self-redundancy), in visiting order."""
+        if pose.group is None:
+            return [pose]
+        return [p for p in self.plan_poses if p.group == pose.group]
+
+    def measured_record(self, index: int) -> dict | None:
+        """The recorded pose of plan index ``index`` (None if not measured)."""
+        return self.measured.get(index)
+
+    def missing_known(self) -> list[str]:
+        """Parameters that must be known (not identifiable, influencing) but were not
+        given as start values."""
+        return [k for k in planner.MUST_KNOW.get(self.method, ()) if k not in self.known]
+
     # -- planning -------------------------------------------------------------------------------
     @property
     def pending(self) -> list[PlannedPose]:
         return [p for p in self.plan_poses if p.index not in self.measured
-                and p.index not in self.skipped]
+                and p.index not in self.skipped and p.index not in self._held]
+
+    @property
+    def _done(self) -> int:
+        return len(self.measured) + len(self.skipped) + len(self._held)
 
     @property
     def minimum_count(self) -> int:
@@ -291,8 +363,24 @@ class Session:
                                "needs a new session")
         if self.needs_reference and self.reference_qm is None:
             raise StationError("capture the reference first")
+        if self.method == "sm-plane" and self.plane is None:
+            raise StationError("sm-plane needs the plane as the engineer measured it, in the "
+                               "robot's base frame: plane_a, plane_b, plane_c of "
+                               "a x + b y + c z + 1 = 0 (1/m) as start values "
+                               "(app.py run --nominal plane_a=... --nominal plane_b=... "
+                               "--nominal plane_c=...)")
+        if self.touching and self.missing_known():
+            self._ensure_trace()
+            self._event("warning", f"{', '.join(self.missing_known())}: not identifiable by "
+                        f"{self.method} and they influence the result; their start values "
+                        "(the robot's nominal) must be right, or the other parameters come "
+                        "out biased. Give the measured values as start values.")
         if self.robot.name == "agebot-sm":
-            poses = planner.plan_sm(self.method, self.nominal, self.reference_qm, self.request)
+            start = self.reference_qm
+            if start is None and self.rig is not None and all(d.is_open for d in self.rig.devices):
+                start = self.qm()
+            poses = planner.plan_sm(self.method, self.nominal, start, self.request,
+                                    plane=self.plane)
         else:
             home_qm = np.array(self._rig().qm())
             home_X = self._orientation_now()
@@ -323,8 +411,10 @@ class Session:
             self.plan_poses += poses
         n_val = sum(p.use == "validation" for p in poses)
         self._ensure_trace()
+        unit = "pairs" if self.method == "sm-self-redundancy" else "poses"
+        how = (f"; each touched from its approach pose ({self.method})" if self.touching else "")
         self._event("plan", f"planned {len(poses)} poses ({n_val} held out for validation; "
-                    f"eq. 60 minimum {self.minimum_count})",
+                    f"eq. 60 minimum {self.minimum_count} {unit}{how})",
                     poses=[p.record() for p in poses], replace=replace)
         self._notify("state", "planned")
 
@@ -370,9 +460,13 @@ class Session:
         round). Returns the number of poses recorded; raises SessionAborted."""
         self._abort.clear()
         recorded = 0
+        if self.pending:
+            self._require_touch()
         self._notify("state", "measuring")
         while True:
             for pose in self.pending:
+                if pose.index in self.skipped:      # its pair partner was skipped meanwhile
+                    continue
                 while self._pause.is_set() and not self._abort.is_set():
                     time.sleep(0.05)
                 if self._abort.is_set():
@@ -389,14 +483,22 @@ class Session:
         rig = self._rig()
         attempt = 0
         while True:
-            self._notify("progress", Progress(len(self.measured) + len(self.skipped),
+            self._notify("progress", Progress(self._done,
                                               len(self.plan_poses), pose,
                                               message=f"moving to pose {pose.index}"))
             try:
                 rig.move_to(pose.qm)
+                if self.touching:
+                    self._touch(pose)
                 snap = rig.snapshot()
                 rec = self._pose_record(pose, snap)
                 break
+            except TouchFailed as e:
+                self._skip(pose, f"pose {pose.index} skipped: no contact ({e})")
+                return False
+            except SessionAborted:
+                self._event("abort", f"aborted at pose {pose.index} while touching")
+                raise
             except DeviceError as e:
                 self._event("fault", f"pose {pose.index}, attempt {attempt + 1}: {e}",
                             plan_index=pose.index, device=e.device)
@@ -405,21 +507,56 @@ class Session:
                     self._event("abort", f"aborted at pose {pose.index} after a fault")
                     raise SessionAborted(f"aborted after a fault: {e}") from e
                 if action == "skip":
-                    self.skipped.add(pose.index)
-                    self._event("skip", f"pose {pose.index} skipped", plan_index=pose.index)
+                    self._skip(pose, f"pose {pose.index} skipped")
                     self._recover(e)      # the next pose must not meet the same fault
                     return False
                 attempt += 1
                 self._event("retry", f"pose {pose.index}: retry {attempt}",
                             plan_index=pose.index)
                 self._recover(e)
-        self._ensure_trace().append(rec)
-        self.measured[pose.index] = rec
         self._next_index += 1
-        self._notify("progress", Progress(len(self.measured) + len(self.skipped),
-                                          len(self.plan_poses), pose, dict(snap.mean),
-                                          f"pose {pose.index} recorded"))
+        rest = [p for p in self.group_of(pose) if p.index != pose.index
+                and p.index not in self.measured and p.index not in self._held]
+        if rest:      # a pair is written whole: a lone pose of a pair is of no use
+            self._held[pose.index] = rec
+        else:
+            w = self._ensure_trace()
+            for p in self.group_of(pose):
+                if p.index in self._held:
+                    w.append(self._held[p.index])
+                    self.measured[p.index] = self._held.pop(p.index)
+            w.append(rec)
+            self.measured[pose.index] = rec
+        shown = (dict(snap.mean) if not self.touching else   # touching records qm only
+                 {k: v for k, v in snap.mean.items() if k.startswith("qm")})
+        self._notify("progress", Progress(self._done, len(self.plan_poses), pose, shown,
+                                          f"pose {pose.index} " + ("touched (written with its "
+                                          "pair)" if rest else "recorded")))
         return True
+
+    def _require_touch(self) -> None:
+        if self.touching and self.touch is None:
+            raise StationError(f"{self.method} is measured by guided touching: the session "
+                               "needs a touch callback (the operator who brings the tool into "
+                               "contact; app.py run --simulate has a simulated one)")
+
+    def _touch(self, pose: PlannedPose) -> None:
+        self._notify("progress", Progress(self._done,
+                                          len(self.plan_poses), pose,
+                                          message=f"touching at pose {pose.index}"))
+        self.touch(self, pose)
+
+    def _skip(self, pose: PlannedPose, message: str) -> None:
+        """Skip ``pose``; for a pair, also its partners not written yet (touched ones are
+        dropped: a pair is written whole)."""
+        self.skipped.add(pose.index)
+        self._event("skip", message, plan_index=pose.index)
+        for p in self.group_of(pose):
+            if p.index not in self.measured and p.index not in self.skipped:
+                self._held.pop(p.index, None)
+                self.skipped.add(p.index)
+                self._event("skip", f"pose {p.index} skipped with its pair partner {pose.index}",
+                            plan_index=p.index)
 
     def _recover(self, error: DeviceError) -> None:
         """Before a retry: reset a faulted drive, or reconnect a device that dropped."""
@@ -440,6 +577,8 @@ class Session:
         rec = {"record": "pose", "index": self._next_index, "plan_index": pose.index,
                "qm": qm, "target": list(pose.target), "use": pose.use, "t": snap.t_start,
                "samples": snap.samples, "std": {k: v for k, v in snap.std.items()}}
+        if pose.group is not None:
+            rec["group"] = int(pose.group)
         if self.method in ("sm-distance", "sm-distance-tilt"):
             rec["distance"] = m["distance"]
         if self.method == "sm-distance-tilt":
@@ -467,15 +606,32 @@ class Session:
             trace = read_trace(self.trace_path)
         finally:
             self._writer = TraceWriter.resume(self.trace_path)
-        n_fit = len(trace.fit_poses)
+        if self.method == "sm-self-redundancy":
+            self._drop_lone_poses(trace)
+            n_fit = len({p["group"] for p in trace.fit_poses})
+            unit = "pairs"
+        else:
+            n_fit, unit = len(trace.fit_poses), "poses"
         if n_fit < self.minimum_count:
-            self._event("warning", f"{n_fit} poses recorded; eq. 60 recommends at least "
+            self._event("warning", f"{n_fit} {unit} recorded; eq. 60 recommends at least "
                         f"{self.minimum_count}")
         self._notify("state", "calibrating")
         self.outcome = calibrate(trace, callback=callback)
         self._event("calibrated", self.outcome.result.message)
         self._notify("state", "calibrated")
         return self.outcome
+
+    def _drop_lone_poses(self, trace) -> None:
+        """Pairs whose partner was skipped: leave the lone pose out of the calibration."""
+        count: dict = {}
+        for p in trace.poses:
+            key = (p.get("use", "fit"), p["group"])
+            count[key] = count.get(key, 0) + 1
+        lone = [p for p in trace.poses if count[(p.get("use", "fit"), p["group"])] < 2]
+        if lone:
+            trace.poses[:] = [p for p in trace.poses if p not in lone]
+            self._event("warning", "left out of the calibration (their pair partner was not "
+                        "recorded): poses " + ", ".join(str(p["index"]) for p in lone))
 
     def validate(self) -> list[dict]:
         """Errors on the held-out poses before (start values) and after calibration,
@@ -521,6 +677,7 @@ class Session:
     def run(self) -> dict:
         """The whole session unattended (headless): reference at the planned point,
         plan, measure, calibrate, validate, export. Resumes where a trace stopped."""
+        self._require_touch()
         if self.rig is None or not all(d.is_open for d in self.rig.devices):
             self.connect()
         if self.needs_reference and self.reference_qm is None:
@@ -536,53 +693,6 @@ class Session:
         self.calibrate()
         self.validate()
         return self.export()
-
-
-def validation_errors(outcome: BatchOutcome) -> list[dict]:
-    """Per channel: RMS and max |error| of the held-out poses before calibration (the
-    nominal; for sm-distance-tilt the nominal in the captured base frame) and after
-    (empty if the trace holds no held-out poses)."""
-    trace = outcome.trace
-    if not trace.validation_poses:
-        return []
-    robot = get_robot(trace.robot)
-    if robot.name == "agebot-pm":    # the start values there are already a fit
-        x_before = trace.nominal_vector(robot, METHODS[trace.method].extra_params)
-    else:
-        x_before = np.asarray(outcome.model.x0, dtype=float)
-    data = trace.method_data(use="validation")
-    opts = {}
-    if trace.method in ("pm-fk", "pm-ik", "pm-tilt"):
-        opts["start"] = "nominal"
-    model = build(trace.method, robot, data, outcome.result.x, **opts)
-    out = []
-    after = model.evaluate(outcome.result.x)[0]
-    try:
-        before = model.evaluate(x_before)[0]
-        before_note = ""
-    except CalibrationError as e:
-        before, before_note = None, str(e)
-    for k, ch in enumerate(model.channels):
-        rows = model.row_channel == k
-        a = after[rows]
-        rec = {"channel": ch, "unit": _unit(trace.method, ch), "n": int(rows.sum()),
-               "rms_after": float(np.sqrt(np.mean(a ** 2))), "max_after": float(np.abs(a).max())}
-        if before is not None:
-            b = before[rows]
-            rec.update(rms_before=float(np.sqrt(np.mean(b ** 2))),
-                       max_before=float(np.abs(b).max()))
-        else:
-            rec.update(rms_before=None, max_before=None, note=before_note)
-        out.append(rec)
-    return out
-
-
-def _unit(method: str, channel: str) -> str:
-    if channel in ("distance", "x", "y", "z"):
-        return "m"
-    if method == "pm-ik":
-        return "actuator units"
-    return "rad"
 
 
 def _fmt(v) -> str:

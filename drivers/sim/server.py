@@ -17,6 +17,15 @@ and demos inject faults and look at the simulated truth::
     {"faults": {"drop_prob": 0.2}}   {"clear": true}   {"state": true}
     {"move": [qm...]}  (the robot's own controller, for CiA 406 encoders)
     {"drop_drawwire": true}  (close the Modbus TCP connections once)
+    {"contact": true}  (what a feeler gauge and the operator's eye tell: the true
+                        tool tip and its signed distance to the truth's plane)
+
+``contact`` answers ``"contact": {"tip": [x, y, z], "phi": phi, "distance": d,
+"qm": [...]}`` at the robot's true state now: ``tip`` the true end-effector
+point (m, base frame), ``phi`` the true angle of the last link (rad), ``distance``
+the signed distance (m) from the truth's sm-plane plane ``a x + b y + c z + 1 = 0``,
+positive on the side of the base origin (``null`` where the truth has no plane).
+The simulated operator of guided touching (:mod:`station.sim_operator`) watches it.
 
 Every command answers one JSON line: ``{"ok": true, ...}`` or ``{"error": "..."}``.
 """
@@ -154,7 +163,7 @@ class SimStation:
         """One control command (module docstring); raises ValueError/KeyError/TypeError."""
         if not isinstance(cmd, dict):
             raise TypeError("a command is a JSON object")
-        known = {"faults", "clear", "state", "move", "drop_drawwire"}
+        known = {"faults", "clear", "state", "move", "drop_drawwire", "contact"}
         unknown = set(cmd) - known
         if unknown:
             raise KeyError(f"unknown command {sorted(unknown)} (known: {sorted(known)})")
@@ -177,7 +186,20 @@ class SimStation:
                           anchor=self.robot.anchor.tolist(),
                           target_reached=self.robot.target_reached(),
                           drawwire_zero_calls=getattr(self.drawwire, "zero_calls", 0))
+        if cmd.get("contact"):
+            answer["contact"] = self.contact()
         return answer
+
+    def contact(self) -> dict:
+        """The true tool tip now and its signed distance to the truth's plane (m)."""
+        if self.robot.model.name != "agebot-sm":
+            raise ValueError("contact: guided touching is for the agebot-sm")
+        X = self.robot.ee_pose()
+        out = {"tip": X[:3].tolist(), "phi": float(X[3]), "qm": self.robot.qm().tolist(),
+               "distance": None}
+        if self.truth.plane is not None:
+            out["distance"] = self.robot.plane_residual() / float(np.linalg.norm(self.truth.plane))
+        return out
 
     def wait(self, timeout: float | None = None) -> bool:
         return self._stopped.wait(timeout)

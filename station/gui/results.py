@@ -195,7 +195,7 @@ class CalibrationView(QWidget):
 
 def validation_rows(outcome) -> list[dict]:
     """Validation errors of an offline outcome (the session's own function)."""
-    from station.session import validation_errors
+    from station.validation import validation_errors
 
     try:
         return validation_errors(outcome)
