@@ -29,7 +29,7 @@ import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from calibration.errors import ConfigError
-from drivers.base import Device, Sample
+from drivers.base import Device, Sample, log
 from drivers.canopen_od import NMT_OPERATIONAL, standard_od
 from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 
@@ -46,6 +46,9 @@ class CanopenNodes(Device):
     heartbeat_ms:      producer heartbeat time written to 0x1017 (ms).
     heartbeat_timeout: seconds without heartbeat before a node is lost (default 5 periods).
     read_via:          ``"tpdo"`` (SYNC + TPDO, default) or ``"sdo"`` (SDO upload per node).
+    sync_attempts:     SYNCs tried for one reading when a TPDO is lost on the bus (a flaky
+                       cable): a node whose heartbeat is alive gets a fresh SYNC after
+                       ``sync_wait`` s; every retry is counted in ``resyncs``.
     """
 
     profile = 0x0192                      # low word of 0x1000
@@ -55,7 +58,8 @@ class CanopenNodes(Device):
     def __init__(self, nodes: Sequence[int], resolution: float | Sequence[float], *,
                  interface: str = "socketcan", channel: str = "can0", bus_options: dict | None = None,
                  timeout: float = 1.0, heartbeat_ms: int = 100, heartbeat_timeout: float | None = None,
-                 read_via: str = "tpdo", name: str = "canopen"):
+                 read_via: str = "tpdo", name: str = "canopen", sync_attempts: int = 10,
+                 sync_wait: float = 0.1):
         super().__init__(name, timeout)
         self.nodes = [int(n) for n in nodes]
         if not self.nodes or len(set(self.nodes)) != len(self.nodes) or not all(1 <= n <= 127 for n in self.nodes):
@@ -83,6 +87,8 @@ class CanopenNodes(Device):
         self._pending: set[int] = set()
         self._fresh: dict[int, tuple] = {}
         self.unsolicited_tpdos = 0        # TPDOs that came outside a SYNC window (late or extra)
+        self.sync_attempts, self.sync_wait = max(1, int(sync_attempts)), float(sync_wait)
+        self.resyncs = 0                  # readings that needed another SYNC (lost TPDOs)
 
     @classmethod
     def from_endpoint(cls, endpoint: dict, resolution, **options):
@@ -280,7 +286,19 @@ class CanopenNodes(Device):
     def _read_internal(self, timeout: float) -> Sample:
         if self.read_via == "sdo":
             return self.read_sdo(timeout)
-        fresh = self.sync_sample(timeout)
+        end = time.monotonic() + timeout
+        for attempt in range(self.sync_attempts):
+            last = attempt == self.sync_attempts - 1
+            left = max(0.0, end - time.monotonic())
+            try:   # a lost TPDO costs one more SYNC, not the reading; a dead node still
+                # fails at once (its heartbeat is checked in sync_sample)
+                fresh = self.sync_sample(left if last else min(left, self.sync_wait))
+                break
+            except DeviceTimeout as e:
+                if last or time.monotonic() >= end:
+                    raise
+                self.resyncs += 1
+                log.info("%s: %s; SYNC again", self.name, e)
         t = time.monotonic()
         pos = [o for o, _ in self.tpdo_objects].index(self.position_object)
         raw = {nid: fresh[nid][pos] for nid in self.nodes}

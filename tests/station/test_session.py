@@ -258,3 +258,24 @@ def test_a_skipped_pose_leaves_no_fault_behind(tmp_path):
                 s.execute()
     assert s.skipped == {s.plan_poses[0].index} and len(s.measured) == 3
     assert [e["kind"] for e in s.events].count("fault") == 1
+
+
+def test_a_flaky_cable_session_completes(tmp_path):
+    """5 % of the frames on every link lost and 5 % corrupted (CAN TPDOs, inclinometer
+    frames, Modbus answers): lost TPDOs cost another SYNC, bad frames are dropped by
+    their checksums, failed poses are retried; the result is still right."""
+    cfg = fast_config(tmp_path, "agebot-sm")
+    with SimulatorProcess("agebot-sm", config=str(cfg), seed=11) as sim:
+        with sim.control() as ctl:
+            with Session(_session_config(sim, cfg), "sm-distance-tilt", tmp_path / "run",
+                         request=PlanRequest(count=20, validation=4, seed=2)) as s:
+                s.connect()
+                ctl.call(faults={"drop_prob": 0.05, "corrupt_prob": 0.05})
+                s.run()
+            resyncs = s.rig.actuators.resyncs
+            incl = s.rig.inclinometer.stats
+    assert len(s.measured) + len(s.skipped) == 24 and len(s.skipped) <= 1
+    assert resyncs > 0, "no TPDO was lost: the fault injection did not act"
+    assert s.outcome.result.converged and s.outcome.result.n_identifiable == 13
+    assert all(v["rms_after"] < 2e-4 for v in s.validation), s.validation
+    assert incl["checksum_errors"] > 0 and incl["frames_ok"] > 0, incl
