@@ -171,7 +171,7 @@ class CanopenActuators(CanopenNodes):
         end = time.monotonic() + float(timeout)
         for nid in self.nodes:
             self._await(nid, lambda sw: sw & 0x0400, "target", max(0.0, end - time.monotonic()))
-        return self.read()
+        return self.read(max(self.timeout, end - time.monotonic()))
 
 
 def canopen_device(cfg, **options) -> CanopenNodes:

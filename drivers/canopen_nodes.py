@@ -46,9 +46,14 @@ class CanopenNodes(Device):
     heartbeat_ms:      producer heartbeat time written to 0x1017 (ms).
     heartbeat_timeout: seconds without heartbeat before a node is lost (default 5 periods).
     read_via:          ``"tpdo"`` (SYNC + TPDO, default) or ``"sdo"`` (SDO upload per node).
-    sync_attempts:     SYNCs tried for one reading when a TPDO is lost on the bus (a flaky
-                       cable): a node whose heartbeat is alive gets a fresh SYNC after
-                       ``sync_wait`` s; every retry is counted in ``resyncs``.
+    sync_attempts:     SYNCs tried for one reading (within its timeout) when a TPDO is lost
+                       on the bus (a flaky cable): nodes whose heartbeat is alive get a
+                       fresh SYNC after waiting ``sync_wait`` s plus as long again for
+                       stragglers (doubled where stragglers came: a slow bus); retries
+                       count in ``resyncs``.
+                       A TPDO later than that pause can still land in the next SYNC's
+                       window: a fresh, never-used value from one SYNC period before
+                       (the snapshot's std and drift limits catch a robot that moved).
     """
 
     profile = 0x0192                      # low word of 0x1000
@@ -59,7 +64,7 @@ class CanopenNodes(Device):
                  interface: str = "socketcan", channel: str = "can0", bus_options: dict | None = None,
                  timeout: float = 1.0, heartbeat_ms: int = 100, heartbeat_timeout: float | None = None,
                  read_via: str = "tpdo", name: str = "canopen", sync_attempts: int = 10,
-                 sync_wait: float = 0.1):
+                 sync_wait: float = 0.05):
         super().__init__(name, timeout)
         self.nodes = [int(n) for n in nodes]
         if not self.nodes or len(set(self.nodes)) != len(self.nodes) or not all(1 <= n <= 127 for n in self.nodes):
@@ -287,18 +292,26 @@ class CanopenNodes(Device):
         if self.read_via == "sdo":
             return self.read_sdo(timeout)
         end = time.monotonic() + timeout
+        wait = self.sync_wait
         for attempt in range(self.sync_attempts):
             last = attempt == self.sync_attempts - 1
             left = max(0.0, end - time.monotonic())
             try:   # a lost TPDO costs one more SYNC, not the reading; a dead node still
                 # fails at once (its heartbeat is checked in sync_sample)
-                fresh = self.sync_sample(left if last else min(left, self.sync_wait))
+                fresh = self.sync_sample(left if last else min(left, wait))
                 break
             except DeviceTimeout as e:
-                if last or time.monotonic() >= end:
+                if last or time.monotonic() + wait >= end:
                     raise
                 self.resyncs += 1
                 log.info("%s: %s; SYNC again", self.name, e)
+                # let late TPDOs of the abandoned SYNC arrive outside any window (they
+                # are counted as unsolicited, never taken for the next SYNC's); where
+                # some did, the bus is slow rather than lossy: give it twice the time
+                late = self.unsolicited_tpdos
+                time.sleep(wait)
+                if self.unsolicited_tpdos > late:
+                    wait *= 2
         t = time.monotonic()
         pos = [o for o, _ in self.tpdo_objects].index(self.position_object)
         raw = {nid: fresh[nid][pos] for nid in self.nodes}
