@@ -6,14 +6,10 @@ real widgets at 1366x768, into docs/screenshots/.
 from __future__ import annotations
 
 import pytest
+from PySide6.QtCore import QSettings
+from PySide6.QtWidgets import QMessageBox
 
-pytest.importorskip("PySide6")
-pytest.importorskip("pytestqt")
-
-from PySide6.QtCore import QSettings  # noqa: E402
-from PySide6.QtWidgets import QMessageBox  # noqa: E402
-
-from tests.gui.helpers import SCREEN  # noqa: E402
+from tests.gui.helpers import SCREEN
 
 
 @pytest.fixture

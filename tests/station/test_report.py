@@ -14,8 +14,6 @@ import app
 from station.batch import calibrate_trace
 from station.report import ReportError, write_report
 
-pytest.importorskip("matplotlib")
-
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TRACES = os.path.join(ROOT, "fixtures", "traces")
 PNG = b"\x89PNG\r\n\x1a\n"
