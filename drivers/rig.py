@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
 from typing import Sequence
 
 from drivers.base import Device
@@ -40,16 +39,6 @@ def drawwire_from_config(cfg) -> DrawWire:
     if cfg.mode == "tcp":
         return DrawWire(host=cfg.host, tcp_port=cfg.port, **kw)
     return DrawWire(port=cfg.serial_port, baudrate=cfg.baudrate, **kw)
-
-
-@dataclass(frozen=True)
-class DeviceStatus:
-    """How one device is: ``ok``, and a sentence (its readings, or what is wrong and
-    what to do about it)."""
-
-    name: str
-    ok: bool
-    text: str
 
 
 class Rig:
@@ -103,22 +92,6 @@ class Rig:
     def __exit__(self, *exc):
         self.close()
 
-    def status(self) -> list[DeviceStatus]:
-        """One read of every device, as sentences (``devices check``, the GUI's setup page)."""
-        out = []
-        for d in self.devices:
-            if not d.is_open:
-                out.append(DeviceStatus(d.name, False, "not connected"))
-                continue
-            try:
-                s = d.read()
-            except DeviceError as e:
-                out.append(DeviceStatus(d.name, False, str(e)))
-                continue
-            out.append(DeviceStatus(d.name, True, ", ".join(
-                f"{ch} {v:.6g}" for ch, v in s.values.items())))
-        return out
-
     # -- readings --------------------------------------------------------------------------
     def read(self) -> dict[str, float]:
         """One fresh reading of every channel of every device."""
@@ -157,6 +130,23 @@ class Rig:
             raise DeviceError("this station has no draw-wire ([drawwire] in the station "
                               "config)", device="draw-wire")
         self.drawwire.zero()
+
+    def recover(self) -> str:
+        """After a failed measurement: reset the drives that report FAULT (statusword
+        bit 3); where none does, or they cannot be asked, close and reopen every device
+        (a re-plugged cable, a dropped link). Returns what it did, in words."""
+        if self.can_move and self.actuators.is_open:
+            try:
+                faulted = [n for n in self.actuators.nodes
+                           if self.actuators.statusword(n) & 0x0008]
+            except DeviceError:
+                faulted = []
+            if faulted:
+                self.fault_reset()
+                return f"fault reset (nodes {faulted})"
+        time.sleep(0.2)
+        self.reconnect()
+        return "reconnected"
 
     def reconnect(self) -> None:
         """Close and open every device again (after a cable was re-plugged)."""

@@ -96,6 +96,22 @@ def retry_then_skip(retries: int = 2) -> FaultPolicy:
     return policy
 
 
+def recorded_plan(trace) -> tuple[list[PlannedPose], set[int], dict[int, dict]]:
+    """What a trace says of its session's plan: the planned poses (``plan`` events, a
+    replacing one dropping those before it), the skipped plan indices and the measured
+    pose records by plan index."""
+    plan: list[PlannedPose] = []
+    skipped: set[int] = set()
+    for ev in trace.events:
+        if ev.get("kind") == "plan":
+            poses = [PlannedPose.from_record(r) for r in ev.get("poses", ())]
+            plan = poses if ev.get("replace", True) else plan + poses
+        elif ev.get("kind") == "skip" and "plan_index" in ev:
+            skipped.add(int(ev["plan_index"]))
+    measured = {int(p["plan_index"]): p for p in trace.poses if "plan_index" in p}
+    return plan, skipped, measured
+
+
 class Session:
     """One calibration session of one robot with one method, recorded in ``out_dir``.
 
@@ -176,16 +192,8 @@ class Session:
             self.components = tuple(tr.header["components"])
         if tr.reference is not None:
             self.reference_qm = np.array(tr.reference["qm"], dtype=float)
-        for ev in tr.events:
-            self.events.append(ev)
-            if ev.get("kind") == "plan":
-                poses = [PlannedPose.from_record(r) for r in ev.get("poses", ())]
-                self.plan_poses = poses if ev.get("replace", True) else self.plan_poses + poses
-            elif ev.get("kind") == "skip" and "plan_index" in ev:
-                self.skipped.add(int(ev["plan_index"]))
-        for p in tr.poses:
-            if "plan_index" in p:
-                self.measured[int(p["plan_index"])] = p
+        self.events.extend(tr.events)
+        self.plan_poses, self.skipped, self.measured = recorded_plan(tr)
         self._next_index = (tr.poses[-1]["index"] + 1) if tr.poses else 0
         self._event("resume", f"resumed: {len(self.measured)} poses recorded, "
                     f"{len(self.pending)} still to measure")
@@ -508,12 +516,12 @@ class Session:
                     raise SessionAborted(f"aborted after a fault: {e}") from e
                 if action == "skip":
                     self._skip(pose, f"pose {pose.index} skipped")
-                    self._recover(e)      # the next pose must not meet the same fault
+                    self._recover()      # the next pose must not meet the same fault
                     return False
                 attempt += 1
                 self._event("retry", f"pose {pose.index}: retry {attempt}",
                             plan_index=pose.index)
-                self._recover(e)
+                self._recover()
         self._next_index += 1
         rest = [p for p in self.group_of(pose) if p.index != pose.index
                 and p.index not in self.measured and p.index not in self._held]
@@ -558,15 +566,11 @@ class Session:
                 self._event("skip", f"pose {p.index} skipped with its pair partner {pose.index}",
                             plan_index=p.index)
 
-    def _recover(self, error: DeviceError) -> None:
-        """Before a retry: reset a faulted drive, or reconnect a device that dropped."""
-        rig = self.rig
+    def _recover(self) -> None:
+        """Before a retry or after a skip: reset a faulted drive, or reconnect a device
+        that dropped (:meth:`drivers.rig.Rig.recover`)."""
         try:
-            if "fault" in str(error).lower() and rig.can_move:
-                rig.fault_reset()
-            else:
-                time.sleep(0.2)
-                rig.reconnect()
+            self.rig.recover()
         except DeviceError as e:
             self._event("fault", f"recovery failed: {e}", device=e.device)
 
