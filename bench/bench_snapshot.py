@@ -50,8 +50,7 @@ sys.path.insert(0, str(ROOT))
 
 from drivers.canopen_drives import CanopenActuators  # noqa: E402
 from drivers.config import load_station_config, with_endpoints  # noqa: E402
-from drivers.drawwire import DrawWire  # noqa: E402
-from drivers.inclinometer import Inclinometer  # noqa: E402
+from drivers.rig import drawwire_from_config, inclinometer_from_config  # noqa: E402
 from drivers.snapshot import snapshot_with  # noqa: E402
 from station.trace import TraceWriter, read_trace  # noqa: E402
 
@@ -62,39 +61,27 @@ SETTINGS = ((5, 0.02, 0.05), (10, 0.05, 0.05))
 SIM_INCL_RATE = 20.0            # SimInclinometer's default frame rate, Hz
 
 
-def serve_station(conn, nodes, resolution, metres_per_count, incl_rate) -> None:
-    """Simulator process: the simulated AGEBOT SM and its three devices.
+def serve_station(conn, config_path, incl_rate) -> None:
+    """Simulator process: the simulated AGEBOT SM and its three devices
+    (:class:`drivers.sim.server.SimStation`, shaped by the station config).
 
     Sends ``("ready", endpoints)`` (cli.md format), then serves ``("incl_rate", hz)``
     and ``("stop",)`` until stop or EOF.
     """
-    from drivers.sim.cia402_drive import start_canopen_sim
-    from drivers.sim.drawwire_sim import SimDrawWire
-    from drivers.sim.faults import FaultPlan
-    from drivers.sim.inclinometer_sim import SimInclinometer
-    from drivers.sim.robot import SimulatedAgebot
+    from drivers.sim.server import SimStation
     from drivers.sim.truth import load_truth
 
-    plan = FaultPlan(seed=1)
-    robot = SimulatedAgebot(load_truth(TRUTH), faults=plan)
-    with contextlib.ExitStack() as stack:
-        can_sim = stack.enter_context(start_canopen_sim(robot.axes, nodes, resolution, plan,
-                                                        increments=robot.encoder_increments))
-        incl = stack.enter_context(SimInclinometer(robot.inclinometer_angles_deg, rate_hz=incl_rate,
-                                                   faults=plan, seed=1))
-        wire = stack.enter_context(SimDrawWire(robot.drawwire_length, zero=robot.zero_drawwire,
-                                               metres_per_count=metres_per_count, rtu=False,
-                                               faults=plan))
-        conn.send(("ready", {"canopen": can_sim.endpoint, "inclinometer": {"port": incl.port},
-                             "drawwire": {"host": wire.host, "port": wire.port,
-                                          "device_id": wire.device_id}}))
+    station = SimStation(load_truth(TRUTH), load_station_config(config_path), seed=1,
+                         inclinometer_hz=incl_rate, rtu=False, control=False)
+    with station:
+        conn.send(("ready", station.endpoints))
         while True:
             try:
                 req = conn.recv()
             except (EOFError, OSError):
                 break
             if req[0] == "incl_rate":
-                incl.period = 1.0 / float(req[1])
+                station.inclinometer.period = 1.0 / float(req[1])
             conn.send(("ok", None))
             if req[0] == "stop":
                 break
@@ -103,15 +90,8 @@ def serve_station(conn, nodes, resolution, metres_per_count, incl_rate) -> None:
 def open_devices(cfg, stack: contextlib.ExitStack):
     """The station's three drivers from the (resolved) station config, opened."""
     drives = stack.enter_context(CanopenActuators.from_config(cfg.canopen, name="drives"))
-    ic = cfg.inclinometer
-    incl = stack.enter_context(Inclinometer(
-        ic.port, {ch: (a.raw, a.sign, a.offset_rad) for ch, a in ic.axes.items()},
-        baudrate=ic.baudrate, timeout=ic.timeout, name="inclinometer"))
-    dc = cfg.drawwire
-    wire = stack.enter_context(DrawWire(
-        metres_per_count=dc.metres_per_count, offset_m=dc.offset_m, host=dc.host, tcp_port=dc.port,
-        device_id=dc.device_id, word_order="big" if dc.word_order == "high-first" else "little",
-        timeout=dc.timeout, name="drawwire"))
+    incl = stack.enter_context(inclinometer_from_config(cfg.inclinometer))
+    wire = stack.enter_context(drawwire_from_config(cfg.drawwire))
     return drives, incl, wire
 
 
@@ -180,13 +160,10 @@ def main(argv=None) -> int:
     logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     cfg = load_station_config(CONFIG)
-    cc = cfg.canopen
 
     ctx = multiprocessing.get_context("spawn")
     conn, child = ctx.Pipe()
-    proc = ctx.Process(target=serve_station, args=(child, list(cc.nodes), list(cc.increments_per_unit),
-                                                   cfg.drawwire.metres_per_count, a.incl_rate),
-                       daemon=True)
+    proc = ctx.Process(target=serve_station, args=(child, CONFIG, a.incl_rate), daemon=True)
     proc.start()
     results, read_rows = [], {}
     try:
@@ -266,7 +243,7 @@ def main(argv=None) -> int:
         for name, xs in reads.items():
             m.setdefault(name, []).extend(xs)
     for (via, rate), m in merged.items():
-        cells = [stats_ms(m[n]) for n in ("drives", "inclinometer", "drawwire")]
+        cells = [stats_ms(m[n]) for n in ("drives", "inclinometer", "draw-wire")]
         print(f"{via:<5} {rate:>7g} " + " ".join(f"{f'{c[1]:.3f} ({c[2]:.3f})':>15}" for c in cells))
 
     print(f"\nCANopen positions of the 4 drives, bare reads, n = {a.n}, ms\n")

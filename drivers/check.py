@@ -99,13 +99,10 @@ def check(config, seconds: float = 3.0, out=sys.stdout) -> bool:
 
 def main(args: argparse.Namespace) -> int:
     if getattr(args, "simulate", False):
-        from drivers.sim.server import SimulatorProcess, default_config_path
+        from drivers.sim.server import SimulatorProcess
 
         with SimulatorProcess(args.robot, config=args.config) as sim:
-            config = with_endpoints(load_station_config(args.config or
-                                                        default_config_path(args.robot)),
-                                    sim.endpoints, source="simulator")
-            good = check(config, args.seconds)
+            good = check(sim.station_config(), args.seconds)
     else:
         good = check(_config(args), args.seconds)
     if not good:

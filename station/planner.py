@@ -42,7 +42,8 @@ SM_BASE_ORIGIN = np.array([0.5, 1.0, 0.8, 0.0])       # absolute, elbow -1
 # N_R and p of each method (brief section 3) for the pose count of eq. 60; for
 # sm-self-redundancy a "pose" of eq. 60 is a pair (its p = 2 rows dx, dy)
 NR_P = {"sm-distance": (9, 1), "sm-distance-tilt": (13, 2), "pm-ik": (8, 3), "pm-fk": (8, 3),
-        "pm-tilt": (10, 2), "sm-self-redundancy": (7, 2), "sm-plane": (10, 1)}
+        "pm-tilt": (10, 2), "sm-self-redundancy": (7, 2), "sm-plane": (10, 1),
+        "sm-full-pose": (13, 4)}
 # methods a session measures unattended (the wizard offers these) and those that
 # need guided touching (a session with a ``touch`` callback)
 SESSION_METHODS = ("sm-distance", "sm-distance-tilt", "pm-ik", "pm-fk", "pm-tilt")

@@ -14,26 +14,13 @@ import numpy as np
 
 from calibration import planning, simulate
 from calibration.errors import CalibrationError, UnreachablePose
-from calibration.identifiability import minimum_poses
 from calibration.methods import METHODS
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
+from station.planner import SM_BASE_ORIGIN, SM_REFERENCE_POINT, minimum_count
 from station.trace import write_trace
 
-# N_R and p of each method (brief section 3), for the default pose count (eq. 60)
-DEFAULT_NR_P = {"sm-full-pose": (13, 4), "sm-distance": (9, 1), "sm-self-redundancy": (7, 2),
-                "sm-plane": (10, 1), "sm-distance-tilt": (13, 2), "pm-ik": (8, 3),
-                "pm-fk": (8, 3), "pm-tilt": (10, 2)}
-SM_REFERENCE_POINT = np.array([1.0, 1.0, 0.0, 0.2])  # report 7.2, relative to the base offset
-SM_BASE_ORIGIN = np.array([0.5, 1.0, 0.8, 0.0])  # report 7.5 (phi chosen reachable)
 DEFAULT_PLANE_NORMAL = np.array([1.0, 0.3, 0.2])
-
-
-def default_count(method: str, components=None) -> int:
-    nr, p = DEFAULT_NR_P[method]
-    if method == "pm-fk" and components:
-        p = len(components)
-    return minimum_poses(nr, p)
 
 
 def default_plane(xi_true, robot) -> np.ndarray:
@@ -56,7 +43,7 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
     nom = robot.nominal.copy() if nominal is None else np.asarray(nominal, dtype=float)
     rng = np.random.default_rng(seed)
     noise = dict(noise or {})
-    count = count or default_count(method, components)
+    count = count or minimum_count(method, components)
     reference = None
     group = None
     header = {"robot": robot.name, "method": method,

@@ -326,6 +326,7 @@ class SimulatorProcess:
                  seed: int | None = None, timeout: float = 20.0):
         import subprocess
 
+        self.config_path = Path(config) if config else default_config_path(robot)
         cmd = [sys.executable, str(ROOT / "app.py"), "simulate", "--robot", robot,
                "--exit-with-parent"]
         if truth:
@@ -367,6 +368,13 @@ class SimulatorProcess:
 
     def control(self) -> SimControl:
         return SimControl.from_endpoints(self.endpoints)
+
+    def station_config(self) -> StationConfig:
+        """The station config it was started with, its endpoints filled from this simulator."""
+        from drivers.config import with_endpoints
+
+        return with_endpoints(load_station_config(self.config_path), self.endpoints,
+                              source="simulator")
 
     def stop(self) -> None:
         import subprocess

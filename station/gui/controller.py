@@ -54,7 +54,7 @@ class TraceSummary:
 
 def summarize_folder(folder) -> TraceSummary | None:
     """The session in ``folder`` (None if it holds no trace)."""
-    from station.session import TRACE
+    from station.session import TRACE, recorded_plan
     from station.trace import read_trace
 
     folder = Path(folder)
@@ -65,19 +65,10 @@ def summarize_folder(folder) -> TraceSummary | None:
         tr = read_trace(path)
     except Exception as e:  # noqa: BLE001 - said to the operator
         return TraceSummary(folder, "", "", 0, 0, 0, 0, False, str(e))
-    planned, skipped = set(), set()
-    exported = False
-    for ev in tr.events:
-        if ev.get("kind") == "plan":
-            if ev.get("replace", True):
-                planned = set()
-            planned |= {int(p["index"]) for p in ev.get("poses", ())}
-        elif ev.get("kind") == "skip" and "plan_index" in ev:
-            skipped.add(int(ev["plan_index"]))
-        elif ev.get("kind") == "export":
-            exported = True
-    measured = {int(p["plan_index"]) for p in tr.poses if "plan_index" in p}
-    pending = len(planned - measured - skipped)
+    plan, skipped, measured = recorded_plan(tr)
+    planned = {p.index for p in plan}
+    exported = any(ev.get("kind") == "export" for ev in tr.events)
+    pending = len(planned - set(measured) - skipped)
     return TraceSummary(folder, tr.robot, tr.method, len(measured), len(skipped), pending,
                         len(planned), exported)
 
@@ -185,7 +176,7 @@ class Controller(QObject):
         from station.session import Session
 
         if self.simulate:
-            from drivers.sim.server import SimulatorProcess, default_config_path
+            from drivers.sim.server import SimulatorProcess
 
             if self.sim is not None and self.sim_robot != robot:
                 self.sim.stop()
@@ -193,8 +184,7 @@ class Controller(QObject):
             if self.sim is None:
                 self.sim = SimulatorProcess(robot, config=self.config_path, seed=self.sim_seed)
                 self.sim_robot = robot
-            config = load_station_config(self.config_path or default_config_path(robot))
-            config = with_endpoints(config, self.sim.endpoints, source="simulator")
+            config = self.sim.station_config()
         else:
             from calibration.errors import ConfigError
 
