@@ -158,3 +158,40 @@ def save_truth(truth: SimTruth, path: str | Path) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+#: Default spread of :func:`draw_truth`, as users' robots differ from a nominal:
+#: gear ratios ``k*`` relative, lengths relative, offsets (``*_off``, ``theta*``) absolute.
+DRAW_SPREAD = {"gear": 0.4, "length": 0.05, "offset": 0.03}
+
+
+def _spread_kind(name: str) -> str:
+    if name[0] == "k" and name[1:].isdigit():
+        return "gear"
+    if name.endswith("_off") or name.startswith("theta"):
+        return "offset"
+    return "length"
+
+
+def draw_truth(robot: str, rng: np.random.Generator, *, gear: float = DRAW_SPREAD["gear"],
+               length: float = DRAW_SPREAD["length"], offset: float = DRAW_SPREAD["offset"],
+               noise: Mapping[str, float] | None = None, seed: int | None = None,
+               inclinometer_mount: tuple[float, float] = (0.0, 0.0),
+               comment: str | None = None) -> SimTruth:
+    """A robot that is not the report's: every parameter drawn uniformly around the nominal.
+
+    Gear ratios ``k*`` are the nominal times ``1 + U(-gear, gear)``, offsets (``q*_off``,
+    ``theta*``) the nominal plus ``U(-offset, offset)``, every other parameter (lengths)
+    the nominal times ``1 + U(-length, length)``. ``noise``, ``seed`` and
+    ``inclinometer_mount`` pass through to the :class:`SimTruth`.
+    """
+    model = get_robot(robot)
+    spread = {"gear": gear, "length": length, "offset": offset}
+    params = {}
+    for name, nom in zip(model.param_names, np.asarray(model.nominal, dtype=float)):
+        kind = _spread_kind(name)
+        u = float(rng.uniform(-spread[kind], spread[kind]))
+        params[name] = float(nom + u) if kind == "offset" else float(nom * (1.0 + u))
+    return SimTruth(robot=robot, parameters=frozen_map(params),
+                    noise=frozen_map(dict(noise or {})), seed=seed,
+                    inclinometer_mount=tuple(inclinometer_mount), comment=comment)
