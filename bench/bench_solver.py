@@ -72,10 +72,10 @@ import scipy  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 from _common import METHODS, interleaved_times, make_problems, table  # noqa: E402
-from calibration import solver as _solver  # noqa: E402
+from calibration.solver import step as _step  # noqa: E402
 from calibration.solver import SolverOptions, solve  # noqa: E402
 
-SCALED_LINE = _solver._Scaled.__init__.__code__.co_firstlineno
+SCALED_LINE = _step.Scaled.__init__.__code__.co_firstlineno
 
 TOL = 1e-12
 SAME_ABS, SAME_STD = 1e-9, 1e-3
@@ -188,17 +188,19 @@ def profile_ours(prob, n):
                         calls += cv[1]
         return t, calls
 
-    in_solver = lambda k: k[0].endswith(os.path.join("calibration", "solver.py"))  # noqa: E731
+    solver_dir = os.path.join("calibration", "solver", "")
+    in_solver = lambda k: solver_dir in k[0]  # noqa: E731
+    in_step = lambda k: k[0].endswith(os.path.join("solver", "step.py"))  # noqa: E731
     in_ident = lambda k: k[0].endswith("identifiability.py")  # noqa: E731
     groups = [
         ("model.evaluate (r and W)", cum(lambda k: k[2] == "evaluate"
                                          and "calibration" in k[0] and "methods" in k[0])),
         ("identifiability.classify (start, recheck)", cum(lambda k: k[2] == "classify"
                                                           and in_ident(k))),
-        ("_Scaled: QR of [G W H, G r], sing. values", cum(lambda k: in_solver(k)
+        ("Scaled: QR of [G W H, G r], sing. values", cum(lambda k: in_step(k)
                                                           and k[1] == SCALED_LINE)),
-        ("_Scaled.step (damped step, eq. 48)", cum(lambda k: k[2] == "step" and in_solver(k))),
-        ("_Scaled.variance_scaled (eq. 52 history)", cum(lambda k: k[2] == "variance_scaled"
+        ("Scaled.step (damped step, eq. 48)", cum(lambda k: k[2] == "step" and in_solver(k))),
+        ("Scaled.variance_scaled (eq. 52 history)", cum(lambda k: k[2] == "variance_scaled"
                                                          and in_solver(k))),
         ("_covariance (final eq. 52, cond.)", cum(lambda k: k[2] == "_covariance"
                                                   and in_solver(k))),

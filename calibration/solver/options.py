@@ -1,0 +1,38 @@
+"""The settings of Algorithm 2 (:class:`SolverOptions`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Settings of Algorithm 2.
+
+    damping:        lambda of eq. 39/48 (None: the method's default).
+    epsilon:        stop when ``max |d xi_R| < epsilon`` (parameter units).
+    max_iter:       iteration limit (over all identifiability rounds).
+    scale_columns:  H (eq. 47); False reproduces the report's "H = I" run.
+    weight_errors:  L (eq. 48); False keeps ``L = I`` throughout.
+    sigma:          channel -> known standard deviation of one residual row of
+                    that channel (residual units); None: estimated (eq. 51).
+    rank_tol, kappa: identifiability thresholds (calibration.identifiability).
+    recheck:        re-analyse identifiability at the solution.
+    fixed:          parameter names kept at their start values.
+    adaptive:       reject a step that raises the weighted cost and retry it with
+                    ten times the damping (Levenberg-Marquardt safeguard); the
+                    damping relaxes back to lambda after accepted steps. False
+                    runs the report's plain Algorithm 2.
+    """
+
+    damping: float | None = None
+    epsilon: float = 1e-10
+    max_iter: int = 1000
+    scale_columns: bool = True
+    weight_errors: bool = True
+    sigma: dict | None = None
+    rank_tol: float = 1e-8
+    kappa: float = 3.0
+    recheck: bool = True
+    fixed: tuple[str, ...] = ()
+    adaptive: bool = True
+

@@ -1,0 +1,193 @@
+"""The result of Algorithm 2 (:class:`CalibrationResult`) and the final
+statistics at the solution: sigma (eq. 51), covariance and condition number
+(eq. 52), reusing a QR already made there, and the parameters' status.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibration import identifiability as ident
+from calibration.solver.step import Iteration, geqrf, gesvd, masks, trtri
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """Everything a caller needs (after scipy's OptimizeResult).
+
+    x, std:        ``(N,)`` calibrated values and standard deviations (NaN std
+                   for parameters that were not calibrated).
+    covariance:    ``(N_R, N_R)`` over ``covariance_names``.
+    status:        per parameter :class:`calibration.identifiability.ParameterStatus`.
+    converged, message, iterations, nfev: how it ended.
+    sigma:         channel -> estimated sigma of one row (eq. 51), residual units.
+    residual_rms:  channel -> RMS of the final residual.
+    condition_number: of the final scaled, weighted observation matrix.
+    history:       list of :class:`Iteration`.
+    """
+
+    method: str
+    names: tuple[str, ...]
+    x: np.ndarray
+    x0: np.ndarray
+    std: np.ndarray
+    covariance: np.ndarray
+    covariance_names: tuple[str, ...]
+    status: tuple[ident.ParameterStatus, ...]
+    converged: bool
+    message: str
+    iterations: int
+    nfev: int
+    sigma: dict
+    sigma_known: bool
+    residual_rms: dict
+    residual: np.ndarray
+    condition_number: float
+    cost: float
+    history: tuple[Iteration, ...] = field(repr=False)
+    n_rows: int = 0
+    wall_time: float = 0.0
+
+    @property
+    def n_identifiable(self) -> int:
+        return sum(s.identifiable for s in self.status)
+
+    def value(self, name: str) -> float:
+        return float(self.x[self.names.index(name)])
+
+    def error_of(self, name: str) -> float:
+        return float(self.std[self.names.index(name)])
+
+
+def make_result(run, converged: bool, message: str, t_start: float) -> CalibrationResult:
+    """The result of ``run`` (:class:`calibration.solver.rounds.Algorithm2`)
+    at its solution: final statistics (eqs. 51, 52)."""
+    opt, model = run.opt, run.model
+    names, active, rows, r = run.names, run.active, run.rows, run.r
+    sigma = (dict(run.known) if run.all_known else run.channel_sigma(r, run.n_active))
+    w_cov = run.row_weights(sigma)
+    status = _final_status(run, sigma if opt.weight_errors else None,
+                           w_cov if opt.weight_errors else np.ones(rows))
+    cov, cond = _covariance(run, sigma, w_cov)
+    std = np.full(len(names), np.nan)
+    std[active] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    rss = np.bincount(run.row_channel, weights=r * r, minlength=len(run.channels)).tolist()
+    rms = {ch: math.sqrt(s / nc) if nc else math.nan
+           for ch, s, nc in zip(run.channels, rss, run.channel_count.tolist())}
+    if converged:
+        message = f"converged in {run.k} iterations (max step < {opt.epsilon:g})"
+    return CalibrationResult(
+        method=model.method, names=names, x=run.x, x0=run.x0, std=std, covariance=cov,
+        covariance_names=tuple(nm for nm, a in zip(names, active) if a),
+        status=tuple(status), converged=converged, message=message, iterations=run.k,
+        nfev=run.nfev, sigma=sigma, sigma_known=run.all_known, residual_rms=rms,
+        residual=r, condition_number=cond, cost=0.5 * float(r @ (w_cov * r)),
+        history=tuple(run.history), n_rows=rows, wall_time=time.perf_counter() - t_start)
+
+
+# (cond * column-norm spread)^2 below which the covariance is taken from the QR
+# of the scaled matrix; above it, as the normal matrix nears 1/eps, the
+# pseudo-inverse of the normal matrix (what eq. 52 reads) cuts singular values.
+_PINV_SAFE = 1e13
+
+
+def _covariance(run, sigma, w):
+    """Covariance ``(W_R^T L W_R)^-1`` (eq. 52) and the condition number of the
+    scaled, weighted ``G W_R H`` at the solution, ``L = diag(w)`` (``w`` from
+    ``sigma``), from a QR already made there where possible: the last
+    iteration's (weights proportional to ``w``: known sigma, one sigma for all
+    rows) or the identifiability recheck's (same weights; its unit columns
+    differ from ``G W_R H`` by a column scaling only); else a QR of ``G W_R H``.
+    Either way ``H (R^T R)^-1 H``. Where the normal matrix is so
+    ill-conditioned that a pseudo-inverse would cut singular values it is that
+    pseudo-inverse, as eq. 52 reads."""
+    scale = run.opt.scale_columns
+    WA = run.W if run.all_active else run.W.take(run.active_idx, axis=1)
+    rows, n = WA.shape
+    F = run.last_factor
+    if F is not None and F.W is run.W and F.svd is None and F.Rinv is not None:
+        # weights of the last iteration: a constant times w?
+        g = F.g
+        if isinstance(g, float):
+            vals = list(sigma.values())
+            c = 1.0 / (vals[0] ** 2 * g * g) if all(v == vals[0] for v in vals) else None
+        else:
+            c = 1.0 if F.sigma == sigma else None  # known sigma, or unchanged by reweight
+        if c:
+            h = F.h
+            spread = float(h.max() / h.min()) if scale else 1.0
+            if (F.cond * spread) ** 2 < _PINV_SAFE:  # w = c g^2: G W_R H = sqrt(c) A
+                Rh = F.Rinv * h[:, None]
+                return (Rh @ Rh.T) * (1.0 / c), F.cond
+    norms = np.sqrt(np.einsum("ij,ij->j", WA, WA))
+    h = 1.0 / norms if scale else np.ones(n)
+    if n and rows > n and norms.min() > 0:
+        chk = run.last_check
+        if (chk is not None and chk.R is not None and chk.saw(run, sigma)
+                and np.array_equal(chk.cls[0], run.active)):
+            # the recheck's R is that of G W_R D, D = 1/||G W_R[:, j]||: G W_R H = (G W_R D) S
+            # with S = diag(||G W_R[:, j]|| h_j), so R S is the triangle of G W_R H
+            R = chk.R * (chk.cls[3][run.active_idx] * h)
+        else:
+            qr, _tau, _work, info = geqrf(np.asfortranarray(WA * h * np.sqrt(w)[:, None]))
+            R = qr[:n, :n] * masks(n)[0][:, :n] if info == 0 else None
+        if R is not None:
+            svl = gesvd(R, compute_uv=0)[1].tolist()
+            if all(math.isfinite(v) for v in svl) and svl[-1] > 0:
+                cond = svl[0] / svl[-1]
+                spread = float(norms.max() / norms.min()) if scale else 1.0
+                if (cond * spread) ** 2 < _PINV_SAFE:
+                    Rinv, info = trtri(R)
+                    if info == 0:
+                        Rh = Rinv * h[:, None]
+                        return Rh @ Rh.T, cond
+    cov = np.linalg.pinv(WA.T @ (WA * w[:, None]))
+    sv = np.linalg.svd((WA * h) * np.sqrt(w)[:, None], compute_uv=False)
+    cond = float(sv[0] / sv[-1]) if sv.size and sv[-1] > 0 else np.inf
+    return cov, cond
+
+
+def _final_status(run, sigma, weights):
+    """Classification reported to the operator: identifiable = calibrated; the
+    others classified by their columns at the solution (zero column: no
+    influence; dependent: influences the model).
+
+    The recheck at this solution usually saw the same matrix, weights and
+    residual; its classification is reused where the parameters it left out
+    (not calibrated) have columns that count as zero here too, so that they
+    could not have changed anything."""
+    opt = run.opt
+    cls = None
+    chk = run.last_check
+    if opt.recheck and chk is not None and chk.saw(run, sigma):
+        ok, dep, rdiag, norms = chk.cls
+        extra = run.candidates & ~chk.candidates
+        if not extra.any():
+            cls = chk.cls
+        else:
+            # a zero column is left out of the QR, and so changes nothing, if it
+            # does not raise the largest candidate norm (the rank floor) either
+            floor_rank = opt.rank_tol * float(norms.max(initial=0.0, where=chk.candidates))
+            rg = np.sqrt(weights) * run.r
+            floor = max(floor_rank, opt.kappa * math.sqrt(float(rg @ rg)))
+            ne = norms[extra]
+            if np.all(ne <= floor) and opt.rank_tol * float(ne.max()) <= floor_rank:
+                cls = chk.cls
+    if cls is None:
+        cls = ident.classify(run.W, weights=weights, candidates=run.candidates,
+                             residual=run.r if opt.recheck else None,
+                             rank_tol=opt.rank_tol, kappa=opt.kappa)
+    ok, dep, rdiag, norms = cls
+    out = []
+    for nm, a, i_ok, i_dep, rd, cn in zip(run.names, run.active.tolist(), ok.tolist(),
+                                          dep.tolist(), rdiag.tolist(), norms.tolist()):
+        if a:
+            out.append(ident.ParameterStatus(nm, True, False, rd, cn))
+        elif i_ok:  # excluded earlier, independent now: it still was not calibrated
+            out.append(ident.ParameterStatus(nm, False, True, rd, cn))
+        else:
+            out.append(ident.ParameterStatus(nm, False, i_dep, rd, cn))
+    return out

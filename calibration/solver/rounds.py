@@ -1,0 +1,201 @@
+"""The rounds of Algorithm 2 and identifiability: :func:`solve`.
+
+Identifiability is analysed at the start (structural dependencies) and again
+at the solution (:mod:`calibration.identifiability`): parameters found
+non-identifiable there return to their start values and the iteration resumes
+without them; the per-channel weights are re-estimated at each solution.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from calibration import identifiability as ident
+from calibration.errors import CalibrationError
+from calibration.model import MeasurementModel
+from calibration.solver.options import SolverOptions
+from calibration.solver.result import CalibrationResult, make_result
+from calibration.solver.step import Iteration, Stepping
+from calibration.solver.weighting import Weighting
+
+
+class Check:
+    """An identifiability check at a solution (:meth:`Algorithm2.recheck`):
+    its inputs, its classification ``(identifiable, influences, r_diag,
+    column_norm)`` and the triangle ``R`` of its QR (or None)."""
+
+    __slots__ = ("R", "W", "candidates", "cls", "r", "sigma", "weights")
+
+    def __init__(self, W, r, sigma, weights, candidates, cls, R):
+        self.W, self.r, self.sigma, self.weights = W, r, sigma, weights
+        self.candidates, self.cls, self.R = candidates, cls, R
+
+    def saw(self, run, sigma) -> bool:
+        """Did this check see the final solution of ``run``, weighted by ``sigma``
+        (None: unweighted)?"""
+        return (self.W is run.W and self.r is run.r
+                and (self.sigma == sigma if sigma is not None and self.sigma is not None
+                     else np.array_equal(self.weights, run.row_weights(sigma) if sigma else
+                                         np.ones(run.rows))))
+
+
+class Algorithm2(Weighting, Stepping):
+    """State of one run of Algorithm 2: the rounds and identifiability here,
+    the error weighting from :class:`Weighting`, the iteration from
+    :class:`Stepping`."""
+
+    def __init__(self, model: MeasurementModel, opt: SolverOptions, callback):
+        self.model, self.opt, self.callback = model, opt, callback
+        self.lam = model.default_damping if opt.damping is None else float(opt.damping)
+        self.names = tuple(model.names)
+        self.x0 = np.array(model.x0, dtype=float)
+        self.x = self.x0.copy()
+        known = dict(opt.sigma) if opt.sigma else {}
+        self.channels = channels = tuple(model.channels)
+        unknown = set(known) - set(channels)
+        if unknown:
+            raise CalibrationError(f"sigma given for unknown channel(s) {sorted(unknown)} "
+                                   f"(method {model.method} has {list(channels)})")
+        for ch, v in known.items():
+            if not (np.isfinite(v) and v > 0):
+                raise CalibrationError(f"sigma of channel {ch!r} must be a positive number, not {v!r}")
+        self.known = known
+        self.all_known = set(known) == set(channels)
+        # weighting mode: 'known' (trace sigma), 'pooled' (eq. 51 during the
+        # iteration), 'channel' (per-channel sigma fixed from the last solution)
+        self.mode = "known" if self.all_known else "pooled"
+        self.r, self.W = model.evaluate(self.x)
+        self.nfev = 1
+        self.rows = len(self.r)
+        if not (math.isfinite(float(self.r.sum()) + float(self.W.sum()))
+                or (np.all(np.isfinite(self.r)) and np.all(np.isfinite(self.W)))):
+            raise CalibrationError("the model gives non-finite values at the start parameters")
+        self.row_channel = np.asarray(model.row_channel, dtype=np.intp)
+        self.channel_count = np.bincount(self.row_channel, minlength=len(channels))
+        self.ch0 = channels[self.row_channel[0]] if self.rows else None
+        self.sigma = (dict(known) if self.all_known else dict.fromkeys(channels, 1.0))
+        self._g_sigma = None  # the sigma dict self.g was made from
+        self._set_weights()
+        fixed = opt.fixed
+        self.candidates = (np.array([nm not in fixed for nm in self.names]) if fixed
+                           else np.ones(len(self.names), bool))
+        self.history: list[Iteration] = []
+        self.k = 0
+        self.lam_eff = self.lam
+        self.cond = np.nan
+        self.stopped_early = False
+        self.r_pred = None  # residual predicted at the pooled solution (early stop)
+        self.last_check = None  # the last recheck (Check)
+        self.last_factor = None  # the factorization the last iteration ended on
+        self._sigma_memo = (None, -1, None)
+    # -- identifiability ------------------------------------------------------
+    def initial_status(self):
+        model, opt = self.model, self.opt
+        twin = model.consistent_twin(self.x)
+        if twin is model:
+            g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
+            Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
+            cls = ident.classify(Wg, candidates=self.candidates, rank_tol=opt.rank_tol)
+        else:
+            r_t, W_t = twin.evaluate(self.x)
+            self.nfev += 1
+            cls = ident.classify(W_t, candidates=self.candidates, residual=r_t,
+                                 rank_tol=opt.rank_tol, kappa=opt.kappa)
+        ok, dep = cls[0], cls[1]
+        self._set_active(ok)
+        if self.n_active == 0:
+            raise CalibrationError("no parameter can be identified from these measurements")
+        # parameters the measurements depend on at all; with too few rows the
+        # rank is limited by the data, not by the method, and sigma (eq. 51)
+        # needs at least one degree of freedom
+        n_dep = int(np.count_nonzero(ok | dep))
+        if self.rows <= n_dep:
+            p = max(model.p, 1)
+            raise CalibrationError(
+                f"{model.n_poses} poses give {self.rows} equations for up to {n_dep} parameters; "
+                f"at least {int(np.ceil((n_dep + 1) / p))} poses are needed "
+                f"(recommended {ident.minimum_poses(n_dep, p)}, eq. 60)")
+
+    def _set_active(self, mask):
+        self.active = np.asarray(mask, bool)
+        self.active_idx = np.flatnonzero(self.active)
+        self.n_active = len(self.active_idx)
+        self.all_active = self.n_active == len(self.active)
+        self._nan = np.full(len(self.active), np.nan)
+
+    @property
+    def r_sol(self):
+        """The residual at the solution: the current one, or after an early
+        stop the one the last linearization predicts there."""
+        return self.r if self.r_pred is None else self.r_pred
+
+    def recheck(self) -> bool:
+        """Identifiability at the solution; True if parameters were dropped."""
+        opt = self.opt
+        r = self.r_sol
+        if opt.weight_errors:  # per-channel weights from the residual at the solution
+            sigma = self.channel_sigma(r, self.n_active)
+            weights = self.row_weights(sigma)
+        else:
+            sigma, weights = None, np.ones(self.rows)
+        cand = self.active & self.candidates
+        *cls, R = ident.classify(self.W, weights=weights, candidates=cand, residual=r,
+                                 rank_tol=opt.rank_tol, kappa=opt.kappa, return_r=True)
+        self.last_check = Check(self.W, r, sigma, weights, cand, cls, R)
+        new_active = cls[0] & self.active
+        if np.array_equal(new_active, self.active):
+            return False
+        self.drop(self.active & ~new_active)
+        return True
+
+    def drop(self, mask):
+        """Stop calibrating ``mask``; they return to their start values, or stay
+        where they are if the model cannot be evaluated there."""
+        self._set_active(self.active & ~mask)
+        self.r_pred = None
+        x = self.x.copy()
+        x[mask] = self.x0[mask]
+        try:
+            self.r, self.W = self.evaluate(x)
+            self.x = x
+        except CalibrationError:
+            self.r, self.W = self.evaluate(self.x)
+
+
+def solve(model: MeasurementModel, options: SolverOptions | None = None,
+          callback=None) -> CalibrationResult:
+    """Run Algorithm 2 on ``model``; ``callback(k, Iteration)`` after each iteration.
+
+    Rounds: iterate to the solution; re-analyse identifiability there (drop
+    what is not identifiable); estimate one sigma per channel and, if they
+    differ materially from the weights used, iterate again with them. The
+    first (pooled) round of a multi-channel problem with unknown sigma does
+    not iterate to epsilon: it stops as soon as the residual at its solution
+    is predicted reliably by the linearization (``EARLY_SWITCH``), and the
+    identifiability check and the channel sigmas are judged on that
+    prediction. Iterating the pooled round further would only refine a
+    solution the per-channel round then moves by O(std) anyway. Where the
+    channel sigmas turn out to agree, the pooled round simply resumes.
+    """
+    opt = options or SolverOptions()
+    t_start = time.perf_counter()
+    run = Algorithm2(model, opt, callback)
+    run.initial_status()
+    converged, message = False, ""
+    early = run.can_reweight() and run.mode == "pooled"
+    rounds = 0
+    while rounds < 6:
+        converged, message = run.iterate(early=early and rounds < 5)
+        if not converged:
+            break
+        if run.stopped_early and not run.channels_differ():
+            early = False  # one sigma fits all channels: finish the pooled round
+            continue
+        rounds += 1
+        changed = run.recheck() if opt.recheck else False
+        changed = run.reweight() or changed
+        if not changed:
+            break
+    return make_result(run, converged, message, t_start)

@@ -1,0 +1,292 @@
+"""One iteration of Algorithm 2: the scaled, weighted problem, the damped step
+and the adaptive damping (eqs. 47-49, 52 per iteration).
+
+:class:`Scaled` factors ``[G W_R H, G r]`` once per iteration (one Householder
+QR) and gives the damped step for every lambda tried there, the variance and
+the condition number. :class:`Stepping` is the iteration loop of
+:class:`calibration.solver.rounds.Algorithm2` (a mixin: it works on that
+run's state, see there).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import lapack
+
+from calibration.errors import CalibrationError
+
+
+# Early switch to per-channel weights (see :func:`calibration.solver.rounds.solve`). The pooled round of a
+# multi-channel problem stops before its step once the residual it predicts at
+# its solution is reliable: the linearization's error, estimated from the last
+# step's (which shrinks with the square of the step), is at most this fraction
+# of every channel's predicted residual norm. The channel sigmas estimated from
+# that prediction then differ from those at the pooled optimum by no more than
+# this fraction (in practice far less), well inside the 5 % that decides
+# whether a per-channel round is needed at all.
+EARLY_SWITCH = 1e-2
+
+geqrf, gesvd, trtrs, trtri = lapack.dgeqrf, lapack.dgesvd, lapack.dtrtrs, lapack.dtrtri
+_MASKS: dict[int, tuple] = {}
+
+
+def masks(n: int):
+    """Per column count ``n`` (cached, Fortran order): the 0/1 mask of the upper
+    triangle of an ``(n, n + 1)`` block (its last column, ``Q^T b``, kept whole)
+    and the ``(2n, n + 1)`` array ``[0 0; I 0]`` that becomes ``[R c; lambda I 0]``."""
+    m = _MASKS.get(n)
+    if m is None:
+        aug = np.zeros((2 * n, n + 1), order="F")
+        aug[np.arange(n) + n, np.arange(n)] = 1.0
+        m = _MASKS[n] = (np.asfortranarray(np.triu(np.ones((n, n + 1)))), aug)
+    return m
+
+
+class Scaled:
+    """One iteration's scaled, weighted least-squares problem ``A z ~ b`` with
+    ``A = G W_R H`` (``g = diag(G)`` a float or per row) and ``b = G r``,
+    factored once and reused for every damping tried at that point.
+
+    Tall ``A`` (the normal case): one Householder QR of ``[A b]`` gives
+    ``R`` and ``c = Q^T b``; the damped step (eq. 48) is the least-squares
+    solution of ``[R; lambda I] z = [c; 0]`` (one small QR), the variance
+    (eq. 52) the row norms of ``R^-1``, the condition number the singular values
+    of ``R`` (those of ``A``). Where ``R`` is numerically singular, or ``A`` not
+    tall, the same quantities come from an SVD with the singular values below
+    ``1e-15 s_max`` cut (a pseudo-inverse), as the normal equations would."""
+
+    __slots__ = ("R", "Rc", "Rinv", "W", "cost", "g", "h", "n", "s0", "sigma", "smin", "sv", "svd")
+
+    def __init__(self, W, sigma, WA, h, g, r):
+        rows, n = WA.shape
+        self.W, self.sigma, self.h, self.g, self.n = W, sigma, h, g, n
+        scalar = isinstance(g, float)
+        self.svd = self.Rinv = None
+        if rows <= n:
+            A = WA * (h * g) if scalar else (WA * h) * g[:, None]
+            b = r * g
+            self.cost = 0.5 * float(b @ b)
+            U, sv, Vt = np.linalg.svd(A, full_matrices=False)
+            self.sv, self.svd = sv, (Vt, U.T @ b)
+            self.s0, self.smin = float(sv[0]), float(sv[-1])
+            self.Rc = self.R = None
+            return
+        Ab = np.empty((rows, n + 1), order="F")
+        if scalar:
+            np.multiply(WA, h * g, out=Ab[:, :n])
+        else:
+            np.multiply(WA, h, out=Ab[:, :n])
+            Ab[:, :n] *= g[:, None]
+        b = np.multiply(r, g, out=Ab[:, n])
+        self.cost = 0.5 * float(b @ b)
+        qr = geqrf(Ab, overwrite_a=1)[0]
+        # [R c] with R upper triangular and c = Q^T b (Fortran order: R contiguous)
+        Rc = self.Rc = qr[:n] * masks(n)[0]
+        R = self.R = Rc[:, :n]
+        sv, info = gesvd(R, compute_uv=0)[1::2]
+        svl = sv.tolist()
+        s0 = self.s0 = svl[0]
+        self.smin = svl[-1]
+        if info != 0 or not math.isfinite(s0):
+            raise np.linalg.LinAlgError("SVD did not converge")
+        self.sv = sv
+        if not self.smin > s0 * 1e-15:  # singular: pseudo-inverse through the SVD of R
+            U, _sv, Vt = np.linalg.svd(R)
+            self.svd = (Vt, U.T @ Rc[:, n])
+
+    @property
+    def cond(self) -> float:
+        return self.s0 / self.smin if self.smin > 0 else math.inf
+
+    def step(self, lam2):
+        """Scaled damped step ``z`` (``d_R = h z``) for ``lambda^2 = lam2``."""
+        if self.svd is not None:
+            sv = self.sv
+            Vt, Ub = self.svd
+            if lam2 > 0:
+                filt = sv / (sv * sv + lam2)
+            else:
+                filt = np.divide(1.0, sv, out=np.zeros_like(sv), where=sv > sv[0] * 1e-15)
+            return Vt.T @ (filt * Ub)
+        n = self.n
+        if lam2 > 0:
+            M = masks(n)[1] * math.sqrt(lam2)
+            M[:n] = self.Rc
+            qr = geqrf(M, overwrite_a=1)[0]
+            return trtrs(qr[:n, :n], qr[:n, n])[0]
+        return trtrs(self.R, self.Rc[:, n])[0]
+
+    def scaled_norm(self, z) -> float:
+        """``||A z||``."""
+        v = self.R @ z if self.svd is None else self.sv * (self.svd[0] @ z)
+        return math.sqrt(float(v @ v))
+
+    def variance_scaled(self):
+        """``diag((A^T A)^+)`` (to be multiplied by ``h^2`` and the sigma factor)."""
+        if self.svd is not None:
+            Vt, _ = self.svd
+            sv = self.sv
+            inv = np.divide(1.0, sv * sv, out=np.zeros_like(sv), where=sv > sv[0] * 1e-15)
+            return (Vt * Vt).T @ inv
+        Rinv = self.Rinv = trtri(self.R)[0]
+        return np.einsum("ij,ij->i", Rinv, Rinv)
+
+
+
+@dataclass(frozen=True)
+class Iteration:
+    """One iteration's record (the data behind the report's figures)."""
+
+    x: np.ndarray  # (N,) parameters after the step
+    variance: np.ndarray  # (N,) variance of each parameter (NaN where not calibrated)
+    condition_number: float  # of the scaled, weighted observation matrix
+    step: float  # max |d xi_R|
+    cost: float  # 0.5 * r^T L r before the step
+    sigma: dict  # channel -> sigma estimate
+
+
+
+class Stepping:
+    """The iteration of Algorithm 2 (mixin of :class:`calibration.solver.rounds.Algorithm2`)."""
+
+    def evaluate(self, x):
+        self.nfev += 1
+        return self.model.evaluate(x)
+    def _factor(self):
+        """The iteration's scaled, weighted problem (:class:`Scaled`), or the
+        mask of active columns that vanished."""
+        W = self.W
+        WA = W if self.all_active else W.take(self.active_idx, axis=1)
+        norms = np.sqrt(np.einsum("ij,ij->j", WA, WA))
+        tol = self.opt.rank_tol * norms.max()
+        if norms.min() <= tol:
+            return norms <= tol
+        h = 1.0 / norms if self.opt.scale_columns else np.ones(len(norms))
+        return Scaled(W, self.sigma, WA, h, self.g, self.r)
+
+    def _record(self, F, step, cost):
+        """History entry: variance of the estimate at this iteration (eq. 52,
+        from the factored scaled, weighted matrix) and its condition number."""
+        self.cond = F.cond
+        if self.mode == "pooled" or not self.opt.weight_errors:
+            g = F.g
+            g0 = g if isinstance(g, float) else g[0]
+            factor = float(g0 * g0 * self.sigma[self.ch0] ** 2)
+        else:
+            factor = 1.0
+        h = F.h
+        var = (factor * (h * h)) * F.variance_scaled()
+        if not self.all_active:
+            var_all = self._nan.copy()
+            var_all[self.active_idx] = var
+            var = var_all
+        it = Iteration(self.x.copy(), var, self.cond, step, cost, dict(self.sigma))
+        self.history.append(it)
+        if self.callback is not None:
+            self.callback(self.k, it)
+
+    def iterate(self, early: bool = False) -> tuple[bool, str]:
+        """Iterate on the current active set until the step is below epsilon.
+
+        ``early`` (pooled mode only): also stop before a step, with
+        ``self.stopped_early`` and ``self.r_pred`` set and nothing recorded,
+        once the residual that step's linearization predicts is reliable
+        (``EARLY_SWITCH``)."""
+        opt = self.opt
+        eps, adaptive, max_iter = opt.epsilon, opt.adaptive, opt.max_iter
+        rejected = 0
+        self.lam_eff = self.lam
+        self.stopped_early = False
+        self.r_pred = None
+        self.last_factor = None
+        early = early and self.mode == "pooled"
+        pred = None  # (predicted residual after the last step, its ||z||, ||actual - predicted||)
+        F = None  # the factored problem at the current x and weights
+        while self.k < max_iter:
+            if F is None:
+                try:
+                    F = self._factor()
+                except np.linalg.LinAlgError:
+                    return False, f"the observation matrix is not finite at iteration {self.k + 1}"
+                if not isinstance(F, Scaled):
+                    # a column that vanishes as the model fits the data (e.g. q2_off
+                    # of sm-self-redundancy): not identifiable after all
+                    mask = np.zeros_like(self.active)
+                    mask[np.flatnonzero(self.active)[F]] = True
+                    self.drop(mask)
+                    F = pred = None
+                    continue
+            # one factorization gives the damped step for any lambda (eq. 48),
+            # the condition number and the variance (eq. 52)
+            lam2 = self.lam_eff ** 2
+            z = F.step(lam2)
+            d = F.h * z
+            step = float(np.abs(d).max())
+            if not math.isfinite(step):
+                return False, f"the step became non-finite at iteration {self.k + 1}"
+            cost = F.cost
+            if step < eps:  # converged: the step is below the tolerance
+                self.k += 1
+                self._record(F, step, cost)
+                self.last_factor = F
+                return True, ""
+            if early:
+                WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
+                r_lin = self.r - WA @ d  # the residual this step predicts
+                zn = math.sqrt(z @ z)
+                if pred is not None and pred[1] > 0:
+                    # error of the predicted residual: the linearization's (that of
+                    # the last step, scaled by the square of the steps) and the
+                    # damping's (the part of the undamped step it holds back,
+                    # at most lambda^2 / s_min^2 of the predicted change),
+                    # against each channel's predicted residual
+                    err = pred[2] * (zn / pred[1]) ** 2
+                    if lam2 > 0:
+                        err += lam2 / F.smin ** 2 * F.scaled_norm(z)
+                    rss_ch = np.bincount(self.row_channel, weights=r_lin * r_lin,
+                                         minlength=len(self.channels))
+                    if err <= EARLY_SWITCH * math.sqrt(float(rss_ch.min())):
+                        self.stopped_early, self.r_pred = True, r_lin
+                        return True, ""
+            if self.all_active:
+                x_try = self.x + d
+            else:
+                x_try = self.x.copy()
+                x_try[self.active_idx] += d
+            try:
+                r_try, W_try = self.evaluate(x_try)
+                g = F.g
+                if isinstance(g, float):  # one weight for all rows
+                    rss = float(r_try @ r_try)
+                    cost_try = 0.5 * (g * g) * rss
+                else:
+                    rg = r_try * g
+                    cost_try = 0.5 * float(rg @ rg)
+                ok = (math.isfinite(cost_try + float(W_try.sum()))
+                      or bool(np.all(np.isfinite(r_try)) and np.all(np.isfinite(W_try))))
+            except CalibrationError:  # e.g. the PM cannot assemble there
+                ok, r_try, W_try = False, None, None
+            if not ok or cost_try > cost * (1 + 1e-12):
+                if adaptive:
+                    rejected += 1
+                    if rejected > 30:
+                        return False, f"no step lowers the cost any more (iteration {self.k + 1})"
+                    self.lam_eff = max(10 * self.lam_eff, 1e-3 * F.s0)
+                    continue
+                if not ok:
+                    return False, f"the step left the model's domain at iteration {self.k + 1}"
+            rejected = 0
+            self.lam_eff = max(self.lam, self.lam_eff / 10)
+            if early:
+                e = r_try - r_lin
+                pred = (r_lin, zn, math.sqrt(e @ e))
+            self.x, self.r, self.W = x_try, r_try, W_try
+            self.k += 1
+            if self.mode == "pooled":  # eq. 51, one sigma for all rows
+                self.sigma = self._pooled_sigma(rss, self.rows, self.n_active)
+            self._record(F, step, cost)
+            self._set_weights()
+            F = None
+        return False, f"no convergence within {opt.max_iter} iterations"

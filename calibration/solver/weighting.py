@@ -1,0 +1,88 @@
+"""Error weighting of Algorithm 2: the sigma of one row per channel (eq. 51)
+and the weights ``L = Sigma^-1`` (eq. 48), pooled over all rows (the report's
+single sigma), known from the trace, or per channel.
+
+:class:`Weighting` is a mixin of :class:`calibration.solver.rounds.Algorithm2`
+and works on that run's state (``channels``, ``row_channel``, ``known``,
+``sigma``, ``mode``, ``g``, ...; see there).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+# Below this (in the residual's SI units) a sigma estimate is round-off, not noise.
+SIGMA_FLOOR = 1e-14
+# A material change of a channel's sigma between rounds (relative).
+SIGMA_CHANGE = 0.05
+
+
+class Weighting:
+    """Sigma and weights (mixin of :class:`calibration.solver.rounds.Algorithm2`)."""
+
+    def channel_sigma(self, r, n_active, pooled=False):
+        """Sigma of one row per channel (eq. 51): known values where given; else
+        estimated from the residual, pooled over all rows (the report's single
+        sigma) or per channel with its share of the degrees of freedom."""
+        n = len(r)
+        if pooled:
+            return self._pooled_sigma(float(r @ r), n, n_active)
+        memo = self._sigma_memo
+        if memo[0] is r and memo[1] == n_active:
+            return dict(memo[2])
+        rss = np.bincount(self.row_channel, weights=r * r, minlength=len(self.channels)).tolist()
+        out = {}
+        known = self.known
+        for ch, nc, rc in zip(self.channels, self.channel_count.tolist(), rss):
+            if ch in known:
+                out[ch] = float(known[ch])
+                continue
+            dof = nc - n_active * nc / n
+            out[ch] = max(math.sqrt(rc / dof) if dof > 0 else math.sqrt(rc / max(nc, 1)),
+                          SIGMA_FLOOR)
+        self._sigma_memo = (r, n_active, out)
+        return dict(out)
+
+    def _pooled_sigma(self, rss, n, n_active):
+        dof = n - n_active
+        s = math.sqrt(rss / dof) if dof > 0 else math.sqrt(rss / n)
+        return dict.fromkeys(self.channels, max(s, SIGMA_FLOOR))
+
+    def row_weights(self, sigma):
+        """The diagonal of L = Sigma^-1 for ``sigma`` (channel -> sigma)."""
+        s = np.array([sigma[ch] for ch in self.channels])[self.row_channel]
+        return 1.0 / (s * s)
+
+    def _set_weights(self):
+        """``self.g = sqrt(L)``: a float where every row has the same weight
+        (L = I, or the pooled sigma), else per row."""
+        if not self.opt.weight_errors:
+            self.g = 1.0
+        elif self.mode == "pooled":
+            self.g = 1.0 / float(self.sigma[self.channels[0]])
+        elif self._g_sigma is not self.sigma:
+            s = np.array([self.sigma[ch] for ch in self.channels], dtype=float)
+            self.g = (1.0 / s)[self.row_channel]
+            self._g_sigma = self.sigma
+    def _sigma_changed(self, sigma, old) -> bool:
+        floor = all(v <= 10 * SIGMA_FLOOR for v in sigma.values())
+        return not floor and any(abs(sigma[ch] / old[ch] - 1) > SIGMA_CHANGE for ch in sigma)
+
+    def can_reweight(self) -> bool:
+        return not (self.mode == "known" or not self.opt.weight_errors or len(self.channels) < 2)
+
+    def channels_differ(self) -> bool:
+        """Would :meth:`reweight` change the weights materially now?"""
+        return self.can_reweight() and self._sigma_changed(
+            self.channel_sigma(self.r_sol, self.n_active), self.sigma)
+
+    def reweight(self) -> bool:
+        """Per-channel weights at the solution; True if they changed materially."""
+        if not self.can_reweight():
+            return False
+        sigma = self.channel_sigma(self.r_sol, self.n_active)
+        old = self.sigma
+        self.sigma, self.mode = sigma, "channel"
+        self._set_weights()
+        return self._sigma_changed(sigma, old)
