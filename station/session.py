@@ -154,6 +154,7 @@ class Session:
         self.known = set(given) | set(self.extra)    # start values the engineer gave
         self.components = tuple(self.request.components) if method == "pm-fk" else None
         self.reference_qm: np.ndarray | None = None
+        self.reference_record: dict | None = None
         self.plan_poses: list[PlannedPose] = []
         self.measured: dict[int, dict] = {}        # plan index -> pose record
         self._held: dict[int, dict] = {}           # pair poses touched, written with the pair
@@ -192,6 +193,7 @@ class Session:
             self.components = tuple(tr.header["components"])
         if tr.reference is not None:
             self.reference_qm = np.array(tr.reference["qm"], dtype=float)
+            self.reference_record = tr.reference
         self.events.extend(tr.events)
         self.plan_poses, self.skipped, self.measured = recorded_plan(tr)
         self._next_index = (tr.poses[-1]["index"] + 1) if tr.poses else 0
@@ -286,7 +288,10 @@ class Session:
 
     def capture_reference(self) -> np.ndarray:
         """Record the current pose as the reference: zero the draw-wire (the cable is
-        attached here) and write the reference record."""
+        attached here), then measure the pose as any other (averaged, checked) and write
+        the reference record. The zero is one reading with noise, so the record says
+        ``zero = "reading"`` (the method calibrates ``distance_off``) and keeps the
+        averaged reading there as ``tare`` (checked again on resume)."""
         if not self.needs_reference:
             raise StationError(f"method {self.method} has no reference step")
         if self.reference_qm is not None:
@@ -295,26 +300,48 @@ class Session:
         rig = self._rig()
         if rig.drawwire is not None:
             rig.zero_drawwire()
-        qm = np.array(rig.qm(), dtype=float)
+        snap = rig.snapshot()
+        qm = np.array([snap.mean[f"qm{i + 1}"] for i in range(self.robot.n_actuators)])
+        rec = {"record": "reference", "role": self.info.reference, "qm": qm.tolist(),
+               "t": utc_now(), "samples": snap.samples}
+        if rig.drawwire is not None:
+            rec["zero"] = "reading"
+            rec["tare"] = _tare(snap)
         w = self._ensure_trace()
-        w.append({"record": "reference", "role": self.info.reference, "qm": qm.tolist(),
-                  "t": utc_now()})
+        w.append(rec)
         self.reference_qm = qm
+        self.reference_record = rec
         self._event("reference", f"{self.info.reference} captured at qm "
                     f"{np.round(qm, 4).tolist()}")
         return qm
 
     def rezero_at_reference(self) -> None:
-        """After a restart: drive back to the recorded reference and zero the draw-wire
-        there again (the cable is still attached at the reference point; a sensor
-        that was power-cycled lost its zero, one that was not reads ~0 anyway)."""
+        """After a restart: drive back to the recorded reference and check the
+        draw-wire there. One that kept its zero reads the reference's ``tare`` again
+        (within 4 standard errors and two counts) and is left alone: every pose keeps
+        the one ``distance_off``. One that lost it (power-cycled) is zeroed again; that
+        new zero is another noisy reading, said in an event (docs/methods.md)."""
         if self.reference_qm is None or self._rig().drawwire is None:
             return
         self.move_to(self.reference_qm)
-        before = self.rig.drawwire.read().values["distance"]
+        snap = self.rig.snapshot()
+        now = _tare(snap)
+        tare = (self.reference_record or {}).get("tare")
+        if tare is not None:
+            se = math.hypot(tare["std"] / math.sqrt(max(tare["samples"], 1)),
+                            now["std"] / math.sqrt(max(now["samples"], 1)))
+            tol = 4 * se + 2 * self.config.drawwire.metres_per_count
+            if abs(now["distance"] - tare["distance"]) <= tol:
+                self._event("reference", f"back at the reference: draw-wire reads "
+                            f"{now['distance']:.6g} m (at capture {tare['distance']:.6g} m): "
+                            "it kept its zero", tare=now)
+                return
         self.rig.zero_drawwire()
-        self._event("reference", f"back at the reference: draw-wire read {before:.6g} m, "
-                    "zeroed again")
+        self._event("warning", f"back at the reference: draw-wire read {now['distance']:.6g} m "
+                    f"(at capture {tare['distance'] if tare else float('nan'):.6g} m): it lost "
+                    "its zero and was zeroed again; the poses measured from now on carry that "
+                    "new zero's reading noise (a common offset of about one reading's std)",
+                    tare=now)
 
     # -- guided touching ----------------------------------------------------------------------
     @property
@@ -697,6 +724,13 @@ class Session:
         self.calibrate()
         self.validate()
         return self.export()
+
+
+def _tare(snap) -> dict:
+    """The draw-wire's averaged reading of a snapshot: ``distance`` (m), ``std`` (m, of
+    one reading), ``samples``."""
+    return {"distance": float(snap.mean["distance"]), "std": float(snap.std.get("distance", 0.0)),
+            "samples": int(snap.samples)}
 
 
 def _fmt(v) -> str:

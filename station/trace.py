@@ -19,6 +19,7 @@ import numpy as np
 
 from calibration.errors import CalibrationError, ConfigError, TraceFormatError
 from calibration.methods import METHODS, MethodData
+from calibration.methods.sm_distance import ZEROS   # the reference's ``zero`` (added field)
 from calibration.robots import ROBOTS, get_robot
 
 FORMAT = "calstation-trace"
@@ -101,8 +102,9 @@ class Trace:
             group = np.array([p.get("group", -1) for p in poses])
         ref = None if self.reference is None else np.array(self.reference["qm"], dtype=float)
         comps = self.header.get("components")
+        zero = "exact" if self.reference is None else self.reference.get("zero", "exact")
         return MethodData(qm=qm, channels=channels, group=group, reference_qm=ref,
-                          components=tuple(comps) if comps else None)
+                          components=tuple(comps) if comps else None, distance_zero=zero)
 
 
 # -- reading ------------------------------------------------------------------------
@@ -175,6 +177,8 @@ def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -
                 fail("the reference record must come before the poses")
             if rec.get("role") not in ROLES:
                 fail(f"reference role must be one of {', '.join(ROLES)}, not {rec.get('role')!r}")
+            if rec.get("zero", "exact") not in ZEROS:
+                fail(f"reference zero must be one of {', '.join(ZEROS)}, not {rec.get('zero')!r}")
             trace.reference = rec
             continue
         # pose

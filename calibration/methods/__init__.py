@@ -23,6 +23,9 @@ class MethodData:
     group:        ``(m,)`` group of each pose (sm-self-redundancy), or None.
     reference_qm: actuator values of the reference record, or None.
     components:   measured orientation components (pm-fk), e.g. ("alpha", "beta").
+    distance_zero: the draw-wire's zero at the reference: ``"exact"`` (the report's
+                  model) or ``"reading"`` (one noisy reading: the distance methods
+                  calibrate ``distance_off``).
     """
 
     qm: np.ndarray
@@ -30,6 +33,7 @@ class MethodData:
     group: np.ndarray | None = None
     reference_qm: np.ndarray | None = None
     components: tuple[str, ...] | None = None
+    distance_zero: str = "exact"
 
 
 @dataclass(frozen=True)
@@ -83,6 +87,8 @@ def build(name: str, robot, data: MethodData, nominal: np.ndarray, **options):
         kwargs["reference_qm"] = data.reference_qm
     if name == "sm-self-redundancy":
         kwargs["group"] = data.group
+    if "distance" in mi.channels:
+        kwargs.setdefault("distance_zero", data.distance_zero)
     if name == "pm-fk" and data.components is not None:
         kwargs.setdefault("components", tuple(data.components))
     return cls(robot, data.qm, data.channels, nominal, **kwargs)

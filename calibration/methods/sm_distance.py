@@ -11,6 +11,14 @@ Two residuals are offered:
   them and the reported std no longer matches the scatter (see docs/methods.md).
 
 ``q1_off, q2_off, theta0, a0`` do not change any distance (no influence).
+
+The draw-wire's zero (``distance_zero``): the sensor is zeroed at the
+reference. ``"exact"`` (the report's model, and the default of a trace that
+does not say otherwise) takes the reading there as exactly 0. ``"reading"``
+takes it for what it is, one reading with noise: every distance then carries
+the same unknown offset, calibrated as the extra parameter ``distance_off``
+(m, the reading where the true distance is 0), so that the zero's noise
+does not bias the robot's parameters (docs/methods.md, "Zeros and references").
 """
 from __future__ import annotations
 
@@ -20,13 +28,19 @@ from calibration.errors import CalibrationError
 from calibration.methods.base import RobotMethod, channel
 
 RESIDUALS = ("plain", "squared")
+ZEROS = ("exact", "reading")
+#: the extra parameter of a draw-wire zero that is a reading (m)
+DISTANCE_OFF = "distance_off"
 
 
-def distance_rows(X, psi, origin, measured, residual):
+def distance_rows(X, psi, origin, measured, residual, offset=None):
     """Residuals and observation rows of distance readings to a point.
 
-    X, psi: the poses' FK and generalized Jacobian; origin: ``(X_ref, psi_ref)``
-    of the reference point, or None for the base-frame origin (sm-distance-tilt)."""
+    X, psi: the poses' FK ``(m, 4)`` and generalized Jacobian ``(m, 4, N)``; origin:
+    ``(X_ref, psi_ref)`` of the reference point, or None for the base-frame origin
+    (sm-distance-tilt). offset: the reading at distance 0 (``distance_off``, m), or
+    None where the zero is exact. Returns ``r (m,)`` and ``W (m, N)``, with one more
+    column ``dD/d distance_off`` where ``offset`` is given."""
     p = X[:, :3]
     J = psi[:, :3, :]
     if origin is not None:
@@ -36,9 +50,31 @@ def distance_rows(X, psi, origin, measured, residual):
     if np.any(D < 1e-9):
         raise CalibrationError("a pose coincides with the reference point (distance 0): "
                                "its direction is undefined")
+    u = np.einsum("mi,min->mn", p / D[:, None], J)       # dD/dx
+    pred = D if offset is None else D + offset
     if residual == "plain":
-        return measured - D, np.einsum("mi,min->mn", p / D[:, None], J)
-    return measured ** 2 - D ** 2, 2 * np.einsum("mi,min->mn", p, J)
+        r, W, w_off = measured - pred, u, np.ones_like(D)
+    else:
+        r, W, w_off = measured ** 2 - pred ** 2, 2 * pred[:, None] * u, 2 * pred
+    if offset is not None:
+        W = np.column_stack([W, w_off])
+    return r, W
+
+
+def zero_names(distance_zero: str) -> tuple[str, ...]:
+    """The extra parameters of a distance method for its draw-wire zero."""
+    if distance_zero not in ZEROS:
+        raise CalibrationError(f"distance_zero must be one of {ZEROS}, not {distance_zero!r}")
+    return (DISTANCE_OFF,) if distance_zero == "reading" else ()
+
+
+def with_zero(robot, nominal, extra_names) -> np.ndarray:
+    """``nominal`` with the start value 0 of ``distance_off`` appended where it is
+    calibrated and ``nominal`` holds only the robot's parameters."""
+    nominal = np.asarray(nominal, dtype=float)
+    if extra_names and nominal.shape == (robot.n_params,):
+        return np.r_[nominal, 0.0]
+    return nominal
 
 
 def check_inputs(method: str, residual: str, reference_qm, what: str) -> np.ndarray:
@@ -55,8 +91,10 @@ class Distance(RobotMethod):
     method = "sm-distance"
     default_damping = 1e-2
 
-    def __init__(self, robot, qm, measured: dict, nominal, *, reference_qm, residual="plain"):
-        super().__init__(robot, qm, nominal)
+    def __init__(self, robot, qm, measured: dict, nominal, *, reference_qm, residual="plain",
+                 distance_zero="exact"):
+        self.extra_names = zero_names(distance_zero)
+        super().__init__(robot, qm, with_zero(robot, nominal, self.extra_names))
         self.reference_qm = np.atleast_2d(check_inputs(
             self.method, residual, reference_qm, "the reference point's actuator values "
             "(a 'reference' record with role 'reference-point')"))
@@ -65,5 +103,6 @@ class Distance(RobotMethod):
         self._channels(("distance",), [0])
 
     def evaluate(self, x):
-        X, psi = self.robot.fk_jacobian(np.vstack([self.qm, self.reference_qm]), x)
-        return distance_rows(X[:-1], psi[:-1], (X[-1:], psi[-1:]), self.D_m, self.residual)
+        X, psi = self.robot.fk_jacobian(np.vstack([self.qm, self.reference_qm]), x[:self.nr])
+        off = x[self.nr] if self.extra_names else None
+        return distance_rows(X[:-1], psi[:-1], (X[-1:], psi[-1:]), self.D_m, self.residual, off)

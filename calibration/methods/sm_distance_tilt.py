@@ -6,7 +6,9 @@ that point becomes the origin of a new base frame. The nominal ``theta0, a0,
 q1_off`` are re-estimated for it (eqs. 76-77) before iterating, and the
 calibrated values refer to it. Rows per pose: the distance residual (``plain``
 ``D_M - |X[1:3]|`` by default, or the report's ``D_M^2 - D^2``, eq. 83) and
-``phi_M - phi``. All 13 parameters are identifiable.
+``phi_M - phi``. All 13 parameters are identifiable; so is the draw-wire's
+zero offset ``distance_off`` where the zero is a reading (``distance_zero =
+"reading"``, see :mod:`calibration.methods.sm_distance`).
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ import math
 import numpy as np
 
 from calibration.methods.base import RobotMethod, channel
-from calibration.methods.sm_distance import check_inputs, distance_rows
+from calibration.methods.sm_distance import check_inputs, distance_rows, with_zero, zero_names
 from calibration.robots.agebot_sm import wrap
 
 
@@ -36,8 +38,9 @@ class DistanceTilt(RobotMethod):
     default_damping = 1e-2
 
     def __init__(self, robot, qm, measured: dict, nominal, *, reference_qm,
-                 residual="plain", reframe: bool = True):
-        super().__init__(robot, qm, nominal)
+                 residual="plain", reframe: bool = True, distance_zero="exact"):
+        self.extra_names = zero_names(distance_zero)
+        super().__init__(robot, qm, with_zero(robot, nominal, self.extra_names))
         self.reference_qm = check_inputs(
             self.method, residual, reference_qm, "the base origin's actuator values "
             "(a 'reference' record with role 'base-origin')").reshape(-1)
@@ -45,13 +48,16 @@ class DistanceTilt(RobotMethod):
         self.phi_m = channel(measured, "tilt", self.method).reshape(-1)
         self.residual = residual
         if reframe:
-            self.x0 = reframe_nominal(robot, self.nominal, self.reference_qm)
+            self.x0[:self.nr] = reframe_nominal(robot, self.nominal[:self.nr], self.reference_qm)
         self._channels(("distance", "tilt"), [0, 1])
 
     def evaluate(self, x):
-        X, psi = self.robot.fk_jacobian(self.qm, x)
-        rd, Wd = distance_rows(X, psi, None, self.D_m, self.residual)
+        X, psi = self.robot.fk_jacobian(self.qm, x[:self.nr])
+        off = x[self.nr] if self.extra_names else None
+        rd, Wd = distance_rows(X, psi, None, self.D_m, self.residual, off)
         rt = wrap(self.phi_m - X[:, 3])
         r = np.column_stack([rd, rt]).reshape(-1)
-        W = np.stack([Wd, psi[:, 3, :]], axis=1).reshape(-1, self.nr)
+        Wt = np.zeros_like(Wd)
+        Wt[:, :self.nr] = psi[:, 3, :]
+        W = np.stack([Wd, Wt], axis=1).reshape(-1, self.n_params)
         return r, W

@@ -20,6 +20,11 @@ and demos inject faults and look at the simulated truth::
     {"contact": true}  (what a feeler gauge and the operator's eye tell: the true
                         tool tip and its signed distance to the truth's plane)
 
+``state`` answers the true ``qm``, ``pose``, the draw-wire's ``anchor`` and its
+``drawwire_offset`` (m): the noisy length it read when zeroed, so that a reading
+where the true distance is 0 is ``-drawwire_offset`` (the truth of the
+calibrated ``distance_off``).
+
 ``contact`` answers ``"contact": {"tip": [x, y, z], "phi": phi, "distance": d,
 "qm": [...]}`` at the robot's true state now: ``tip`` the true end-effector
 point (m, base frame), ``phi`` the true angle of the last link (rad), ``distance``
@@ -185,7 +190,8 @@ class SimStation:
             answer.update(qm=self.robot.qm().tolist(), pose=self.robot.ee_pose().tolist(),
                           anchor=self.robot.anchor.tolist(),
                           target_reached=self.robot.target_reached(),
-                          drawwire_zero_calls=getattr(self.drawwire, "zero_calls", 0))
+                          drawwire_zero_calls=getattr(self.drawwire, "zero_calls", 0),
+                          drawwire_offset=getattr(self.drawwire, "offset_m", None))
         if cmd.get("contact"):
             answer["contact"] = self.contact()
         return answer

@@ -13,8 +13,13 @@ KNOWN = {"sm-self-redundancy": ("L4",),
          "sm-plane": ("L4", "theta0", "a0", "plane_a", "plane_b", "plane_c")}
 
 
-def dataset(method, *, seed=0, noise=None, known=None, truth=None, count=None, components=None):
-    """(model, truth vector in the model's parameters) for a generated data set."""
+def dataset(method, *, seed=0, noise=None, known=None, truth=None, count=None, components=None,
+            distance_zero="exact", distance_off=0.0):
+    """(model, truth vector in the model's parameters) for a generated data set.
+
+    distance_zero, distance_off: the distance methods' draw-wire zero (``"reading"``:
+    ``distance_off`` calibrated, appended to the truth vector) and the offset (m)
+    that every distance reading carries."""
     mi = METHODS[method]
     robot = get_robot(mi.robot)
     xi = robot.true if truth is None else np.asarray(truth, float)
@@ -24,8 +29,11 @@ def dataset(method, *, seed=0, noise=None, known=None, truth=None, count=None, c
     nom = dict(header["nominal"])
     extra = [nom.pop(k, 0.0) for k in mi.extra_params]
     nominal = np.r_[robot.params(nom), extra]
-    data = MethodData(qm=np.array([p["qm"] for p in poses]),
-                      channels={ch: np.array([p[ch] for p in poses]) for ch in mi.channels},
+    channels = {ch: np.array([p[ch] for p in poses]) for ch in mi.channels}
+    if "distance" in channels:
+        channels["distance"] = channels["distance"] + distance_off
+    data = MethodData(qm=np.array([p["qm"] for p in poses]), channels=channels,
+                      distance_zero=distance_zero,
                       group=np.array([p["group"] for p in poses]) if "group" in poses[0] else None,
                       reference_qm=None if ref is None else np.array(ref["qm"]),
                       components=components)
@@ -38,6 +46,8 @@ def dataset(method, *, seed=0, noise=None, known=None, truth=None, count=None, c
         from calibration.methods.sm_distance_tilt import reframe_nominal
 
         truth_vec = reframe_nominal(robot, xi, data.reference_qm)
+    if distance_zero == "reading":
+        truth_vec = np.r_[truth_vec, distance_off]
     return model, truth_vec
 
 

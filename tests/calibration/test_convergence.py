@@ -98,3 +98,20 @@ def test_ablation_badly_chosen_poses():
         res = solve(make(), SolverOptions(**opts, **REPORT))
         assert res.converged
         assert np.abs(res.x - truth).max() < 1e-8
+
+
+@pytest.mark.parametrize("method", ["sm-distance", "sm-distance-tilt"])
+def test_a_zero_offset_biases_the_exact_model_not_the_reading_one(method):
+    """Every distance 30 um off (the draw-wire zeroed on one noisy reading): the
+    report's model, which takes the zero as exact, comes out wrong; with the zero
+    as a reading (``distance_off`` calibrated) the truth is recovered exactly."""
+    exact, truth = dataset(method, seed=11, distance_off=3e-5)
+    res = solve(exact)
+    ident = np.array([s.identifiable for s in res.status])
+    assert not res.converged or np.abs(res.x - truth)[ident].max() > 1e-5
+    model, truth = dataset(method, seed=11, distance_zero="reading", distance_off=3e-5)
+    res = solve(model)
+    assert res.converged, res.message
+    ident = np.array([s.identifiable for s in res.status])
+    assert np.abs(res.x - truth)[ident].max() < 1e-9
+    assert res.x[-1] == pytest.approx(3e-5, abs=1e-12)

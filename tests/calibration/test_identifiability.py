@@ -47,3 +47,17 @@ def test_analysis_at_nominal_alone_finds_too_few():
     _, W = model.evaluate(model.x0)
     at_nominal = {s.name for s in ident.analyze(W, model.names) if not s.identifiable}
     assert "L4" not in at_nominal and "q2_off" not in at_nominal
+
+
+@pytest.mark.parametrize("method,n_r", [("sm-distance", 10), ("sm-distance-tilt", 14)])
+def test_a_zero_that_is_a_reading_adds_one_identifiable_parameter(method, n_r):
+    """The draw-wire zeroed on a noisy reading: ``distance_off`` is calibrated and
+    identifiable with distance alone (7.2) as with distance + tilt (7.5); the
+    brief's table above is the exact zero (no ``distance_off``)."""
+    model, _ = dataset(method, seed=4, distance_zero="reading", distance_off=3e-5)
+    res = solve(model)
+    assert res.converged, res.message
+    assert res.names[-1] == "distance_off" and res.status[-1].identifiable
+    assert res.n_identifiable == n_r
+    expected = TABLE[method][0]
+    assert {s.name: s.label for s in res.status if not s.identifiable} == expected

@@ -50,12 +50,19 @@ def test_fk_jacobian_matches_finite_differences():
     np.testing.assert_allclose(psi.reshape(-1, 13), num, atol=1e-6)
 
 
-@pytest.mark.parametrize("method,residual", [
-    ("sm-full-pose", "plain"), ("sm-distance", "plain"), ("sm-distance", "squared"),
-    ("sm-self-redundancy", "plain"), ("sm-plane", "plain"), ("sm-distance-tilt", "plain"),
-    ("sm-distance-tilt", "squared")])
-def test_method_observation_matrix_matches_finite_differences(method, residual):
-    model, _ = dataset(method, seed=1)
+@pytest.mark.parametrize("method,residual,zero", [
+    ("sm-full-pose", "plain", "exact"), ("sm-distance", "plain", "exact"),
+    ("sm-distance", "squared", "exact"), ("sm-self-redundancy", "plain", "exact"),
+    ("sm-plane", "plain", "exact"), ("sm-distance-tilt", "plain", "exact"),
+    ("sm-distance-tilt", "squared", "exact"),
+    # the draw-wire zero as a reading: distance_off is one more column
+    ("sm-distance", "plain", "reading"), ("sm-distance", "squared", "reading"),
+    ("sm-distance-tilt", "plain", "reading"), ("sm-distance-tilt", "squared", "reading")])
+def test_method_observation_matrix_matches_finite_differences(method, residual, zero):
+    model, _ = dataset(method, seed=1, distance_zero=zero, distance_off=2e-5)
+    if zero == "reading":
+        assert model.names[-1] == "distance_off"
+        model.x0[-1] = 3e-3     # away from 0, where its column would be trivial
     if residual == "squared":
         model.residual = "squared"
     x = model.x0 + 0.01 * np.random.default_rng(2).normal(size=model.n_params) * np.abs(model.x0)

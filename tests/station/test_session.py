@@ -83,13 +83,15 @@ def test_sm_distance_tilt_session_recovers_the_unseen_truth(tmp_path):
             files = s.run()
             state = sim.control().call(state=True)
     res = s.outcome.result
-    assert res.converged and res.n_identifiable == 13
+    # 13 robot parameters and the draw-wire's zero offset (the zero is a noisy reading)
+    assert res.converged and res.n_identifiable == 14 and res.names[-1] == "distance_off"
     # the truth in the frame of the captured reference: origin where the TRUE end
     # effector was at the reference (the draw-wire anchor)
     framed = reframe_nominal(robot, truth.xi(), s.reference_qm)
     np.testing.assert_allclose(robot.fk(np.atleast_2d(s.reference_qm), truth.xi())[0, :3],
                                state["anchor"], atol=1e-9)
-    assert not _identifiable_within(res, framed, list(robot.param_names))
+    framed = np.r_[framed, -state["drawwire_offset"]]
+    assert not _identifiable_within(res, framed, list(robot.param_names) + ["distance_off"])
     # validation on held-out poses: calibrated errors at the noise level, far below nominal
     val = {v["channel"]: v for v in s.validation}
     assert val["distance"]["n"] == 6 and val["distance"]["rms_after"] < 3e-5
@@ -276,6 +278,6 @@ def test_a_flaky_cable_session_completes(tmp_path):
             incl = s.rig.inclinometer.stats
     assert len(s.measured) + len(s.skipped) == 24 and len(s.skipped) <= 1
     assert resyncs > 0, "no TPDO was lost: the fault injection did not act"
-    assert s.outcome.result.converged and s.outcome.result.n_identifiable == 13
+    assert s.outcome.result.converged and s.outcome.result.n_identifiable == 14  # + distance_off
     assert all(v["rms_after"] < 2e-4 for v in s.validation), s.validation
     assert incl["checksum_errors"] > 0 and incl["frames_ok"] > 0, incl
