@@ -61,3 +61,17 @@ def test_a_zero_that_is_a_reading_adds_one_identifiable_parameter(method, n_r):
     assert res.n_identifiable == n_r
     expected = TABLE[method][0]
     assert {s.name: s.label for s in res.status if not s.identifiable} == expected
+
+
+def test_a_constant_tilt_offset_is_a_frame_rotation():
+    """An inclinometer reading every tilt ``delta`` too high is explained exactly by
+    ``q2_off + delta`` and ``theta0 + delta`` (the base frame turned about the rail
+    through the origin): a frame convention, not a parameter (docs/methods.md)."""
+    model, truth = dataset("sm-distance-tilt", seed=3)
+    delta = 0.01
+    model.phi_m = model.phi_m + delta
+    x = truth.copy()
+    x[model.names.index("q2_off")] += delta
+    x[model.names.index("theta0")] += delta
+    assert abs(model.residuals(truth)).max() > 0.9 * delta
+    assert abs(model.residuals(x)).max() < 1e-12
