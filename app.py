@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import sys
 import warnings
 
@@ -54,51 +53,12 @@ def _cmd_params_verify(args) -> int:
 
 
 def _cmd_trace_generate(args) -> int:
-    import numpy as np
+    from station.tracegen import generate_from_truth
 
-    from calibration.methods import METHODS
-    from calibration.robots import get_robot
-    from station.tracegen import generate_trace
-
-    mi = METHODS.get(args.method)
-    if mi is None:
-        raise SystemExit(f"unknown method {args.method!r} (known: {', '.join(METHODS)})")
-    robot = get_robot(mi.robot)
-    plane = None
-    noise = {}
-    mount = (0.0, 0.0)
-    if args.truth:
-        from drivers.sim.truth import load_truth
-
-        truth = load_truth(args.truth)
-        if truth.robot != robot.name:
-            raise SystemExit(f"{args.truth}: truth is for {truth.robot}, method {args.method} "
-                             f"needs {robot.name}")
-        xi = truth.xi()
-        plane = truth.plane
-        noise = dict(truth.noise)
-        mount = tuple(truth.inclinometer_mount)
-    else:
-        xi = robot.true
-    for item in args.noise or ():
-        k, _, v = item.partition("=")
-        noise[k] = float(v)
-    if "roll" in noise or "pitch" in noise:
-        noise.setdefault("tilt", [noise.get("roll", 0.0), noise.get("pitch", 0.0)])
-    if args.method == "pm-tilt" and isinstance(noise.get("tilt"), float):
-        noise["tilt"] = [noise["tilt"], noise["tilt"]]
-    comps = tuple(args.components.split(",")) if args.components else None
-    tmp = args.out + ".part"
-    if os.path.exists(tmp):
-        os.unlink(tmp)
-    try:
-        generate_trace(tmp, args.method, np.asarray(xi), noise=noise, seed=args.seed,
-                       count=args.count, components=comps, plane=plane, mount=mount,
-                       known=tuple(k for k in (args.known or "").split(",") if k))
-        os.replace(tmp, args.out)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    generate_from_truth(args.out, args.method, truth=args.truth, noise=args.noise or (),
+                        seed=args.seed, count=args.count,
+                        components=tuple(args.components.split(",")) if args.components else None,
+                        known=tuple(k for k in (args.known or "").split(",") if k))
     print(f"trace written to {args.out}")
     return 0
 

@@ -49,7 +49,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from drivers.canopen_drives import CanopenActuators  # noqa: E402
-from drivers.config import load_station_config, with_endpoints  # noqa: E402
+from drivers.config import load_station_config  # noqa: E402
+from drivers.endpoints import with_endpoints  # noqa: E402
 from drivers.rig import drawwire_from_config, inclinometer_from_config  # noqa: E402
 from drivers.snapshot import snapshot_with  # noqa: E402
 from station.trace import TraceWriter, read_trace  # noqa: E402

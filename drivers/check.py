@@ -15,7 +15,8 @@ import sys
 import time
 
 from calibration.errors import ConfigError, StationError
-from drivers.config import load_endpoints, load_station_config, with_endpoints
+from drivers.config import load_station_config
+from drivers.endpoints import load_endpoints, with_endpoints
 from drivers.errors import DeviceError, DeviceTimeout
 from drivers.rig import Rig
 

@@ -16,14 +16,14 @@ errors, missing required keys are named. Layout (see
     [snapshot.std_limits] / [snapshot.drift_limits] / [snapshot.noise_floor]
 
 Endpoint values the simulator picks at run time are written as the placeholder
-``"@endpoints"`` and filled by :func:`with_endpoints` from the endpoints JSON of
+``"@endpoints"`` and filled by :func:`drivers.endpoints.with_endpoints` from the endpoints JSON of
 ``app.py simulate --endpoints FILE`` (cli.md). Units: SI, radians, seconds;
 actuator values in actuator units of ``Q = K*Qm + Q_off``.
 
 The typed key reading lives in :mod:`drivers.config_reader` (:class:`KeyReader`,
-:func:`frozen_map`, :func:`load_json`), the endpoints merge in
-:mod:`drivers.endpoints` (:func:`with_endpoints`, :func:`load_endpoints`); both
-are importable from here as well.
+:func:`frozen_map`, :func:`load_json`; importable from here as well), the
+endpoints merge in :mod:`drivers.endpoints` (:func:`with_endpoints`,
+:func:`load_endpoints`), which builds on this module and not the other way round.
 """
 from __future__ import annotations
 
@@ -37,12 +37,11 @@ from typing import Any, Mapping
 
 from calibration.errors import ConfigError
 from drivers.config_reader import PLACEHOLDER, KeyReader, frozen_map, load_json
-from drivers.endpoints import load_endpoints, with_endpoints
 
 __all__ = ["INCLINOMETER_CHANNELS", "LIMIT_CHANNEL", "PLACEHOLDER", "RAW_AXES", "ROBOT_AXES",
            "AxisMap", "CanopenConfig", "DrawwireConfig", "InclinometerConfig", "KeyReader",
-           "SnapshotConfig", "StationConfig", "frozen_map", "load_endpoints", "load_json",
-           "load_station_config", "parse_station_config", "with_endpoints"]
+           "SnapshotConfig", "StationConfig", "frozen_map", "load_json",
+           "load_station_config", "parse_station_config"]
 
 ROBOT_AXES = {"agebot-sm": 4, "agebot-pm": 3}
 INCLINOMETER_CHANNELS = ("tilt", "roll", "pitch", "yaw")

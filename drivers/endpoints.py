@@ -2,20 +2,18 @@
 
 ``app.py simulate --endpoints FILE`` writes them as JSON (cli.md); a station
 config names them by the placeholder ``"@endpoints"``, which
-:func:`with_endpoints` fills. Both names are importable from
-:mod:`drivers.config` as well.
+:func:`with_endpoints` fills. This module builds on :mod:`drivers.config`
+(never the reverse).
 """
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import Any, Mapping
 
 from calibration.errors import ConfigError
+from drivers.config import StationConfig
 from drivers.config_reader import KeyReader, load_json
-
-if TYPE_CHECKING:
-    from drivers.config import StationConfig
 
 
 def load_endpoints(path: str | Path) -> dict:

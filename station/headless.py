@@ -20,7 +20,8 @@ import sys
 from pathlib import Path
 
 from calibration.errors import ConfigError
-from drivers.config import load_endpoints, load_station_config, with_endpoints
+from drivers.config import load_station_config
+from drivers.endpoints import load_endpoints, with_endpoints
 from station.planner import MUST_KNOW, TOUCH_METHODS, PlanRequest
 from station.session import Progress, Session
 

@@ -29,7 +29,8 @@ import numpy as np
 
 from calibration import identifiability as ident
 from calibration.errors import StationError
-from station.params_file import file_sha256, write_atomic
+from drivers.atomic import write_atomic
+from station.params_file import file_sha256
 from station.trace import utc_now
 
 IDENT_GROUPS = (

@@ -21,6 +21,7 @@ from calibration.errors import CalibrationError, ConfigError, TraceFormatError
 from calibration.methods import METHODS, MethodData
 from calibration.methods.sm_distance import ZEROS   # the reference's ``zero`` (added field)
 from calibration.robots import ROBOTS, get_robot
+from drivers.atomic import write_atomic
 
 FORMAT = "calstation-trace"
 VERSION = 1
@@ -272,6 +273,12 @@ def _line(rec: dict) -> bytes:
     return (json.dumps(rec, separators=(",", ":"), allow_nan=False) + "\n").encode("utf-8")
 
 
+def _header_record(header: dict) -> dict:
+    rec = {"record": "header", "format": FORMAT, "version": VERSION, "created": utc_now()}
+    rec.update(header)
+    return rec
+
+
 class TraceWriter:
     """Appends records to a trace: one line each, flushed and fsynced.
 
@@ -288,8 +295,7 @@ class TraceWriter:
     @classmethod
     def create(cls, path, header: dict) -> "TraceWriter":
         path = str(path)
-        rec = {"record": "header", "format": FORMAT, "version": VERSION, "created": utc_now()}
-        rec.update(header)
+        rec = _header_record(header)
         try:
             fh = open(path, "xb")
         except FileExistsError:
@@ -333,11 +339,11 @@ class TraceWriter:
 
 def write_trace(path, header: dict, reference: dict | None, poses: list[dict],
                 events: list[dict] = ()) -> None:
-    """Write a whole trace (generator, tests): same line format as the recorder."""
-    with TraceWriter.create(path, header) as w:
-        if reference is not None:
-            w.append({"record": "reference", **reference})
-        for p in poses:
-            w.append({"record": "pose", **p})
-        for e in events:
-            w.append({"record": "event", **e})
+    """Write a whole trace at once (generator, tests), atomically (an existing
+    file is replaced whole or not at all): same lines as the recorder's."""
+    recs = [_header_record(header)]
+    if reference is not None:
+        recs.append({"record": "reference", **reference})
+    recs += [{"record": "pose", **p} for p in poses]
+    recs += [{"record": "event", **e} for e in events]
+    write_atomic(path, b"".join(_line(r) for r in recs))

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from calibration import planning, simulate
-from calibration.errors import CalibrationError, UnreachablePose
+from calibration.errors import CalibrationError, ConfigError, UnreachablePose
 from calibration.methods import METHODS
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
@@ -156,5 +156,64 @@ def _plane_contacts(robot, xi_true, plane, box, count, rng):
 
 
 def generate_trace(path, method: str, truth_xi, **kw) -> None:
+    """:func:`generate` and write the trace to ``path`` atomically."""
     header, reference, poses = generate(method, truth_xi, **kw)
     write_trace(path, header, reference, poses)
+
+
+def parse_noise(items) -> dict:
+    """``CHANNEL=STD`` strings (``app.py trace generate --noise``) as a dict;
+    a malformed item is a :class:`ConfigError` naming it."""
+    out = {}
+    for item in items or ():
+        k, eq, v = item.partition("=")
+        try:
+            std = float(v)
+        except ValueError:
+            std = math.nan
+        if not (eq and k and math.isfinite(std) and std >= 0):
+            raise ConfigError(f"--noise {item!r}: expected CHANNEL=STD with a number >= 0, "
+                              f"e.g. distance=1e-4")
+        out[k.strip()] = std
+    return out
+
+
+def reading_noise(method: str, noise: dict) -> dict:
+    """The generator's noise for ``method`` from a truth file's and the command
+    line's. pm-tilt's ``tilt`` has two axes: ``roll``/``pitch`` give them where
+    ``tilt`` is not given, a single ``tilt`` value applies to both. (The SM's
+    tilt is one angle: ``tilt`` only.)"""
+    noise = dict(noise)
+    if method == "pm-tilt":
+        if "roll" in noise or "pitch" in noise:
+            noise.setdefault("tilt", [noise.get("roll", 0.0), noise.get("pitch", 0.0)])
+        if isinstance(noise.get("tilt"), float):
+            noise["tilt"] = [noise["tilt"], noise["tilt"]]
+    return noise
+
+
+def generate_from_truth(path, method: str, *, truth: str | None = None, noise=(), seed=0,
+                        count=None, components=None, known=()) -> None:
+    """``app.py trace generate``: a trace of ``method`` simulated on the robot of
+    a truth file (``truth``: its path; None: the report's true values), with the
+    truth file's noise overridden by ``noise`` (``CHANNEL=STD`` strings), written
+    atomically to ``path``."""
+    mi = METHODS.get(method)
+    if mi is None:
+        raise ConfigError(f"unknown method {method!r} (known: {', '.join(METHODS)})")
+    robot = get_robot(mi.robot)
+    plane, mount, base_noise = None, (0.0, 0.0), {}
+    if truth:
+        from drivers.sim.truth import load_truth
+
+        t = load_truth(truth)
+        if t.robot != robot.name:
+            raise ConfigError(f"truth is for {t.robot}, method {method} needs {robot.name}",
+                              source=str(truth))
+        xi = t.xi()
+        plane, mount, base_noise = t.plane, tuple(t.inclinometer_mount), dict(t.noise)
+    else:
+        xi = robot.true
+    noise = reading_noise(method, {**base_noise, **parse_noise(noise)})
+    generate_trace(path, method, np.asarray(xi), noise=noise, seed=seed, count=count,
+                   components=components, plane=plane, mount=mount, known=tuple(known))

@@ -51,8 +51,10 @@ from typing import Any
 import numpy as np
 
 from calibration.errors import ConfigError
+from drivers.atomic import write_atomic
 from drivers.config import StationConfig, load_station_config
 from drivers.drawwire import WORD_ORDER
+from drivers.endpoints import with_endpoints
 from drivers.sim.cia402_drive import start_canopen_sim
 from drivers.sim.drawwire_sim import SimDrawWire
 from drivers.sim.faults import FaultPlan
@@ -272,8 +274,6 @@ class SimControl:
 
 def write_endpoints(path: str | Path, endpoints: dict) -> None:
     """Write the endpoints JSON atomically (a reader never sees half a file)."""
-    from station.params_file import write_atomic  # one atomic writer in the project
-
     write_atomic(Path(path), (json.dumps(endpoints, indent=2) + "\n").encode())
 
 
@@ -377,8 +377,6 @@ class SimulatorProcess:
 
     def station_config(self) -> StationConfig:
         """The station config it was started with, its endpoints filled from this simulator."""
-        from drivers.config import with_endpoints
-
         return with_endpoints(load_station_config(self.config_path), self.endpoints,
                               source="simulator")
 

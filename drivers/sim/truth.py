@@ -25,8 +25,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -34,6 +32,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from calibration.robots import ROBOTS, get_robot
+from drivers.atomic import write_atomic
 from drivers.config_reader import KeyReader, frozen_map, load_json
 
 NOISE_CHANNELS = ("distance", "tilt", "roll", "pitch", "yaw", "qm")
@@ -145,19 +144,8 @@ def truth_to_dict(truth: SimTruth) -> dict:
 
 
 def save_truth(truth: SimTruth, path: str | Path) -> None:
-    """Write ``truth`` as JSON atomically (temporary file + rename)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(truth_to_dict(truth), f, indent=2)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``truth`` as JSON atomically (:func:`drivers.atomic.write_atomic`)."""
+    write_atomic(path, (json.dumps(truth_to_dict(truth), indent=2) + "\n").encode("utf-8"))
 
 
 #: Default spread of :func:`draw_truth`, as users' robots differ from a nominal:

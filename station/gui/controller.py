@@ -171,7 +171,8 @@ class Controller(QObject):
         self.jobs.submit(job, done, failed)
 
     def _open(self, robot, method, out: Path, request, nominal):
-        from drivers.config import load_endpoints, load_station_config, with_endpoints
+        from drivers.config import load_station_config
+        from drivers.endpoints import load_endpoints, with_endpoints
         from drivers.rig import Rig
         from station.session import Session
 

@@ -10,8 +10,8 @@ import pytest
 
 from calibration.errors import ConfigError
 from drivers.config import (CanopenConfig, DrawwireConfig, InclinometerConfig, SnapshotConfig,
-                            StationConfig, load_endpoints, load_station_config,
-                            parse_station_config, with_endpoints)
+                            StationConfig, load_station_config, parse_station_config)
+from drivers.endpoints import load_endpoints, with_endpoints
 
 STATIONS = Path(__file__).resolve().parents[2] / "fixtures" / "stations"
 ENDPOINTS = {  # cli.md's example

@@ -23,7 +23,8 @@ import pytest
 
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
-from drivers.config import load_station_config, with_endpoints
+from drivers.config import load_station_config
+from drivers.endpoints import with_endpoints
 from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import load_truth, save_truth
 from station.params_file import read_params

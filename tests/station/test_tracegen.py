@@ -1,0 +1,45 @@
+"""Trace generation from a truth file plus command-line noise (station.tracegen)."""
+import numpy as np
+import pytest
+
+from calibration.errors import ConfigError
+from station.trace import read_trace
+from station.tracegen import generate_from_truth, parse_noise, reading_noise
+
+
+def test_parse_noise():
+    assert parse_noise(["distance=1e-4", "tilt = 2e-3"]) == {"distance": 1e-4, "tilt": 2e-3}
+    for bad in ("distance", "distance=", "=1e-4", "distance=abc", "distance=-1", "distance=nan"):
+        with pytest.raises(ConfigError, match="CHANNEL=STD"):
+            parse_noise([bad])
+
+
+def test_reading_noise_tilt_axes():
+    # pm-tilt: two axes, from roll/pitch or one value for both
+    assert reading_noise("pm-tilt", {"roll": 1e-3}) == {"roll": 1e-3, "tilt": [1e-3, 0.0]}
+    assert reading_noise("pm-tilt", {"tilt": 2e-3})["tilt"] == [2e-3, 2e-3]
+    # the SM's tilt is one angle: roll/pitch do not turn it into a pair
+    assert reading_noise("sm-distance-tilt", {"roll": 1e-3, "tilt": 2e-3})["tilt"] == 2e-3
+    assert "tilt" not in reading_noise("sm-distance-tilt", {"roll": 1e-3})
+
+
+def test_generate_from_truth_noise_and_atomic(tmp_path):
+    out = tmp_path / "t.jsonl"
+    out.write_text("old\n")
+    generate_from_truth(out, "sm-distance-tilt", noise=["distance=1e-4", "tilt=1e-3", "roll=5"],
+                        seed=2, count=12)
+    tr = read_trace(out)
+    assert tr.header["sigma"] == {"distance": 1e-4, "tilt": 1e-3}
+    assert len(tr.fit_poses) == 12
+    before = out.read_bytes()
+    with pytest.raises(ConfigError, match="unknown method"):
+        generate_from_truth(out, "no-such-method")
+    with pytest.raises(ConfigError, match="truth is for agebot-pm"):
+        generate_from_truth(out, "sm-distance", truth="fixtures/truth/agebot-pm.json")
+    assert out.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.jsonl"]
+    noisefree = tmp_path / "n.jsonl"
+    generate_from_truth(noisefree, "sm-distance-tilt", seed=2, count=12)
+    d0 = [p["distance"] for p in read_trace(noisefree).poses]
+    d1 = [p["distance"] for p in read_trace(out).poses]
+    assert 1e-6 < np.std(np.subtract(d1, d0)) < 1e-3
