@@ -66,3 +66,25 @@ def fd_jacobian(f, x, h=1e-6):
 def rotvec_between(R1, R0):
     """Rotation vector of ``R1 R0^T`` (small rotations)."""
     return Rotation.from_matrix(R1 @ R0.T).as_rotvec()
+
+
+def assert_columns_close(J, J_ref, rtol=1e-6, floor=1e-9, names=None):
+    """Each Jacobian column (last axis; the other axes are its rows) equals the
+    reference's within ``rtol`` of the reference column's own norm, so a small
+    column is checked as tightly as a large one (one global tolerance would let a
+    3 % error in a short geometric column pass). ``floor`` (relative to the
+    largest reference column) is the round-off allowance of the finite
+    differences, and all a column that should be zero may have."""
+    J, J_ref = np.asarray(J, float), np.asarray(J_ref, float)
+    assert J.shape == J_ref.shape, (J.shape, J_ref.shape)
+    n = J.shape[-1]
+    A, B = J.reshape(-1, n), J_ref.reshape(-1, n)
+    ref = np.linalg.norm(B, axis=0)
+    err = np.linalg.norm(A - B, axis=0)
+    allowed = rtol * ref + floor * max(float(ref.max(initial=0.0)), 1e-300)
+    bad = np.flatnonzero(~(err <= allowed))
+    if bad.size:
+        label = (lambda j: names[j]) if names is not None else str
+        raise AssertionError("Jacobian columns differ: " + "; ".join(
+            f"{label(j)}: |error| {err[j]:.3g} = {err[j] / ref[j] if ref[j] else np.inf:.2g} of "
+            f"its norm {ref[j]:.3g} (allowed {allowed[j]:.3g})" for j in bad))

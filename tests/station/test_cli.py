@@ -1,5 +1,8 @@
 """The command-line contract (docs/cli.md), run as a user would."""
+import hashlib
+import json
 import os
+import re
 import subprocess
 import sys
 
@@ -14,14 +17,77 @@ def app(*args, cwd=None):
                           capture_output=True, text=True, cwd=cwd or ROOT, timeout=120)
 
 
+def parse_table(stdout):
+    """The batch command's parameter table: name -> (start, calibrated, std or None, label),
+    and the figures under it (iterations, identifiable count, printed checksum)."""
+    lines = stdout.splitlines()
+    rules = [i for i, ln in enumerate(lines) if ln.startswith("-" * 20)]
+    rows = {}
+    for ln in lines[rules[0] + 1:rules[1]]:
+        name, start, value, std, label = ln.split(None, 4)
+        rows[name] = (float(start), float(value), None if std == "-" else float(std), label)
+    tail = "\n".join(lines[rules[1]:])
+    figures = {
+        "iterations": int(re.search(r"converged in (\d+) iterations", tail).group(1)),
+        "identifiable": tuple(map(int, re.search(r"identifiable (\d+) of (\d+)", tail).groups())),
+        "checksum": re.search(r"parameter file written to .* \((sha256:[0-9a-f]{64})\)", tail).group(1),
+    }
+    return rows, figures
+
+
+def _close6(printed, exact):
+    """A value printed with 6 significant digits is the exact one."""
+    return printed == pytest.approx(exact, rel=6e-6, abs=1e-300)
+
+
 @pytest.mark.parametrize("name", sorted(os.listdir(TRACES)))
 def test_batch_every_fixture_and_verify(tmp_path, name):
     out = tmp_path / "params.json"
     r = app("batch", os.path.join(TRACES, name), "--out", str(out))
     assert r.returncode == 0, r.stderr
-    assert "identifiable" in r.stdout and "parameter file written" in r.stdout
+    rows, figures = parse_table(r.stdout)
+    with open(out) as f:
+        doc = json.load(f)
+    # the printed numbers are the file's: values, std, labels, counts, checksum
+    assert sorted(rows) == sorted(doc["parameters"])
+    for pname, (start, value, std, label) in rows.items():
+        p = doc["parameters"][pname]
+        assert _close6(start, p["nominal"]) and _close6(value, p["value"]), pname
+        assert (std is None) == (p["std"] is None) and (std is None or _close6(std, p["std"])), pname
+        assert label.startswith("identifiable") == p["identifiable"], pname
+        assert ("influences the model" in label) == p["influences_model"], pname
+    assert figures["iterations"] == doc["fit"]["iterations"] > 0
+    n_id = sum(p["identifiable"] for p in doc["parameters"].values())
+    assert figures["identifiable"] == (n_id, len(doc["parameters"]))
+    body = {k: v for k, v in doc.items() if k != "checksum"}
+    canonical = json.dumps(body, sort_keys=True, separators=(",", ":")).encode()
+    assert figures["checksum"] == doc["checksum"] == "sha256:" + hashlib.sha256(canonical).hexdigest()
     v = app("params", "verify", str(out))
-    assert v.returncode == 0 and "OK" in v.stdout
+    assert v.returncode == 0, v.stderr
+    assert f"{n_id} of {len(doc['parameters'])} parameters calibrated" in v.stdout
+    assert f"method {doc['method']}" in v.stdout and doc["checksum"] in v.stdout
+
+
+def test_batch_prints_the_calibration_of_the_trace(tmp_path):
+    """The printed table is the solver's result on that trace (computed here in
+    process), and that result recovers the report's truth the fixture was made from."""
+    from calibration.robots import get_robot
+    from station.batch import calibrate_trace
+
+    trace = os.path.join(TRACES, "sm-distance.jsonl")
+    r = app("batch", trace, "--out", str(tmp_path / "p.json"))
+    assert r.returncode == 0, r.stderr
+    rows, figures = parse_table(r.stdout)
+    res = calibrate_trace(trace).result
+    assert figures["iterations"] == res.iterations
+    truth = get_robot("agebot-sm").true
+    for j, (pname, st) in enumerate(zip(res.names, res.status)):
+        start, value, std, _ = rows[pname]
+        assert _close6(value, res.x[j]), pname
+        if st.identifiable:
+            assert _close6(std, res.std[j]) and abs(value - truth[j]) < 4 * std, pname
+        else:
+            assert std is None and value == start
 
 
 def test_user_errors_are_one_line_without_traceback(tmp_path):
