@@ -43,7 +43,7 @@ MODULES = {
                         ["tests/calibration/test_identifiability.py",
                          "tests/calibration/test_kappa.py",
                          "tests/calibration/test_convergence.py"], None),
-    "solver": (["calibration/solver.py", "calibration/solver_*.py", "calibration/algorithm2*.py"],
+    "solver": (["calibration/solver.py", "calibration/solver/*.py"],
                ["tests/calibration/test_kappa.py", "tests/calibration/test_identifiability.py",
                 "tests/calibration/test_convergence.py", "tests/calibration/test_monte_carlo.py",
                 "tests/calibration/test_solver.py"], None),
@@ -64,11 +64,11 @@ MODULES = {
 
 # name -> (file, text, replacement, tests); each must make its tests fail
 NAMED = {
-    "kappa=0 (solver default)": ("calibration/solver.py", "kappa: float = 3.0", "kappa: float = 0.0",
+    "kappa=0 (solver default)": ("calibration/solver/options.py", "kappa: float = 3.0", "kappa: float = 0.0",
                                  ["tests/calibration/test_kappa.py"]),
-    "kappa=0.3 (solver default)": ("calibration/solver.py", "kappa: float = 3.0",
+    "kappa=0.3 (solver default)": ("calibration/solver/options.py", "kappa: float = 3.0",
                                    "kappa: float = 0.3", ["tests/calibration/test_kappa.py"]),
-    "kappa=30 (solver default)": ("calibration/solver.py", "kappa: float = 3.0",
+    "kappa=30 (solver default)": ("calibration/solver/options.py", "kappa: float = 3.0",
                                   "kappa: float = 30.0", ["tests/calibration/test_kappa.py"]),
     "kappa=0 (classify default)": ("calibration/identifiability.py",
                                    "kappa: float = 3.0, return_r", "kappa: float = 0.0, return_r",
