@@ -13,7 +13,8 @@ from PySide6.QtWidgets import (QHeaderView, QTableWidget, QTableWidgetItem, QVBo
 
 from station.gui.plots import ConvergencePlots
 from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, heading, note
-from station.report import DISPLAY, IDENT_GROUPS, IDENT_SYMBOL, PARAM_UNITS
+from station.report import IDENT_GROUPS, IDENT_SYMBOL, PARAM_UNITS
+from station.units import MM_DEG
 
 GROUP_COLOR = {"identifiable": OK_COLOR, "no-influence": "#555555", "influence": BAD_COLOR}
 
@@ -77,6 +78,7 @@ class CalibrationView(QWidget):
         self.notes = note("", WARN_COLOR)
         lay.addWidget(self.notes)
         self.outcome = None
+        self.units = MM_DEG
         self.clear()
 
     def clear(self) -> None:
@@ -168,10 +170,10 @@ class CalibrationView(QWidget):
         t.clearSpans()
         t.setRowCount(len(validation))
         for r, v in enumerate(validation):
-            unit, factor = DISPLAY.get(v.get("unit", ""), (v.get("unit", ""), 1.0))
+            si = v.get("unit", "")
 
-            def f(x, factor=factor, unit=unit):
-                return "n/a" if x is None else f"{float(x) * factor:.4g} {unit}"
+            def f(x, si=si):
+                return "n/a" if x is None else self.units.text(x, si)
 
             rb, ra = v.get("rms_before"), v.get("rms_after")
             change = (f"{(ra / rb - 1) * 100:+.1f} %" if rb not in (None, 0) and ra is not None

@@ -8,6 +8,7 @@ import shutil
 import warnings
 from html.parser import HTMLParser
 
+import markupsafe
 import pytest
 
 import app
@@ -26,6 +27,14 @@ VALIDATION = [
     {"channel": "dy", "unit": "mm", "n": 12, "rms_before": 18.5, "rms_after": 0.0388,
      "max_before": 40.25, "max_after": 0.0875},
 ]
+# a session's plan event: 79 poses (the raw JSON would be ~20000 characters)
+PLAN_EVENT = {"record": "event", "t": "2026-01-02T09:59:00Z", "kind": "plan",
+              "message": "planned 79 poses (13 held out for validation; eq. 60 minimum 33 poses)",
+              "replace": True,
+              "poses": [{"index": i, "qm": [30.85 + i, 161.98, -182.75, -130.29],
+                         "target": [-0.0119, -0.0357, -0.1144, 0.0602],
+                         "use": "validation" if i % 6 == 5 else "fit", "round": 0}
+                        for i in range(79)]}
 EVIL = "<script>alert('x')</script> drive 2 & \"3\""
 
 
@@ -89,6 +98,7 @@ def sm_report(tmp_path_factory):
     with open(trace, "a", encoding="utf-8") as f:
         f.write(json.dumps({"record": "event", "t": "2026-01-02T10:00:00Z", "kind": "fault",
                             "message": "recorded <b>fault</b> & retry"}) + "\n")
+        f.write(json.dumps(PLAN_EVENT) + "\n")
     outcome = calibrate(trace)
     out = write_report(d / "report.html", outcome, validation=VALIDATION,
                        events=[{"t": "2026-01-02T10:05:00Z", "kind": "operator", "message": EVIL}],
@@ -136,7 +146,8 @@ def test_validation_table(sm_report):
 def test_events_and_session_are_escaped(sm_report):
     _, _, text = sm_report
     assert "<script" not in text
-    assert "&lt;script&gt;alert(&#x27;x&#x27;)&lt;/script&gt; drive 2 &amp; &quot;3&quot;" in text
+    assert str(markupsafe.escape(EVIL)) in text
+    assert "&lt;script&gt;alert(&#39;x&#39;)&lt;/script&gt; drive 2 &amp; &#34;3&#34;" in text
     assert "recorded &lt;b&gt;fault&lt;/b&gt; &amp; retry" in text  # from the trace
     assert "&lt;Jan &amp; Eva&gt;" in text and "sim-cia402" in text
 
@@ -211,3 +222,74 @@ def test_batch_cli_unwritable_report_is_one_line(tmp_path, capsys, monkeypatch):
     assert rc != 0
     assert err.startswith("error: cannot write the report") and len(err.strip().splitlines()) == 1
     assert not bad.parent.exists()
+
+
+class Cells(HTMLParser):
+    """The text of every table cell."""
+
+    def __init__(self):
+        super().__init__()
+        self.cells, self._cell = [], None
+
+    def handle_starttag(self, tag, attrs):
+        if tag in ("td", "th"):
+            self._cell = []
+
+    def handle_endtag(self, tag):
+        if tag in ("td", "th") and self._cell is not None:
+            self.cells.append("".join(self._cell).strip())
+            self._cell = None
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell.append(data)
+
+
+def test_no_table_cell_is_long_and_the_plan_is_its_own_table(sm_report):
+    """The 79-pose plan is a table of its own (index, qm, target, held out), not raw
+    JSON in the events table; no cell anywhere exceeds CELL_MAX characters."""
+    from station.report import CELL_MAX
+
+    _, _, text = sm_report
+    p = Cells()
+    p.feed(text)
+    assert p.cells and max(map(len, p.cells)) <= CELL_MAX, max(p.cells, key=len)[:80]
+    sec = text[text.index('<section id="events">'):]
+    sec = sec[:sec.index("</section>")]
+    assert '"qm"' not in sec and "&#34;qm&#34;" not in sec  # no JSON
+    plan = sec[sec.index('<table class="plan">'):]
+    plan = plan[:plan.index("</table>")]
+    assert plan.count("<tr") == 80  # header + 79 poses
+    assert plan.count("<td>held out</td>") == 13
+    assert ">30.85, 161.98, -182.75, -130.29<" in plan
+
+
+def test_summary_has_the_validation_headline(sm_report):
+    _, _, text = sm_report
+    sec = text[text.index('<section id="summary">'):]
+    sec = sec[:sec.index("</section>")]
+    assert "<th>Validation</th>" in sec
+    assert "dx RMS 31.25 mm \u2192 0.0417 mm over 12 held-out poses" in sec
+
+
+def test_validation_after_bars_are_visible():
+    """"After" errors 1000 times smaller than "before" still get bars of visible
+    height (log axis), in the display units."""
+    from station.report_figures import validation_figure
+    from station.units import MM_DEG
+
+    rows = [{"channel": "distance", "unit": "m", "n": 13, "rms_before": 0.0476,
+             "rms_after": 4.71e-06, "max_before": 0.12, "max_after": 1.1e-05},
+            {"channel": "tilt", "unit": "rad", "n": 13, "rms_before": 0.243,
+             "rms_after": 6.27e-05, "max_before": 0.5, "max_after": 1.5e-4}]
+    fig = validation_figure(rows, MM_DEG)
+    fig.canvas.draw()
+    for ax, v in zip(fig.axes, rows):
+        bars = {c.get_label(): c for c in ax.containers}
+        assert set(bars) == {"before", "after"}
+        for when in ("before", "after"):
+            heights = [r.get_window_extent().height for r in bars[when].patches]
+            assert min(heights) >= 5, (v["channel"], when, heights)  # pixels
+        # the labels are the values in display units (mm, degrees)
+        labels = [t.get_text() for t in ax.texts]
+        assert format(v["rms_after"] * MM_DEG.unit(v["unit"])[1], ".3g") in labels
