@@ -137,6 +137,20 @@ class DrawwireConfig:
     timeout: float = 1.0
 
 
+# units the operator reads (station/units.py); files stay SI
+DISPLAY_LENGTHS = ("mm", "m", "cm", "um")
+DISPLAY_ANGLES = ("deg", "rad", "mrad")
+
+
+@dataclass(frozen=True)
+class DisplayConfig:
+    """``[display]``: the units of the numbers shown to people (mm and degrees by
+    default); traces and parameter files are SI whatever this says."""
+
+    length: str = "mm"
+    angle: str = "deg"
+
+
 @dataclass(frozen=True)
 class SnapshotConfig:
     """How one pose is measured (see :mod:`drivers.snapshot`).
@@ -167,6 +181,7 @@ class StationConfig:
     drawwire: DrawwireConfig | None = None
     source: str | None = None
     unresolved: tuple[str, ...] = ()
+    display: DisplayConfig = DisplayConfig()
 
     def require_resolved(self) -> "StationConfig":
         """Self, or ConfigError naming the first endpoint placeholder not yet filled."""
@@ -200,12 +215,14 @@ def parse_station_config(data: Mapping[str, Any], source: str | None = None) -> 
     incl = top.table("inclinometer", required=False)
     dw = top.table("drawwire", required=False)
     snap = top.table("snapshot", required=False)
+    disp = top.table("display", required=False)
     config = StationConfig(
         robot=robot, canopen=canopen,
         inclinometer=_inclinometer(incl, unresolved) if incl else None,
         drawwire=_drawwire(dw, unresolved) if dw else None,
         snapshot=_snapshot(snap) if snap else SnapshotConfig(),
-        source=source, unresolved=tuple(unresolved))
+        source=source, unresolved=tuple(unresolved),
+        display=_display(disp) if disp else DisplayConfig())
     top.finish()
     return config
 
@@ -290,6 +307,13 @@ def _limits(r: KeyReader, key: str) -> Mapping[str, float]:
         out[ch] = t.float(ch, lo=0.0)
     t.finish()
     return frozen_map(out)
+
+
+def _display(r: KeyReader) -> DisplayConfig:
+    cfg = DisplayConfig(length=r.choice("length", DISPLAY_LENGTHS, default="mm"),
+                        angle=r.choice("angle", DISPLAY_ANGLES, default="deg"))
+    r.finish()
+    return cfg
 
 
 def _snapshot(r: KeyReader) -> SnapshotConfig:

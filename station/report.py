@@ -54,7 +54,7 @@ PARAM_UNITS = {
     "agebot-sm": {"q1_off": "m", "q2_off": "rad", "q3_off": "rad", "q4_off": "rad",
                   "k1": "m/u", "k2": "rad/u", "k3": "rad/u", "k4": "rad/u",
                   "L2": "m", "L3": "m", "L4": "m", "theta0": "rad", "a0": "m",
-                  "plane_a": "1/m", "plane_b": "1/m", "plane_c": "1/m"},
+                  "plane_a": "1/m", "plane_b": "1/m", "plane_c": "1/m", "distance_off": "m"},
     "agebot-pm": {"a1": "m", "a2": "m", "l": "m", "v": "m",
                   "q1_off": "m", "q2_off": "m", "q3_off": "m",
                   "k1": "m/u", "k2": "m/u", "k3": "m/u", "mount_x": "rad", "mount_y": "rad"},
@@ -452,7 +452,7 @@ def _validation_view(rows: list, units) -> dict:
     for v in rows:
         si = str(v.get("unit") or "")
         rb, ra = v.get("rms_before"), v.get("rms_after")
-        change = (f"{(float(ra) / float(rb) - 1) * 100:+.1f} %"
+        change = (f"{(float(ra) / float(rb) - 1) * 100:+.4g} %"
                   if _finite(rb) and _finite(ra) and float(rb) != 0 else "\u2013")
         out.append({"channel": short(v.get("channel")), "unit": units.label(si),
                     "n": short(v.get("n")),

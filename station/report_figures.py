@@ -298,7 +298,8 @@ def validation_figure(rows, units):
         ax.set_title(f"{v.get('channel')}" + (f" [{label}]" if label else ""), fontsize=8)
         _style(ax, 7)
         if n == 0:
-            ax.legend(fontsize=7, frameon=False, loc="upper right")
+            fig.legend(*ax.get_legend_handles_labels(), fontsize=7, frameon=False,
+                       loc="upper left", ncol=2)
     for n in range(len(good), nrow * ncol):
         axes[n // ncol][n % ncol].set_visible(False)
     return fig

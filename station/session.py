@@ -56,6 +56,7 @@ from station.batch import BatchOutcome, calibrate, frame_statement
 from station.params_file import params_document, write_params
 from station.planner import PlannedPose, PlanRequest
 from station.trace import TraceWriter, read_trace, utc_now
+from station.units import from_config as units_from_config
 from station.validation import validation_errors
 
 log = logging.getLogger("station.session")
@@ -141,6 +142,7 @@ class Session:
             raise ConfigError(f"the station is for {config.robot}, method {method} for {mi.robot}",
                               source=config.source, key="robot")
         self.config, self.method, self.info = config, method, mi
+        self.units = units_from_config(config)         # numbers for people
         self.robot = get_robot(mi.robot)
         self.out = Path(out_dir)
         self.request = request or PlanRequest()
@@ -671,9 +673,9 @@ class Session:
             raise StationError("calibrate first")
         self.validation = validation_errors(self.outcome)
         if self.validation:
-            self._event("validated", "; ".join(
-                f"{v['channel']} RMS {_fmt(v['rms_before'])} -> {_fmt(v['rms_after'])} {v['unit']}"
-                for v in self.validation))
+            from station.report import validation_headline
+
+            self._event("validated", validation_headline(self.validation, self.units))
         return self.validation
 
     def export(self) -> dict:
@@ -694,6 +696,7 @@ class Session:
         o = self.outcome = dataclasses.replace(o, document=doc)
         events = list(self.events)
         write_report(self.out / REPORT, o, validation=self.validation, events=events,
+                     units=self.units,
                      session={"robot": self.robot.name, "method": self.method,
                               "station config": self.config.source or "",
                               "poses measured": len(self.measured),
@@ -732,6 +735,3 @@ def _tare(snap) -> dict:
     return {"distance": float(snap.mean["distance"]), "std": float(snap.std.get("distance", 0.0)),
             "samples": int(snap.samples)}
 
-
-def _fmt(v) -> str:
-    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.3g}"

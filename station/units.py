@@ -96,7 +96,7 @@ class Units:
         label = self.label(si)
         if not label or label == "1" or n == "\u2013":
             return n
-        return n + label if label == "\u00b0" else f"{n} {label}"
+        return n + label if label.startswith("\u00b0") else f"{n} {label}"
 
     def channel(self, name: str, v, fmt: str = ".4g") -> str:
         """A channel's reading for people: ``'distance 365.4 mm'``, ``'qm1 22.09 u'``."""
