@@ -2,7 +2,8 @@
 generalized Jacobian by the report's geometric method (eqs. 16-24).
 
 A chain is a sequence of elementary transforms ``Trans(z)``, ``Rot(z)``,
-``Trans(x)``, ``Rot(x)`` (the four factors of a DH matrix, eq. 1). The value of
+``Trans(x)``, ``Rot(x)`` (the four factors of a DH matrix, eq. 1), and
+``Trans(y)``, ``Rot(y)`` (Hayati's ``beta`` for parallel axes). The value of
 each factor is affine in the calibrated parameters and in at most one joint
 coordinate::
 
@@ -20,8 +21,14 @@ frame before the factor contributes ``[u; 0]`` (eqs. 16, 18), a rotation about
 (eqs. 17, 19); a transmission ratio ``k_i`` contributes the joint column times
 ``Qm[i]`` (eq. 23). No symbolic derivatives are needed.
 
-Array shapes: ``m`` poses, ``n`` joints, ``N`` parameters. Units: metres and
-radians; ``Qm`` in actuator units.
+Evaluation is vectorized over the poses: the chain is compiled once
+(:class:`_Plan`: the factors' values as one matrix product, the parameter
+columns as another), the forward kinematics takes one step of a few vector
+operations per factor for all poses together, and the Jacobian's columns of
+all factors come at once from the axes and origins that sweep leaves behind.
+
+Array shapes: ``m`` poses, ``n`` joints, ``N`` parameters, ``F`` factors.
+Units: metres and radians; ``Qm`` in actuator units.
 """
 from __future__ import annotations
 
@@ -29,14 +36,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-KINDS = ("tz", "rz", "tx", "rx")
+KINDS = ("tz", "rz", "tx", "rx", "ty", "ry")
 
 
 @dataclass(frozen=True)
 class Factor:
     """One elementary transform of the chain.
 
-    kind:  ``"tz"``, ``"rz"``, ``"tx"`` or ``"rx"``.
+    kind:  ``"tz"``, ``"rz"``, ``"tx"``, ``"rx"``, ``"ty"`` or ``"ry"``.
     const: constant part of the value (m or rad).
     terms: ``((param_index, coef), ...)``: the value's dependence on xi.
     joint: index of the joint coordinate added to the value, or None.
@@ -92,14 +99,69 @@ class Chain:
         return (q - off) / k
 
     # -- forward kinematics --------------------------------------------------
+    def _plan(self) -> "_Plan":
+        plan = self._cache.get("plan")
+        if plan is None:
+            plan = self._cache["plan"] = _Plan(self)
+        return plan
+
     def _values(self, q: np.ndarray, xi: np.ndarray) -> np.ndarray:
-        """Factor values ``(m, F)`` for joint coordinates ``q (m, n)``."""
-        m = q.shape[0]
-        vals = np.empty((m, len(self.factors)))
-        for j, f in enumerate(self.factors):
-            v = f.const + sum(c * xi[i] for i, c in f.terms)
-            vals[:, j] = v if f.joint is None else v + q[:, f.joint]
+        """Factor values ``(F, m)`` for joint coordinates ``q (m, n)``."""
+        plan = self._plan()
+        vals = np.empty((len(self.factors), q.shape[0]))
+        vals[:] = (plan.const + plan.coef @ xi)[:, None]
+        vals[plan.joint_factors] += q[:, plan.joint_of].T
         return vals
+
+    def _sweep(self, qm: np.ndarray, xi: np.ndarray, *, whole: bool = False):
+        """Forward kinematics of all poses at once, one step per factor.
+
+        A frame is kept as its three axes and its origin, each ``(3, m)`` (the
+        poses contiguous); a factor moves the origin along one axis or turns
+        the two others about it, so a step is a few vector operations whatever
+        the number of poses, and the axes a factor leaves alone are shared,
+        not copied. Returns ``(axes, origin, cols, o)``: the tool frame's axes
+        (three ``(3, m)``) and origin; ``cols (F, 6, m)`` with each factor's
+        axis ``u`` in rows 0-2 (translation) or 3-5 (rotation), and ``o (R,
+        3, m)`` the origin of the frame each rotation factor acts in. With
+        ``whole`` also the four columns of the frame before every factor."""
+        plan = self._plan()
+        q = self.joints(qm, xi)
+        m = q.shape[0]
+        vals = self._values(q, xi)
+        rot = vals[plan.rot_factors]
+        cos, sin = np.cos(rot), np.sin(rot)
+        eye = np.eye(3)
+        axes = [np.broadcast_to(eye[:, i, None], (3, m)) for i in range(3)]
+        origin = np.zeros((3, m))
+        cols = np.zeros((len(self.factors), 6, m))
+        o = np.empty((len(plan.rot_factors), 3, m))
+        kept = []
+        for j, (t, a, k) in enumerate(plan.steps):
+            if whole:
+                kept.append((*axes, origin))
+            if t:  # T <- T Trans(axis, v): the origin moves along the frame's axis
+                cols[j, :3] = axes[a]
+                origin = origin + axes[a] * vals[j]
+            else:  # T <- T Rot(axis, v): the two other axes turn about it
+                cols[j, 3:] = axes[a]
+                o[k] = origin
+                c, s = cos[k], sin[k]
+                b1, b2 = _TURNS[a]
+                x, y = axes[b1], axes[b2]
+                axes = list(axes)
+                axes[b1], axes[b2] = c * x + s * y, c * y - s * x
+        return (axes, origin, cols, o, kept) if whole else (axes, origin, cols, o)
+
+    @staticmethod
+    def _tool(axes, origin) -> np.ndarray:
+        m = origin.shape[1]
+        T = np.zeros((m, 4, 4))
+        for i in range(3):
+            T[:, :3, i] = axes[i].T
+        T[:, :3, 3] = origin.T
+        T[:, 3, 3] = 1.0
+        return T
 
     def frames(self, qm: np.ndarray, xi: np.ndarray):
         """Forward kinematics with the intermediate frames.
@@ -109,88 +171,126 @@ class Chain:
         product of all factors before it).
         """
         xi = np.asarray(xi, dtype=float)
-        q = self.joints(qm, xi)
-        vals = self._values(q, xi)
-        m, nf = vals.shape
-        before = np.empty((m, nf, 4, 4))
-        T = np.broadcast_to(np.eye(4), (m, 4, 4)).copy()
-        for j, f in enumerate(self.factors):
-            before[:, j] = T
-            v = vals[:, j]
-            if f.kind in ("tz", "tx"):
-                col = 2 if f.kind == "tz" else 0
-                # T <- T * Trans(axis, v): origin moves along the frame's axis
-                T[:, :3, 3] += T[:, :3, col] * v[:, None]
-            else:
-                c, s = np.cos(v)[:, None], np.sin(v)[:, None]
-                if f.kind == "rz":  # columns x, y rotate about z
-                    x, y = T[:, :3, 0].copy(), T[:, :3, 1].copy()
-                    T[:, :3, 0] = c * x + s * y
-                    T[:, :3, 1] = -s * x + c * y
-                else:  # rx: columns y, z rotate about x
-                    y, z = T[:, :3, 1].copy(), T[:, :3, 2].copy()
-                    T[:, :3, 1] = c * y + s * z
-                    T[:, :3, 2] = -s * y + c * z
-        return T, before
+        axes, origin, _c, _o, kept = self._sweep(qm, xi, whole=True)
+        m, nf = origin.shape[1], len(self.factors)
+        before = np.zeros((m, nf, 4, 4))
+        for i in range(4):  # (F, 3, m) -> (m, F, 3)
+            before[:, :, :3, i] = np.stack([k[i] for k in kept]).transpose(2, 0, 1)
+        before[:, :, 3, 3] = 1.0
+        return self._tool(axes, origin), before
 
     def fk(self, qm: np.ndarray, xi: np.ndarray) -> np.ndarray:
         """Tool frames ``(m, 4, 4)`` in the base frame."""
-        return self.frames(qm, xi)[0]
+        axes, origin, _c, _o = self._sweep(qm, np.asarray(xi, dtype=float))
+        return self._tool(axes, origin)
 
     # -- generalized Jacobian ------------------------------------------------
+    def _cross_columns(self, cols: np.ndarray, o: np.ndarray, p_e: np.ndarray) -> np.ndarray:
+        """Complete ``cols (F, 6, m)`` in place: a rotation about ``u`` through
+        ``o`` moves the tool point ``p_e (3, m)`` by ``u x (p_e - o)``."""
+        rt = self._plan().rot_factors
+        u = cols[rt, 3:]
+        v = p_e - o  # u x v, written out (np.cross is slow on small arrays)
+        u0, u1, u2 = u[:, 0], u[:, 1], u[:, 2]
+        v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
+        cols[rt, 0] = u1 * v2 - u2 * v1
+        cols[rt, 1] = u2 * v0 - u0 * v2
+        cols[rt, 2] = u0 * v1 - u1 * v0
+        return cols
+
     def factor_columns(self, T: np.ndarray, before: np.ndarray) -> np.ndarray:
         """Spatial columns ``(m, 6, F)``: tool displacement ``[dp; dw]`` per unit
         change of each factor's value (eqs. 16-19)."""
-        m, nf = before.shape[:2]
-        cols = np.zeros((m, 6, nf))
-        p_e = T[:, :3, 3]
-        for j, f in enumerate(self.factors):
-            u = before[:, j, :3, 2 if f.kind in ("tz", "rz") else 0]
-            if f.kind in ("tz", "tx"):
-                cols[:, :3, j] = u
-            else:
-                v = p_e - before[:, j, :3, 3]  # u x v, written out (np.cross is slow on small arrays)
-                cols[:, 0, j] = u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1]
-                cols[:, 1, j] = u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2]
-                cols[:, 2, j] = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
-                cols[:, 3:, j] = u
-        return cols
+        plan = self._plan()
+        nf = before.shape[1]
+        u = before[:, np.arange(nf), :3, plan.axis].transpose(0, 2, 1)  # (F, 3, m)
+        cols = np.zeros((nf, 6, before.shape[0]))
+        tr, rt = plan.trans_factors, plan.rot_factors
+        cols[tr, :3] = u[tr]
+        cols[rt, 3:] = u[rt]
+        o = before[:, :, :3, 3][:, rt].transpose(1, 2, 0)  # (R, 3, m)
+        return self._cross_columns(cols, o, T[:, :3, 3].T).transpose(2, 1, 0)
 
-    def jacobian(self, qm: np.ndarray, xi: np.ndarray):
+    def _kinematics(self, qm, xi, rows: int = 6):
+        """``(T, flat)``: tool frames and the factor columns ``(F, rows m)``
+        (rows 3: the translation rows only)."""
+        axes, origin, cols, o = self._sweep(qm, xi)
+        cols = self._cross_columns(cols, o, origin)
+        return self._tool(axes, origin), cols[:, :rows].reshape(cols.shape[0], -1)
+
+    def jacobian(self, qm: np.ndarray, xi: np.ndarray, *, position_only: bool = False):
         """Generalized Jacobian by the geometric method.
 
         Returns ``(T, Psi)``: tool frames ``(m, 4, 4)`` and ``Psi (m, 6, N)``, the
         spatial tool displacement ``[dp; dw]`` (base frame, dw a rotation vector)
-        per unit change of each parameter (eq. 24).
+        per unit change of each parameter (eq. 24); ``position_only``: only its
+        rows ``dp``, ``(m, 3, N)`` (half the work, for position measurements).
         """
         qm = np.atleast_2d(np.asarray(qm, dtype=float))
         xi = np.asarray(xi, dtype=float)
-        T, before = self.frames(qm, xi)
-        cols = self.factor_columns(T, before)
+        plan = self._plan()
+        rows = 3 if position_only else 6
+        T, flat = self._kinematics(qm, xi, rows)
         m = qm.shape[0]
-        psi = np.zeros((m, 6, self.n_params))
-        jac_q = np.zeros((m, 6, self.n_joints))  # kinematic Jacobian J(Q) (eq. 22)
-        for j, f in enumerate(self.factors):
-            for i, c in f.terms:
-                psi[:, :, i] += c * cols[:, :, j]
-            if f.joint is not None:
-                jac_q[:, :, f.joint] += cols[:, :, j]
-        for jt in range(self.n_joints):
-            if self.offset_idx[jt] >= 0:
-                psi[:, :, self.offset_idx[jt]] += jac_q[:, :, jt]
-            if self.gain_idx[jt] >= 0:  # eq. 23: Psi_k = Psi_q * Qm[i]
-                psi[:, :, self.gain_idx[jt]] += jac_q[:, :, jt] * qm[:, jt, None]
-        return T, psi
+        # each parameter's column: its factors' columns times their
+        # coefficients, plus its joint's (offsets): one matrix product
+        psi = flat.T @ plan.to_params  # (rows m, N), rows (component, pose)
+        if plan.to_gains is not None:  # eq. 23: Psi_k = Psi_q * Qm[i]
+            jac_q = (flat.T @ plan.to_joints).reshape(rows, m, -1) * qm
+            psi += jac_q.reshape(rows * m, -1) @ plan.to_gains
+        return T, psi.reshape(rows, m, -1).transpose(1, 0, 2)
 
     def joint_jacobian(self, qm: np.ndarray, xi: np.ndarray) -> np.ndarray:
         """Kinematic Jacobian ``J(Q) (m, 6, n)``: tool displacement per joint coordinate."""
-        T, before = self.frames(qm, xi)
-        cols = self.factor_columns(T, before)
-        jac_q = np.zeros((cols.shape[0], 6, self.n_joints))
-        for j, f in enumerate(self.factors):
+        qm = np.atleast_2d(np.asarray(qm, dtype=float))
+        _T, flat = self._kinematics(qm, np.asarray(xi, dtype=float))
+        return (flat.T @ self._plan().to_joints).reshape(6, qm.shape[0], -1).transpose(1, 0, 2)
+
+
+# For a rotation about axis a, the two axes that turn: (first, second) with
+# first' = c first + s second, second' = c second - s first.
+_TURNS = {2: (0, 1), 0: (1, 2), 1: (2, 0)}
+_AXIS = {"x": 0, "y": 1, "z": 2}
+
+
+class _Plan:
+    """A chain compiled for evaluation (cached per chain): the factors' values
+    as ``const + coef @ xi`` plus joint coordinates, the per-factor steps of the
+    forward kinematics, and the matrices that map factor columns to parameter
+    and joint columns of the Jacobian."""
+
+    def __init__(self, chain: Chain):
+        fs, N, n = chain.factors, chain.n_params, chain.n_joints
+        F = len(fs)
+        self.const = np.array([f.const for f in fs], dtype=float)
+        self.coef = np.zeros((F, N))
+        to_joints = np.zeros((F, n))
+        for j, f in enumerate(fs):
+            for i, c in f.terms:
+                self.coef[j, i] += c
             if f.joint is not None:
-                jac_q[:, :, f.joint] += cols[:, :, j]
-        return jac_q
+                to_joints[j, f.joint] = 1.0
+        self.to_joints = to_joints
+        self.joint_factors = np.array([j for j, f in enumerate(fs) if f.joint is not None],
+                                      dtype=np.intp)
+        self.joint_of = np.array([f.joint for f in fs if f.joint is not None], dtype=np.intp)
+        self.axis = np.array([_AXIS[f.kind[1]] for f in fs], dtype=np.intp)
+        is_rot = [f.kind[0] == "r" for f in fs]
+        self.rot_factors = np.flatnonzero(is_rot)
+        self.trans_factors = np.flatnonzero(np.logical_not(is_rot))
+        rank = np.cumsum(is_rot) - 1
+        self.steps = tuple((not r, int(a), int(k)) for r, a, k in zip(is_rot, self.axis, rank))
+        # Psi = cols @ (coef + offsets) + (cols @ to_joints) * Qm on the gains
+        to_params = self.coef.copy()
+        for jt, i in enumerate(chain.offset_idx):
+            if i >= 0:
+                to_params[:, i] += to_joints[:, jt]
+        self.to_params = to_params
+        to_gains = np.zeros((n, N))
+        for jt, i in enumerate(chain.gain_idx):
+            if i >= 0:
+                to_gains[jt, i] = 1.0
+        self.to_gains = to_gains if to_gains.any() else None
 
 
 @dataclass(frozen=True)

@@ -85,8 +85,8 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
     all earlier columns. Up to the first dependent column they are all kept,
     so the diagonal is the answer there; the dependent column is then left out
     (the span of the kept ones projected away) and the QR resumes on the
-    columns after it. One QR when nothing is dependent, one more per
-    dependent column otherwise.
+    columns after it. One QR of the tall matrix in any case; the restarts
+    after dependent columns work on its ``(q, q)`` triangle (same distances).
     """
     W = np.asarray(W, dtype=float)
     n = W.shape[1]
@@ -116,6 +116,13 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
         idx = np.flatnonzero(use)
         nidx = norms[idx]
         T = Wg[:, idx] / nidx
+    if T.shape[0] > T.shape[1] > 0:
+        # distances and projections do not change under an orthogonal map of
+        # the rows: the triangle of one QR of T stands for T (no dependent
+        # column: its diagonal is the answer; else each restart below works
+        # on q rows, not on all of them)
+        q = T.shape[1]
+        T = lapack.dgeqrf(T)[0][:q] * _upper(q)
     basis = None  # orthonormal basis of the kept columns before idx[0], once one was dropped
     while idx.size:
         d, qr = _r_diagonal(T)
