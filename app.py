@@ -119,6 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--config")
     s.add_argument("--endpoints", help="write the devices' endpoints (JSON) here")
     s.add_argument("--seed", type=int, help="seed of the simulated noise and faults")
+    s.add_argument("--pose-noise", action="store_true",
+                   help="the noise of a reading at rest is a function of the seed and the pose "
+                        "(a pose read twice reads the same; for comparing runs)")
     s.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
     s.set_defaults(func=_delegate("drivers.sim.server", "main"))
 

@@ -51,7 +51,7 @@ from calibration.robots import get_robot
 from calibration.robots.agebot_pm import euler_from_ypr
 from drivers.config import StationConfig
 from drivers.errors import DeviceError
-from station import planner
+from station import planner, resume
 from station.batch import BatchOutcome, calibrate, frame_statement
 from station.params_file import params_document, write_params
 from station.planner import PlannedPose, PlanRequest
@@ -161,6 +161,8 @@ class Session:
         self.measured: dict[int, dict] = {}        # plan index -> pose record
         self._held: dict[int, dict] = {}           # pair poses touched, written with the pair
         self.skipped: set[int] = set()
+        self.remeasure: set[int] = set()           # skipped for a fault before a resume
+        self.zeroed = False                        # this process zeroed the draw-wire
         self.events: list[dict] = []
         self.outcome: BatchOutcome | None = None
         self.validation: list[dict] | None = None
@@ -169,6 +171,7 @@ class Session:
         self._next_index = 0
         self._pause = threading.Event()
         self._abort = threading.Event()
+        resume.unstarted(self.trace_path)      # a header cut by a crash: nothing to resume
         self.resumed = self.trace_path.exists()
         if self.resumed:
             self._load()
@@ -198,9 +201,11 @@ class Session:
             self.reference_record = tr.reference
         self.events.extend(tr.events)
         self.plan_poses, self.skipped, self.measured = recorded_plan(tr)
+        self.remeasure = resume.remeasurable(tr.events, self.measured)
+        self.skipped -= self.remeasure
         self._next_index = (tr.poses[-1]["index"] + 1) if tr.poses else 0
         self._event("resume", f"resumed: {len(self.measured)} poses recorded, "
-                    f"{len(self.pending)} still to measure")
+                    f"{len(self.pending)} still to measure; to do: {self.redo().describe()}")
 
     def _ensure_trace(self) -> TraceWriter:
         if self._writer is None:
@@ -313,6 +318,7 @@ class Session:
         w.append(rec)
         self.reference_qm = qm
         self.reference_record = rec
+        self.zeroed = rig.drawwire is not None
         self._event("reference", f"{self.info.reference} captured at qm "
                     f"{np.round(qm, 4).tolist()}")
         return qm
@@ -337,6 +343,7 @@ class Session:
                 self._event("reference", f"back at the reference: draw-wire reads "
                             f"{now['distance']:.6g} m (at capture {tare['distance']:.6g} m): "
                             "it kept its zero", tare=now)
+                self.zeroed = True
                 return
         self.rig.zero_drawwire()
         self._event("warning", f"back at the reference: draw-wire read {now['distance']:.6g} m "
@@ -344,6 +351,12 @@ class Session:
                     "its zero and was zeroed again; the poses measured from now on carry that "
                     "new zero's reading noise (a common offset of about one reading's std)",
                     tare=now)
+        self.zeroed = True
+
+    def redo(self) -> resume.Redo:
+        """What must come before the next measurement (:func:`station.resume.redo`):
+        capture the reference, return to it and re-zero, plan, measure skipped poses again."""
+        return resume.redo(self)
 
     # -- guided touching ----------------------------------------------------------------------
     @property
@@ -499,6 +512,8 @@ class Session:
         recorded = 0
         if self.pending:
             self._require_touch()
+        if self.redo().rezero:       # distances against a lost zero would be wrong
+            self.rezero_at_reference()
         self._notify("state", "measuring")
         while True:
             for pose in self.pending:
@@ -531,7 +546,8 @@ class Session:
                 rec = self._pose_record(pose, snap)
                 break
             except TouchFailed as e:
-                self._skip(pose, f"pose {pose.index} skipped: no contact ({e})")
+                self._skip(pose, f"pose {pose.index} skipped: no contact ({e})",
+                           resume.NO_CONTACT)
                 return False
             except SessionAborted:
                 self._event("abort", f"aborted at pose {pose.index} while touching")
@@ -544,7 +560,7 @@ class Session:
                     self._event("abort", f"aborted at pose {pose.index} after a fault")
                     raise SessionAborted(f"aborted after a fault: {e}") from e
                 if action == "skip":
-                    self._skip(pose, f"pose {pose.index} skipped")
+                    self._skip(pose, f"pose {pose.index} skipped", resume.FAULT)
                     self._recover()      # the next pose must not meet the same fault
                     return False
                 attempt += 1
@@ -583,17 +599,18 @@ class Session:
                                           message=f"touching at pose {pose.index}"))
         self.touch(self, pose)
 
-    def _skip(self, pose: PlannedPose, message: str) -> None:
-        """Skip ``pose``; for a pair, also its partners not written yet (touched ones are
-        dropped: a pair is written whole)."""
+    def _skip(self, pose: PlannedPose, message: str, reason: str) -> None:
+        """Skip ``pose`` (``reason``: :data:`station.resume.FAULT` or ``NO_CONTACT``; a
+        fault's poses are measured again on resume); for a pair, also its partners not
+        written yet (touched ones are dropped: a pair is written whole)."""
         self.skipped.add(pose.index)
-        self._event("skip", message, plan_index=pose.index)
+        self._event("skip", message, plan_index=pose.index, reason=reason)
         for p in self.group_of(pose):
             if p.index not in self.measured and p.index not in self.skipped:
                 self._held.pop(p.index, None)
                 self.skipped.add(p.index)
                 self._event("skip", f"pose {p.index} skipped with its pair partner {pose.index}",
-                            plan_index=p.index)
+                            plan_index=p.index, reason=reason)
 
     def _recover(self) -> None:
         """Before a retry or after a skip: reset a faulted drive, or reconnect a device
@@ -714,14 +731,15 @@ class Session:
         self._require_touch()
         if self.rig is None or not all(d.is_open for d in self.rig.devices):
             self.connect()
-        if self.needs_reference and self.reference_qm is None:
+        todo = self.redo()
+        if todo.capture_reference:
             qm, role, _ = self.reference_target()
             self._event("info", f"moving to the {role} for the reference step")
             self.move_to(qm)
             self.capture_reference()
-        elif self.resumed and self.pending and "distance" in self.info.channels:
+        elif todo.rezero:
             self.rezero_at_reference()
-        if not self.plan_poses:
+        if todo.plan:
             self.plan()
         self.execute()
         self.calibrate()

@@ -258,7 +258,9 @@ def _check_pose_channels(rec, trace, fail):
 
 def _check_method_needs(trace):
     mi = METHODS[trace.method]
-    if mi.reference and (trace.reference is None or trace.reference.get("role") != mi.reference):
+    if mi.reference and (trace.reference is None and trace.poses   # a session killed before
+                         or trace.reference is not None           # its reference resumes
+                         and trace.reference.get("role") != mi.reference):
         raise TraceFormatError(f"method {trace.method} needs a reference record with role "
                                f"{mi.reference!r} before the poses", file=trace.path)
     if trace.method == "sm-self-redundancy":

@@ -42,6 +42,7 @@ before the first zero the anchor is the home position.
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import threading
@@ -86,16 +87,23 @@ class SimulatedAgebot:
              start at its actuator values by IK at the true parameters.
     velocity, acceleration: per-axis defaults of the axes (actuator units/s, /s^2).
     clock:   time source of the axes (tests may pass a fake one).
+    pose_noise: the noise of a reading taken at rest is a function of the seed, the
+             channel and the axes' targets (the same pose reads the same values, whenever
+             and however often it is visited); readings while moving keep drawing from
+             the generator. For tests that compare a resumed session with an
+             uninterrupted one reading by reading.
     """
 
     def __init__(self, truth: SimTruth, *, faults: FaultPlan | None = None,
                  seed: int | None = None, home=None, velocity=None, acceleration=None,
-                 clock=time.monotonic):
+                 clock=time.monotonic, pose_noise: bool = False):
         self.truth = truth
         self.model = get_robot(truth.robot)
         self._xi = truth.xi()
         self.faults = faults if faults is not None else FaultPlan()
-        self._rng = np.random.default_rng(truth.seed if seed is None else seed)
+        self._seed = truth.seed if seed is None else seed
+        self._rng = np.random.default_rng(self._seed)
+        self.pose_noise = pose_noise
         self._lock = threading.RLock()
         self.home_pose = np.array(HOME[truth.robot] if home is None else home, dtype=float)
         try:
@@ -142,10 +150,16 @@ class SimulatedAgebot:
             return self.ee_pose()[:3]
         return np.array([0.0, 0.0, self._xi[self.model.index("v")]])
 
-    def _noise(self, channel: str, size=None):
+    def _noise(self, channel: str, size=None, key: str = ""):
         sigma = self.truth.sigma(channel)
         if sigma == 0.0:
             return 0.0 if size is None else np.zeros(size)
+        if self.pose_noise and self.target_reached():
+            pose = tuple(round(a.target, 9) for a in self.axes)
+            digest = hashlib.blake2b(repr((self._seed, channel, key, pose)).encode(),
+                                     digest_size=8).digest()
+            return np.random.default_rng(int.from_bytes(digest, "little")).normal(0.0, sigma,
+                                                                                  size)
         with self._lock:
             return self._rng.normal(0.0, sigma, size)
 
@@ -178,7 +192,8 @@ class SimulatedAgebot:
     def encoder_increments(self, i: int, resolution: float) -> int:
         """Encoder value of axis ``i`` (0-based): ``round((qm_i + noise) * resolution)``;
         ``resolution`` in increments per actuator unit, noise channel ``qm``."""
-        return int(round((self.axes[i].position() + self._noise("qm")) * resolution))
+        return int(round((self.axes[i].position() + self._noise("qm", key=str(i)))
+                         * resolution))
 
     def inclinometer_angles(self) -> tuple[float, float, float]:
         """Noise-free ``(roll, pitch, yaw)`` in rad (module docstring)."""

@@ -82,10 +82,12 @@ class SimStation:
     truth:  what the robot really is. config: the station config to look like
     (endpoint placeholders are ignored: the simulator picks free ports).
     inclinometer_hz: frame cycles per second. rtu: also serve Modbus RTU on a pty.
+    pose_noise: noise as a function of the pose (:class:`~drivers.sim.robot.SimulatedAgebot`).
     """
 
     def __init__(self, truth: SimTruth, config: StationConfig, *, seed: int | None = None,
-                 inclinometer_hz: float = 100.0, rtu: bool = True, control: bool = True):
+                 inclinometer_hz: float = 100.0, rtu: bool = True, control: bool = True,
+                 pose_noise: bool = False):
         if config.robot != truth.robot:
             raise ConfigError(f"the station config is for {config.robot}, the truth file for "
                               f"{truth.robot}", source=config.source, key="robot")
@@ -94,7 +96,8 @@ class SimStation:
         cc = config.canopen
         self.robot = SimulatedAgebot(truth, faults=self.plan, seed=seed,
                                      velocity=cc.profile_velocity or None,
-                                     acceleration=cc.profile_acceleration or None)
+                                     acceleration=cc.profile_acceleration or None,
+                                     pose_noise=pose_noise)
         self._inclinometer_hz, self._rtu, self._control = inclinometer_hz, rtu, control
         self.canopen = self.inclinometer = self.drawwire = None
         self._server: socketserver.ThreadingTCPServer | None = None
@@ -278,19 +281,20 @@ def write_endpoints(path: str | Path, endpoints: dict) -> None:
 
 
 def build(robot: str, truth: str | None = None, config: str | None = None, *,
-          seed: int | None = None) -> SimStation:
+          seed: int | None = None, pose_noise: bool = False) -> SimStation:
     """A :class:`SimStation` from file names (defaults: the fixtures), not started."""
     t = load_truth(truth) if truth else load_truth(default_truth_path(robot))
     if t.robot != robot:
         raise ConfigError(f"the truth file is for {t.robot}, not {robot}", source=t.source,
                           key="robot")
     c = load_station_config(config or default_config_path(robot))
-    return SimStation(t, c, seed=seed)
+    return SimStation(t, c, seed=seed, pose_noise=pose_noise)
 
 
 def main(args: argparse.Namespace) -> int:
     """``app.py simulate``: start, print endpoints, run until SIGINT/SIGTERM."""
-    station = build(args.robot, args.truth, args.config, seed=getattr(args, "seed", None))
+    station = build(args.robot, args.truth, args.config, seed=getattr(args, "seed", None),
+                    pose_noise=getattr(args, "pose_noise", False))
     stop = threading.Event()
     parent = os.getppid() if getattr(args, "exit_with_parent", False) else None
 
@@ -329,7 +333,7 @@ class SimulatorProcess:
     ends it (SIGTERM, then SIGKILL)."""
 
     def __init__(self, robot: str, truth: str | None = None, config: str | None = None, *,
-                 seed: int | None = None, timeout: float = 20.0):
+                 seed: int | None = None, timeout: float = 20.0, pose_noise: bool = False):
         import subprocess
 
         self.config_path = Path(config) if config else default_config_path(robot)
@@ -341,6 +345,8 @@ class SimulatorProcess:
             cmd += ["--config", str(config)]
         if seed is not None:
             cmd += ["--seed", str(seed)]
+        if pose_noise:
+            cmd += ["--pose-noise"]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      stdin=subprocess.DEVNULL, start_new_session=True)
         try:

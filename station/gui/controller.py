@@ -367,9 +367,7 @@ class Controller(QObject):
     @property
     def needs_rezero(self) -> bool:
         s = self.session
-        return bool(s is not None and s.resumed and not self.rezeroed
-                    and s.reference_qm is not None and s.pending
-                    and "distance" in s.info.channels)
+        return bool(s is not None and s.redo().rezero)
 
     def execute(self, on_done=None, on_error=None) -> None:
         """Measure the pending poses (after a resume of a distance session, first
