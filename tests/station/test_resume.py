@@ -28,6 +28,16 @@ from station.session import Session
 from station.trace import read_trace
 from tests.station.test_session import FIX, _session_config, fast_config
 
+@pytest.fixture(autouse=True)
+def _no_figures(monkeypatch):
+    """The HTML report (matplotlib figures, ~90 % of a session's time here) is not what
+    these tests compare: a one-line report stands in (tests/station/test_report.py)."""
+    import station.report
+
+    monkeypatch.setattr(station.report, "write_report",
+                        lambda path, *a, **k: Path(path).write_text("report\n"))
+
+
 CHANNELS = {"sm-distance-tilt": ("qm", "distance", "tilt"), "pm-fk": ("qm", "orientation")}
 
 
