@@ -25,7 +25,10 @@ Crash safety: the trace (file-formats.md) is the session's only state. The
 plan is recorded as an ``event`` of kind ``plan`` (with its poses), each
 measured pose carries ``plan_index``, skipped poses an event of kind ``skip``;
 so :class:`Session` on an existing trace continues with the poses not yet
-measured, whatever moment the previous process died at.
+measured, whatever moment the previous process died at; :mod:`station.resume`
+decides what it must redo first. The session holds the folder's lock
+(:mod:`station.lock`) from its start to :meth:`close`: a second session on the
+folder is refused, naming the first one's process.
 
 Threads: :meth:`execute` and :meth:`calibrate` block; a GUI runs them in a
 worker thread and talks to them with :meth:`pause`, :meth:`resume`,
@@ -53,6 +56,7 @@ from drivers.config import StationConfig
 from drivers.errors import DeviceError
 from station import planner, resume
 from station.batch import BatchOutcome, calibrate, frame_statement
+from station.lock import FolderLock
 from station.params_file import params_document, write_params
 from station.planner import PlannedPose, PlanRequest
 from station.trace import TraceWriter, read_trace, utc_now
@@ -171,10 +175,17 @@ class Session:
         self._next_index = 0
         self._pause = threading.Event()
         self._abort = threading.Event()
-        resume.unstarted(self.trace_path)      # a header cut by a crash: nothing to resume
-        self.resumed = self.trace_path.exists()
-        if self.resumed:
-            self._load()
+        self._lock = FolderLock(self.out).acquire()    # one session per folder
+        try:
+            resume.unstarted(self.trace_path)  # a header cut by a crash: nothing to resume
+            self.resumed = self.trace_path.exists()
+            if self.resumed:
+                self._load()
+        except BaseException:
+            self._lock.release()
+            raise
+        if self._lock.stale:
+            self._event("info", self._lock.stale_text())
 
     # -- files ------------------------------------------------------------------------------
     @property
@@ -250,6 +261,7 @@ class Session:
         if self._writer is not None:
             self._writer.close()
             self._writer = None
+        self._lock.release()
 
     def __enter__(self):
         return self
