@@ -58,7 +58,8 @@ def _cmd_trace_generate(args) -> int:
     generate_from_truth(args.out, args.method, truth=args.truth, noise=args.noise or (),
                         seed=args.seed, count=args.count,
                         components=tuple(args.components.split(",")) if args.components else None,
-                        known=tuple(k for k in (args.known or "").split(",") if k))
+                        known=tuple(k for k in (args.known or "").split(",") if k),
+                        design=args.design)
     print(f"trace written to {args.out}")
     return 0
 
@@ -108,6 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="reading noise, e.g. distance=1e-4 tilt=1e-3 (repeatable)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--count", type=int, help="number of poses (default: eq. 60)")
+    g.add_argument("--design", choices=("random", "optimal"), default="random",
+                   help="random poses in the workspace box (default), or the D-optimal "
+                        "COUNT of ten times as many candidates (docs/design.md)")
     g.add_argument("--components", help="pm-fk: measured components, e.g. alpha,beta")
     g.add_argument("--known", help="parameters whose true values go into the nominal, e.g. "
                                    "L4 (sm-self-redundancy) or L4,theta0,a0,plane_a,plane_b,plane_c")

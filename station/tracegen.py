@@ -17,6 +17,7 @@ from calibration.errors import CalibrationError, ConfigError, UnreachablePose
 from calibration.methods import METHODS
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
+from station import pose_design
 from station.planner import SM_BASE_ORIGIN, SM_REFERENCE_POINT, minimum_count
 from station.trace import write_trace
 
@@ -31,8 +32,13 @@ def default_plane(xi_true, robot) -> np.ndarray:
 
 
 def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, seed=0,
-             count=None, components=None, mount=(0.0, 0.0), known=()):
+             count=None, components=None, mount=(0.0, 0.0), known=(), design="random"):
     """Plan and simulate a data set. Returns ``(header, reference, poses)`` records.
+
+    design: ``"random"`` (poses drawn in the workspace box) or ``"optimal"`` (the
+    D-optimal ``count`` of a pool of candidates drawn the same way,
+    :mod:`station.pose_design`; the header's ``station.design`` records the predicted
+    accuracy).
 
     known: parameter names whose true values are written into the header's
     nominal (what the report assumes known for the methods whose
@@ -44,6 +50,12 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
     rng = np.random.default_rng(seed)
     noise = dict(noise or {})
     count = count or minimum_count(method, components)
+    if design not in pose_design.DESIGNS:
+        raise CalibrationError(f"unknown design {design!r} (known: "
+                               f"{', '.join(pose_design.DESIGNS)})")
+    wanted = count
+    if design == "optimal":
+        count = pose_design.POOL_FACTOR * count
     reference = None
     group = None
     header = {"robot": robot.name, "method": method,
@@ -87,6 +99,18 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
         qm = plan.qm
         if method == "pm-fk" and components:
             header["components"] = list(components)
+    if design == "optimal":
+        x_plan = xi_true if mi.robot == "agebot-pm" else nom
+        ref_qm = None if reference is None else np.array(reference["qm"])
+        model = pose_design.pool_model(method, robot, x_plan, qm, reference_qm=ref_qm,
+                                       group=group, components=components, mount=mount,
+                                       plane=plane)
+        chosen = pose_design.design_poses(model, wanted, noise=pose_design.row_noise(method, noise),
+                                          group=group)
+        qm = qm[chosen.fit]
+        if group is not None:
+            group = np.unique(group[chosen.fit], return_inverse=True)[1]
+        header["station"]["design"] = chosen.as_record()
     for name in known:
         if name in ("plane_a", "plane_b", "plane_c"):
             if method != "sm-plane":
@@ -193,7 +217,7 @@ def reading_noise(method: str, noise: dict) -> dict:
 
 
 def generate_from_truth(path, method: str, *, truth: str | None = None, noise=(), seed=0,
-                        count=None, components=None, known=()) -> None:
+                        count=None, components=None, known=(), design="random") -> None:
     """``app.py trace generate``: a trace of ``method`` simulated on the robot of
     a truth file (``truth``: its path; None: the report's true values), with the
     truth file's noise overridden by ``noise`` (``CHANNEL=STD`` strings), written
@@ -216,4 +240,24 @@ def generate_from_truth(path, method: str, *, truth: str | None = None, noise=()
         xi = robot.true
     noise = reading_noise(method, {**base_noise, **parse_noise(noise)})
     generate_trace(path, method, np.asarray(xi), noise=noise, seed=seed, count=count,
-                   components=components, plane=plane, mount=mount, known=tuple(known))
+                   components=components, plane=plane, mount=mount, known=tuple(known),
+                   design=design)
+
+
+def candidate_pool(method: str, x_plan, size: int, *, seed=0, components=None, plane=None):
+    """A pool of ``size`` candidate poses planned as :func:`generate` plans them on the
+    robot ``x_plan`` (the current model), and the method's measurement model over it
+    (:func:`station.pose_design.pool_model`). Returns ``(model, qm, group)``."""
+    mi = METHODS[method]
+    robot = get_robot(mi.robot)
+    x_plan = np.asarray(x_plan, dtype=float)
+    header, reference, poses = generate(method, x_plan, nominal=x_plan, plane=plane,
+                                        seed=seed, count=size, components=components)
+    qm = np.array([p["qm"] for p in poses], dtype=float)
+    group = np.array([p["group"] for p in poses]) if poses and "group" in poses[0] else None
+    ref = None if reference is None else np.array(reference["qm"], dtype=float)
+    if method == "sm-plane" and plane is None:
+        plane = default_plane(x_plan, robot)
+    model = pose_design.pool_model(method, robot, x_plan, qm, reference_qm=ref, group=group,
+                                   components=components, plane=plane)
+    return model, qm, group
