@@ -158,6 +158,26 @@ def build_parser() -> argparse.ArgumentParser:
                         "sm-plane also plane_a/plane_b/plane_c")
     r.set_defaults(func=_delegate("station.headless", "main"))
 
+    st = sub.add_parser("study", help="Monte Carlo calibrations over robots drawn around the "
+                        "nominal, on Dask (docs/design.md)")
+    st.add_argument("--method", required=True)
+    st.add_argument("--robot", help="the method's robot (default: the one it is for)")
+    st.add_argument("--robots", type=int, required=True, help="robots to draw")
+    st.add_argument("--design", default="optimal,random",
+                    help="pose designs to compare, comma-separated (optimal, random)")
+    st.add_argument("--count", type=int, help="poses per calibration (default: eq. 60)")
+    st.add_argument("--seed", type=int, default=0)
+    st.add_argument("--gear", type=float, default=0.4, help="gear ratios within +-GEAR (relative)")
+    st.add_argument("--length", type=float, default=0.05, help="lengths within +-LENGTH (relative)")
+    st.add_argument("--offset", type=float, default=0.03, help="offsets within +-OFFSET")
+    st.add_argument("--noise", action="append", metavar="CHANNEL=STD",
+                    help="reading noise (default: the station's devices averaged over 5 samples)")
+    st.add_argument("--scheduler", help="an existing Dask scheduler, tcp://HOST:PORT (default: "
+                    "a local cluster)")
+    st.add_argument("--workers", type=int, help="local cluster: worker processes (default: cores)")
+    st.add_argument("--out", required=True, help="folder for study.jsonl and summary.json")
+    st.set_defaults(func=_delegate("station.study", "cli"))
+
     gui = sub.add_parser("gui", help="the operator's Qt wizard")
     gui.add_argument("--simulate", action="store_true")
     gui.add_argument("--config")
