@@ -81,12 +81,17 @@ def _fk_residual(method, robot, model):
 
 def make_problems(seed: int = 1, methods=METHODS, variants=("noise-free", "noisy")):
     """The bench problems: per method the same poses (same seed), read without
-    noise and with the reading noise of :data:`NOISE`."""
+    noise and with the reading noise of :data:`NOISE`. A method's poses and
+    readings depend on the seed and the method only (its place in
+    :data:`METHODS`), not on which other methods are asked for or in what order."""
     sm = get_robot("agebot-sm")
     T, N = sm.true, sm.nominal
     off = np.r_[sm.base_offset(T), 0.0]
     out = []
-    for mi, method in enumerate(methods):
+    for method in methods:
+        if method not in METHODS:
+            raise ValueError(f"unknown bench method {method!r}")
+        mi = METHODS.index(method)
         rng = np.random.default_rng([seed, mi])
         if method == "sm-full-pose":  # report 7.1
             plan = planning.sample_poses(sm, N, planning.box_array(sm, planning.SM_BOX_7_1, off),

@@ -2,7 +2,8 @@
 
     python bench/bench_canopen.py [--n 300] [--nodes 4]
 
-Measures, for N repetitions each:
+Measures, for N rounds (after 20 warm-up rounds), each round calling every
+operation once in turn (interleaved, so that load on the machine hits all alike):
   * SDO upload of 0x6064 from one drive, and from every drive (``read_sdo``);
   * one SYNC + every drive's TPDO (``sync_sample``), the station's sampling;
   * the same SYNC round trip with a bare python-can client (no canopen, no driver);
@@ -31,22 +32,15 @@ from drivers.sim.cia402_drive import run_sim_process  # noqa: E402
 RES = 10000.0
 
 
-def timed(fn, n: int) -> list[float]:
-    for _ in range(min(20, n)):       # warm-up
-        fn()
-    out = []
-    for _ in range(n):
-        t0 = time.perf_counter()
-        fn()
-        out.append(time.perf_counter() - t0)
-    return out
+def drain(bus: can.BusABC) -> None:
+    """Drop the frames the other operations caused on the bare client's bus."""
+    while bus.recv(0) is not None:
+        pass
 
 
 def bare_sync(bus: can.BusABC, nodes: list[int]):
     """SYNC with a plain python-can client; wait for one TPDO1 of every node."""
     def once():
-        while bus.recv(0) is not None:    # frames caused by the driver's own SYNCs
-            pass
         bus.send(can.Message(arbitration_id=0x80, data=[], is_extended_id=False))
         missing = {0x180 + n for n in nodes}
         end = time.monotonic() + 1.0
@@ -79,13 +73,27 @@ def main(argv=None) -> int:
         with CanopenActuators.from_endpoint(endpoint, RES, timeout=1.0) as drv:
             bare = can.Bus(**bus_kwargs, tcp_tune=True)
             try:
-                rows = {
-                    "SDO read 0x6064, one drive": timed(lambda: drv.sdo_read(nodes[0], 0x6064), a.n),
-                    f"SDO read 0x6064, all {len(nodes)} drives": timed(drv.read_sdo, a.n),
-                    f"SYNC + {len(nodes)} TPDOs (driver)": timed(drv.sync_sample, a.n),
-                    f"SYNC + {len(nodes)} TPDOs (bare python-can)": timed(bare_sync(bare, nodes), a.n),
-                    "read() (SYNC + TPDOs -> Sample)": timed(drv.read, a.n),
+                ops = {
+                    "SDO read 0x6064, one drive": lambda: drv.sdo_read(nodes[0], 0x6064),
+                    f"SDO read 0x6064, all {len(nodes)} drives": drv.read_sdo,
+                    f"SYNC + {len(nodes)} TPDOs (driver)": drv.sync_sample,
+                    f"SYNC + {len(nodes)} TPDOs (bare python-can)": bare_sync(bare, nodes),
+                    "read() (SYNC + TPDOs -> Sample)": drv.read,
                 }
+                # interleaved: every round calls each operation once, in turn, so
+                # that load on the machine hits all of them alike; the bare client's
+                # queue (frames of the driver's operations) is emptied untimed
+                bare_op = f"SYNC + {len(nodes)} TPDOs (bare python-can)"
+                rows = {k: [] for k in ops}
+                warm = min(20, a.n)
+                for rnd in range(warm + a.n):
+                    for name, fn in ops.items():
+                        if name == bare_op:
+                            drain(bare)
+                        t0 = time.perf_counter()
+                        fn()
+                        if rnd >= warm:
+                            rows[name].append(time.perf_counter() - t0)
             finally:
                 bare.shutdown()
     finally:
