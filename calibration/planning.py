@@ -43,9 +43,11 @@ def box_array(robot, box: dict, offset=None) -> np.ndarray:
 
 
 def sample_poses(robot, xi, bounds: np.ndarray, count: int, rng: np.random.Generator,
-                 *, max_draws: int | None = None, ik_options: dict | None = None) -> Plan:
+                 *, max_draws: int | None = None, ik_options: dict | None = None,
+                 accept=None) -> Plan:
     """Draw poses uniformly in ``bounds`` and keep those the IK of the model
-    ``xi`` reaches (a planner never sends an unreachable pose)."""
+    ``xi`` reaches (a planner never sends an unreachable pose) and, if given,
+    ``accept(X, qm)`` approves (e.g. a safety envelope)."""
     if count < 1:
         raise CalibrationError("the pose count must be at least 1")
     max_draws = max_draws or 200 * count
@@ -60,6 +62,8 @@ def sample_poses(robot, xi, bounds: np.ndarray, count: int, rng: np.random.Gener
         try:
             qm = robot.ik(X, xi, **(ik_options or {}))
         except UnreachablePose:
+            continue
+        if accept is not None and not accept(X, qm):
             continue
         targets.append(X)
         qms.append(qm)

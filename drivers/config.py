@@ -14,6 +14,8 @@ errors, missing required keys are named. Layout (see
     [drawwire]       mode "tcp" | "rtu", host/port or serial_port, device_id, ...
     [snapshot]       samples, period, settle, timeout
     [snapshot.std_limits] / [snapshot.drift_limits] / [snapshot.noise_floor]
+    [limits]         qm_min, qm_max: each actuator's range (the wrist's slider stroke),
+                     actuator units; the station plans and commands nothing outside it
 
 Endpoint values the simulator picks at run time are written as the placeholder
 ``"@endpoints"`` and filled by :func:`drivers.endpoints.with_endpoints` from the endpoints JSON of
@@ -182,6 +184,16 @@ class StationConfig:
     source: str | None = None
     unresolved: tuple[str, ...] = ()
     display: DisplayConfig = DisplayConfig()
+    qm_min: tuple[float, ...] | None = None
+    qm_max: tuple[float, ...] | None = None
+
+    @property
+    def qm_range(self) -> tuple[tuple[float, float], ...] | None:
+        """Each actuator's ``(min, max)`` from ``[limits]`` (actuator units), or None
+        where the config gives none."""
+        if self.qm_min is None:
+            return None
+        return tuple(zip(self.qm_min, self.qm_max))
 
     def require_resolved(self) -> "StationConfig":
         """Self, or ConfigError naming the first endpoint placeholder not yet filled."""
@@ -216,13 +228,14 @@ def parse_station_config(data: Mapping[str, Any], source: str | None = None) -> 
     dw = top.table("drawwire", required=False)
     snap = top.table("snapshot", required=False)
     disp = top.table("display", required=False)
+    qm_min, qm_max = _qm_limits(top.table("limits", required=False), n)
     config = StationConfig(
         robot=robot, canopen=canopen,
         inclinometer=_inclinometer(incl, unresolved) if incl else None,
         drawwire=_drawwire(dw, unresolved) if dw else None,
         snapshot=_snapshot(snap) if snap else SnapshotConfig(),
         source=source, unresolved=tuple(unresolved),
-        display=_display(disp) if disp else DisplayConfig())
+        display=_display(disp) if disp else DisplayConfig(), qm_min=qm_min, qm_max=qm_max)
     top.finish()
     return config
 
@@ -294,6 +307,19 @@ def _drawwire(r: KeyReader, unresolved: list[str]) -> DrawwireConfig:
         timeout=r.float("timeout", default=1.0, lo=0.0, lo_open=True))
     r.finish()
     return cfg
+
+
+def _qm_limits(r: KeyReader | None, n: int):
+    """``[limits] qm_min, qm_max`` (one number for every actuator, or one per actuator)."""
+    if r is None:
+        return None, None
+    lo = r.float_list("qm_min", length=n, scalar_ok=True)
+    hi = r.float_list("qm_max", length=n, scalar_ok=True)
+    for i, (a, b) in enumerate(zip(lo, hi)):
+        if a >= b:
+            r.fail("qm_max", f"actuator {i + 1}: {b:g} is not above qm_min {a:g}")
+    r.finish()
+    return lo, hi
 
 
 def _limits(r: KeyReader, key: str) -> Mapping[str, float]:

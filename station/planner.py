@@ -15,13 +15,9 @@ of poses at one ``(x, y)`` with the last link at about -12 and +12 deg, sharing 
 ``group``). Their non-identifiable parameters that influence the model must be
 known (:data:`MUST_KNOW`).
 
-The PM wrist is planned in two rounds. The report's nominal wrist cannot reach
-even ``X = 0`` (its rods are too short), so its IK cannot plan the real robot's
-poses. Round one, the *scout*, plans a few poses close to the home pose with
-the nominal whose rod length explains the home reading
-(:func:`calibration.pm_start.feasible_start`); after they are measured, round
-two plans the full workspace with the start model fitted to them
-(:func:`calibration.pm_start.robust_start`).
+The PM wrist is planned in growing rounds (:mod:`station.wrist_plan`): a scout
+round near home, then boxes widened only as far as the start model fitted to
+the poses recorded so far has earned.
 """
 from __future__ import annotations
 
@@ -32,7 +28,7 @@ import numpy as np
 from calibration import planning
 from calibration.errors import CalibrationError, UnreachablePose
 from calibration.identifiability import minimum_poses
-from calibration.methods import METHODS, MethodData
+from calibration.methods import METHODS
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
 
@@ -55,7 +51,6 @@ PLANE = ("plane_a", "plane_b", "plane_c")
 TOUCH_STANDOFF = 0.02         # m: sm-plane approach poses this far from the rough plane
 PAIR_PHI_DEG = (8.0, 16.0)    # sm-self-redundancy: |phi| of a pair's two poses, degrees
 PM_SCOUT_COUNT = 12
-PM_SCOUT_SCALE = 0.3          # fraction of the report's +-20 deg box for the scout round
 
 
 @dataclass(frozen=True)
@@ -246,46 +241,6 @@ def _pair_poses(robot, nominal, count, n_val, rng, start_qm) -> list[PlannedPose
             out.append(PlannedPose(len(out), tuple(float(v) for v in q),
                                    tuple(float(v) for v in X), str(use[i]), 0, g))
     return out
-
-
-def plan_pm_scout(home_qm, home_orientation, req: PlanRequest) -> list[PlannedPose]:
-    """Round one of the wrist: poses near home with the reach-corrected nominal."""
-    from calibration.pm_start import feasible_start
-
-    robot = get_robot("agebot-pm")
-    rng = np.random.default_rng(req.seed)
-    xi = feasible_start(robot, np.atleast_2d(home_qm), np.atleast_2d(home_orientation),
-                        robot.nominal)
-    box = planning.box_array(robot, planning.PM_BOX) * PM_SCOUT_SCALE
-    plan = planning.sample_poses(robot, xi, box + np.asarray(home_orientation)[:, None],
-                                 PM_SCOUT_COUNT, rng)
-    return _finish(robot, plan.targets, plan.qm, 0, rng, home_qm, 0, 0)
-
-
-def pm_start_model(qm, readings, method: str, components) -> np.ndarray:
-    """The start model fitted to measured poses (round two's planning model)."""
-    from calibration.pm_start import robust_start
-
-    robot = get_robot("agebot-pm")
-    if method == "pm-tilt":
-        data = MethodData(qm=qm, channels={"tilt": readings})
-        return robust_start(robot, data, np.r_[robot.nominal, 0.0, 0.0])[:robot.n_params]
-    data = MethodData(qm=qm, channels={"orientation": readings}, components=tuple(components))
-    return robust_start(robot, data, robot.nominal, tuple(components))
-
-
-def plan_pm_main(xi_start, method: str, first_index: int, last_qm, req: PlanRequest,
-                 already: int) -> list[PlannedPose]:
-    """Round two of the wrist: the report's +-20 deg box with the fitted start model."""
-    robot = get_robot("agebot-pm")
-    rng = np.random.default_rng(req.seed + 1)
-    comps = req.components if method == "pm-fk" else None
-    count = req.count or int(np.ceil(req.margin * minimum_count(method, comps)))
-    count = max(count - already, 1)
-    n_val = req.validation if req.validation is not None else max(3, (count + already) // 5)
-    plan = planning.sample_poses(robot, xi_start, planning.box_array(robot, planning.PM_BOX),
-                                 count + n_val, rng)
-    return _finish(robot, plan.targets, plan.qm, n_val, rng, last_qm, first_index, 1)
 
 
 def _finish(robot, targets, qm, n_val, rng, start_qm, first_index, rnd) -> list[PlannedPose]:

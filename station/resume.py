@@ -31,8 +31,9 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-# why a pose was skipped (the ``reason`` of a ``skip`` event)
-FAULT, NO_CONTACT = "fault", "no contact"
+# why a pose was skipped (the ``reason`` of a ``skip`` event); DROPPED: a wrist round
+# dropped and re-planned because the model missed the measured orientation (final)
+FAULT, NO_CONTACT, DROPPED = "fault", "no contact", "dropped"
 
 
 @dataclass(frozen=True)
@@ -66,7 +67,7 @@ class Redo:
 def skip_reason(event: dict) -> str:
     """Why a ``skip`` event skipped its pose (traces before ``reason``: from the text)."""
     reason = event.get("reason")
-    if reason in (FAULT, NO_CONTACT):
+    if reason in (FAULT, NO_CONTACT, DROPPED):
         return reason
     return NO_CONTACT if NO_CONTACT in str(event.get("message", "")) else FAULT
 
@@ -77,7 +78,7 @@ def remeasurable(events: list[dict], measured) -> set[int]:
     for ev in events:
         if ev.get("kind") == "skip" and "plan_index" in ev:
             i = int(ev["plan_index"])
-            if reasons.get(i) != NO_CONTACT:      # a lack of contact is final
+            if reasons.get(i) not in (NO_CONTACT, DROPPED):   # a lack of contact is final
                 reasons[i] = skip_reason(ev)
     return {i for i, r in reasons.items() if r == FAULT and i not in measured}
 

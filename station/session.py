@@ -62,6 +62,7 @@ from station.planner import PlannedPose, PlanRequest
 from station.trace import TraceWriter, read_trace, utc_now
 from station.units import from_config as units_from_config
 from station.validation import validation_errors
+from station.wrist_plan import WristPlanner
 
 log = logging.getLogger("station.session")
 
@@ -175,6 +176,9 @@ class Session:
         self._next_index = 0
         self._pause = threading.Event()
         self._abort = threading.Event()
+        # the wrist's growing box (station/wrist_plan.py)
+        self.wrist = (WristPlanner(method, self.request, self.components, config.qm_range)
+                      if self.robot.name == "agebot-pm" else None)
         self._lock = FolderLock(self.out).acquire()    # one session per folder
         try:
             resume.unstarted(self.trace_path)  # a header cut by a crash: nothing to resume
@@ -214,6 +218,9 @@ class Session:
         self.plan_poses, self.skipped, self.measured = recorded_plan(tr)
         self.remeasure = resume.remeasurable(tr.events, self.measured)
         self.skipped -= self.remeasure
+        if self.wrist is not None:
+            self.wrist.components = self.components or self.wrist.components
+            self.wrist.restore(tr.events)
         self._next_index = (tr.poses[-1]["index"] + 1) if tr.poses else 0
         self._event("resume", f"resumed: {len(self.measured)} poses recorded, "
                     f"{len(self.pending)} still to measure; to do: {self.redo().describe()}")
@@ -446,7 +453,9 @@ class Session:
         else:
             home_qm = np.array(self._rig().qm())
             home_X = self._orientation_now()
-            poses = planner.plan_pm_scout(home_qm, home_X, self.request)
+            poses, wrist = self.wrist.scout(home_qm, home_X)
+            self._set_plan(poses, replace=True, wrist=wrist)
+            return poses
         self._set_plan(poses, replace=True)
         return poses
 
@@ -466,7 +475,7 @@ class Session:
             raise StationError("planned poses must have distinct indices")
         self._set_plan(list(poses), replace=True)
 
-    def _set_plan(self, poses: list[PlannedPose], replace: bool) -> None:
+    def _set_plan(self, poses: list[PlannedPose], replace: bool, **extra) -> None:
         if replace:
             self.plan_poses = list(poses)
         else:
@@ -477,28 +486,54 @@ class Session:
         how = (f"; each touched from its approach pose ({self.method})" if self.touching else "")
         self._event("plan", f"planned {len(poses)} poses ({n_val} held out for validation; "
                     f"eq. 60 minimum {self.minimum_count} {unit}{how})",
-                    poses=[p.record() for p in poses], replace=replace)
+                    poses=[p.record() for p in poses], replace=replace, **extra)
         self._notify("state", "planned")
 
+    @property
+    def rounds_complete(self) -> bool:
+        """False while the wrist's growing box has rounds to plan (station/wrist_plan.py)."""
+        return self.wrist is None or (self.wrist.final and not self.wrist.replan)
+
     def _plan_next_round(self) -> bool:
-        """Wrist: after the scout round, plan the main round with the fitted start model."""
-        if self.robot.name != "agebot-pm" or any(p.round == 1 for p in self.plan_poses):
+        """Wrist: after each round, refit the start model to every recorded pose and plan
+        the next, wider round (:class:`station.wrist_plan.WristPlanner`); raises
+        :class:`station.wrist_plan.WristStopped` (recorded as an event) where it cannot."""
+        if self.rounds_complete:
             return False
-        scout = [self.measured[p.index] for p in self.plan_poses
-                 if p.round == 0 and p.index in self.measured]
-        if len(scout) < 6:
-            raise StationError(f"only {len(scout)} scout poses were measured; the wrist's start "
-                               "model needs at least 6")
-        qm = np.array([p["qm"] for p in scout])
-        ch = "tilt" if self.method == "pm-tilt" else "orientation"
-        readings = np.array([p[ch] for p in scout])
-        comps = self.components or COMPONENTS
-        self._event("info", f"fitting the wrist's start model to {len(scout)} scout poses")
-        xi = planner.pm_start_model(qm, readings, self.method, comps)
+        records = sorted(self.measured.values(), key=lambda r: r["index"])
+        self._event("info", f"fitting the wrist's start model to {len(records)} poses")
+        fit_done = sum(r.get("use", "fit") == "fit" for r in records)
         nxt = max(p.index for p in self.plan_poses) + 1
-        poses = planner.plan_pm_main(xi, self.method, nxt, qm[-1], self.request, len(scout))
-        self._set_plan(poses, replace=False)
+        last = records[-1]["qm"] if records else None
+        try:
+            out = self.wrist.next_round(records, nxt, last, fit_done, len(records) - fit_done)
+        except StationError as e:
+            self._event("stop", str(e))
+            raise
+        if out is None:
+            return False
+        poses, wrist = out
+        self._event("info", f"wrist round {wrist['round']}: box +-{wrist['box_deg']:.1f} deg "
+                    f"(measured region {wrist['reach_deg']:.1f} deg)")
+        self._set_plan(poses, replace=False, wrist=wrist)
         return True
+
+    def _wrist_watch(self, pose: PlannedPose, rec: dict) -> bool:
+        """Wrist: True if the measured orientation is where the model predicts; else the
+        pose and the rest of its round are dropped and the next round re-planned."""
+        problem = self.wrist.watch(pose, rec)
+        if problem is None:
+            return True
+        self.wrist.tripped()
+        self._event("envelope", f"{problem}: not recorded; the rest of round {pose.round} is "
+                    "dropped and re-planned from the poses recorded")
+        self._skip(pose, f"pose {pose.index} not recorded (outside the model's tolerance)",
+                   resume.DROPPED)
+        for p in self.pending:
+            if p.round == pose.round:
+                self._skip(p, f"pose {p.index} dropped: round {pose.round} is re-planned",
+                           resume.DROPPED)
+        return False
 
     # -- measuring ---------------------------------------------------------------------------------
     def pause(self) -> None:
@@ -556,6 +591,8 @@ class Session:
                     self._touch(pose)
                 snap = rig.snapshot()
                 rec = self._pose_record(pose, snap)
+                if self.wrist is not None and not self._wrist_watch(pose, rec):
+                    return False
                 break
             except TouchFailed as e:
                 self._skip(pose, f"pose {pose.index} skipped: no contact ({e})",

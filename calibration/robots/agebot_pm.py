@@ -236,6 +236,59 @@ class AgebotPM(RobotModel):
         return (q - np.asarray(xi[4:7])) / np.asarray(xi[7:10])
 
 
+# -- the wrist's physical envelope -------------------------------------------------------
+#: Range of the passive joints (rad), what the station and the simulator hold the wrist
+#: to: the rod's joint at the slider (rod from the slider's axis, the vertical), the
+#: rod's joint at the platform (rod from the platform's normal) and the central
+#: spherical joint (platform normal from the vertical). The report's +-20 deg box
+#: needs at most about 67, 88 and 28 deg on wrists drawn around the report's.
+PASSIVE_RANGE = {"slider joint": math.radians(80.0), "platform joint": math.radians(115.0),
+                 "centre joint": math.radians(50.0)}
+
+
+def passive_angles(X, xi) -> dict:
+    """Angles of the passive joints (rad) at orientations ``X (m, 3)`` with the model
+    ``xi``: ``"slider joint"`` and ``"platform joint"`` ``(m, 3)`` per rod, ``"centre
+    joint"`` ``(m,)``; NaN where a rod cannot reach."""
+    model = AgebotPM()
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    B, _, l, _ = model._geometry(xi)
+    _, D = model.platform_points(X, xi)
+    q, _ = model.ik_joints(X, xi, strict=False)
+    u = (D - np.concatenate([np.broadcast_to(B[None, :, :2], D.shape[:2] + (2,)),
+                             q[..., None]], axis=-1)) / l
+    n = rot_xyz(X)[:, :, 2]
+    with np.errstate(invalid="ignore"):
+        return {"slider joint": np.arccos(np.clip(u[..., 2], -1, 1)),
+                "platform joint": np.arccos(np.clip(np.einsum("mki,mi->mk", u, n), -1, 1)),
+                "centre joint": np.arccos(np.clip(n[:, 2], -1, 1))}
+
+
+def envelope_violation(X, xi, qm=None, qm_range=None) -> str | None:
+    """What the pose ``X (3,)`` of the model ``xi`` (actuator values ``qm (3,)``)
+    would hit, in words, or None: a rod that cannot reach, a slider outside its stroke
+    ``qm_range (3, 2)`` (actuator units), a passive joint outside :data:`PASSIVE_RANGE`."""
+    X = np.asarray(X, dtype=float).reshape(1, 3)
+    if qm is None:
+        qm = AgebotPM().ik_actuators(X, xi, strict=False)[0]
+    qm = np.asarray(qm, dtype=float)
+    if not np.all(np.isfinite(qm)):
+        bad = int(np.flatnonzero(~np.isfinite(qm))[0])
+        return f"rod {bad + 1} cannot reach its platform point"
+    if qm_range is not None:
+        lo, hi = np.asarray(qm_range, dtype=float).T
+        for i in np.flatnonzero((qm < lo) | (qm > hi)):
+            return (f"slider {i + 1} stroke ({qm[i]:.1f} outside {lo[i]:g}..{hi[i]:g} "
+                    "actuator units)")
+    for name, a in passive_angles(X, xi).items():
+        a = np.atleast_1d(a[0])
+        if np.any(a > PASSIVE_RANGE[name]):
+            i = int(np.argmax(a))
+            which = f" of rod {i + 1}" if a.size > 1 else ""
+            return (f"{name}{which} range ({math.degrees(a[i]):.1f} deg, limit "
+                    f"{math.degrees(PASSIVE_RANGE[name]):.0f})")
+    return None
+
 # -- physical dual-axis inclinometer -----------------------------------------------------
 def _rx(a: float) -> np.ndarray:
     c, s = math.cos(a), math.sin(a)

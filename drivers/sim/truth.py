@@ -172,11 +172,20 @@ def draw_truth(robot: str, rng: np.random.Generator, *, gear: float = DRAW_SPREA
     ``theta*``) the nominal plus ``U(-offset, offset)``, every other parameter (lengths)
     the nominal times ``1 + U(-length, length)``. ``noise``, ``seed`` and
     ``inclinometer_mount`` pass through to the :class:`SimTruth`.
+
+    The wrist (``agebot-pm``) is the exception for its lengths: the report's nominal
+    wrist cannot be built (its rods are too short to reach the platform even at
+    ``X = 0``, report section 10), so its lengths ``a1, a2, l, v`` are drawn around
+    the report's measured (true) values; gear ratios and offsets still around the
+    nominal, which is what a session starts from.
     """
     model = get_robot(robot)
     spread = {"gear": gear, "length": length, "offset": offset}
+    centre = np.asarray(model.nominal, dtype=float).copy()
+    if robot == "agebot-pm":
+        centre[:4] = np.asarray(model.true, dtype=float)[:4]
     params = {}
-    for name, nom in zip(model.param_names, np.asarray(model.nominal, dtype=float)):
+    for name, nom in zip(model.param_names, centre):
         kind = _spread_kind(name)
         u = float(rng.uniform(-spread[kind], spread[kind]))
         params[name] = float(nom + u) if kind == "offset" else float(nom * (1.0 + u))

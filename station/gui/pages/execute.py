@@ -78,8 +78,7 @@ class ExecutePage(Page):
             return
         self.readings.set_channels([f"qm{i + 1}" for i in range(s.robot.n_actuators)]
                                    + list(self._channels(s)))
-        if not self.running and s.plan_poses and not s.pending and (
-                s.robot.name != "agebot-pm" or any(p.round == 1 for p in s.plan_poses)):
+        if not self.running and s.plan_poses and not s.pending and s.rounds_complete:
             self.finished = True
         self._update_progress()
         self._buttons()

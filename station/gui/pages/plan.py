@@ -169,8 +169,8 @@ class PlanPage(Page):
         if s.robot.name == "agebot-pm" and all(p.round == 0 for p in poses):
             want = (s.request.count or math.ceil(s.request.margin * need))
             text += (f" This is the scout round ({PM_SCOUT_COUNT} poses near home); after it "
-                     f"is measured the main round is planned from their fit, for {want} fit "
-                     "poses in all.")
+                     "is measured the box grows round by round, each planned from the fit of "
+                     f"the poses recorded so far, up to +-20 deg, for {want} fit poses in all.")
             ok = want >= need
         else:
             ok = n_fit >= need
