@@ -20,6 +20,14 @@ has nothing to start from. The start is found in three steps:
    reach; there is no assembly mode to lose. The same solver runs it.
 3. The method's own (FK-based) refinement starts from that ``xi`` with each
    pose's FK started at its fitted ``X_j`` (the caller does this).
+
+Step 2 is dense in the poses (3 unknown angles each: the normal matrix grows with
+the square of their number, the work with its cube). Beyond :data:`START_SUBSET`
+poses it is run on that many poses spread over the measured orientations
+(farthest-point selection), and every pose's own angles are then fitted with
+``xi`` held, pose by pose (:func:`fit_orientations`, 3 unknowns each): the start
+costs time and memory linear in the number of poses. Up to
+:data:`START_SUBSET` poses nothing changes.
 """
 from __future__ import annotations
 
@@ -34,6 +42,7 @@ from calibration.model import MeasurementModel
 from calibration.robots.agebot_pm import tilt_jacobian
 
 REACH_MARGIN = 1.02
+START_SUBSET = 60        # poses of the joint-space start fit (module doc)
 
 
 @dataclass(frozen=True)
@@ -142,8 +151,72 @@ class ImplicitPoses(MeasurementModel):
         return r.reshape(-1), W.reshape(m * p, -1)
 
 
+def spread_subset(X, k: int) -> np.ndarray:
+    """Indices of ``k`` of the orientations ``X (m, 3)`` spread over them (farthest-point
+    selection from the first; ``O(m k)``), sorted."""
+    X = np.asarray(X, dtype=float)
+    m = X.shape[0]
+    if m <= k:
+        return np.arange(m)
+    chosen = [0]
+    d = np.max(np.abs(X - X[0]), axis=1)
+    for _ in range(k - 1):
+        j = int(np.argmax(d))
+        chosen.append(j)
+        d = np.minimum(d, np.max(np.abs(X - X[j]), axis=1))
+    return np.sort(np.array(chosen))
+
+
+def fit_orientations(model: "ImplicitPoses", xe, X0, *, iterations: int = 50,
+                     tol: float = 1e-12) -> np.ndarray:
+    """Each pose's orientation ``(m, 3)`` for the parameters ``xe`` held fixed: the rows of
+    ``model`` (actuators and readings, same weights) per pose, 3 unknowns each, by
+    Gauss-Newton with step halving where a rod would not reach; linear in the poses."""
+    X = np.array(X0, dtype=float)
+    m = X.shape[0]
+    xi = np.asarray(xe[:model.nr], dtype=float)
+    mount = xe[model.nr:model.ne]
+
+    def rows(X):
+        with np.errstate(invalid="ignore"):
+            qm_pred = model.robot.ik_actuators(X, xi, strict=False)
+        rq = (model.qm - qm_pred) * model.row_scale
+        Jq = model.robot.ik_x_jacobian(X, xi) / xi[7:10][None, :, None] * model.row_scale[None, :, None]
+        if model.tilt:
+            t, dT_dX, _ = tilt_jacobian(X, mount)
+            rm, Jm = wrap(model.readings - t), dT_dX
+        else:
+            rm = wrap(model.readings - X[:, model.comp_idx])
+            Jm = np.broadcast_to(np.eye(3)[model.comp_idx], (m, len(model.comp_idx), 3))
+        r = np.concatenate([rq, rm], axis=1)
+        return r, np.concatenate([Jq, Jm], axis=1)
+
+    r, J = rows(X)
+    cost = np.sum(r * r, axis=1)
+    for _ in range(iterations):
+        ok = np.isfinite(cost)
+        A = np.einsum("mpi,mpj->mij", J[ok], J[ok]) + 1e-12 * np.eye(3)
+        g = np.einsum("mpi,mp->mi", J[ok], r[ok])
+        step = np.zeros_like(X)
+        step[ok] = np.linalg.solve(A, g[..., None])[..., 0]
+        if np.max(np.abs(step)) < tol:
+            break
+        t = np.ones(m)
+        for _ in range(30):
+            Xn = X + t[:, None] * step
+            rn, Jn = rows(Xn)
+            cn = np.sum(rn * rn, axis=1)
+            worse = ~(np.isfinite(cn) & (cn <= cost * (1 + 1e-12) + 1e-300))
+            if not np.any(worse & ok):
+                break
+            t = np.where(worse & ok, t / 2, t)
+        better = np.isfinite(cn) & (cn <= cost * (1 + 1e-12) + 1e-300)
+        X[better], r[better], J[better], cost[better] = Xn[better], rn[better], Jn[better], cn[better]
+    return X
+
+
 def robust_start_detail(robot, method_data, nominal, components=None, *,
-                        options=None) -> StartResult:
+                        options=None, subset: int = START_SUBSET) -> StartResult:
     """Start values and per-pose orientations (module doc). ``method_data`` is a
     :class:`calibration.methods.MethodData` with channel ``orientation`` (components
     ``components``) or ``tilt`` (roll, pitch; then ``nominal`` has 12 values)."""
@@ -165,7 +238,11 @@ def robust_start_detail(robot, method_data, nominal, components=None, *,
     nr = robot.n_params
     xe = nominal.copy()
     xe[:nr] = feasible_start(robot, qm, X0, nominal[:nr])
-    model = ImplicitPoses(robot, qm, xe, X0, readings=readings, comps=comps, tilt=tilt)
+    every = ImplicitPoses(robot, qm, xe, X0, readings=readings, comps=comps, tilt=tilt)
+    pick = spread_subset(X0, subset)
+    model = every if len(pick) == m else ImplicitPoses(
+        robot, qm[pick], xe, X0[pick], readings=readings[pick], comps=comps, tilt=tilt)
+    every.row_scale = model.row_scale     # the same weights for every pose's own fit
     # recheck=False: the per-pose angles must not meet the statistical test at the
     # solution (a weakly seen gamma_j reset to its guess can leave the reachable set);
     # q3_off, k3 are structurally dependent and dropped before iterating
@@ -174,6 +251,10 @@ def robust_start_detail(robot, method_data, nominal, components=None, *,
     if not np.all(np.isfinite(res.x)):
         raise CalibrationError("the PM start-value fit failed: " + res.message)
     xe, X = model.split(res.x)
+    if model is not every:      # every pose's own angles, xi held (module doc)
+        X0 = X0.copy()
+        X0[pick] = X
+        X = fit_orientations(every, xe, X0)
     return StartResult(xe.copy(), X.copy(), res)
 
 

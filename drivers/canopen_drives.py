@@ -86,7 +86,11 @@ class CanopenActuators(CanopenNodes):
                 pass
             entry = self._emcy.get(nid)
         code = entry.code if entry is not None else self.sdo_read(nid, 0x603F)
-        raise ProtocolError(f"drive in FAULT (statusword 0x{sw:04X})", code=code, text=emcy_text(code),
+        text = emcy_text(code)
+        vendor = bytes(getattr(entry, "data", b"") or b"").rstrip(b"\0")
+        if vendor and all(32 <= c < 127 for c in vendor):
+            text += f" (drive says {vendor.decode('ascii')!r})"   # manufacturer bytes, printable
+        raise ProtocolError(f"drive in FAULT (statusword 0x{sw:04X})", code=code, text=text,
                             device=self.node_name(nid))
 
     def _await(self, nid: int, done, what: str, timeout: float, faults: bool = True) -> int:

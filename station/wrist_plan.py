@@ -5,6 +5,9 @@ The report's nominal wrist is far from a real one (a2 60 % off, gear ratios up t
 deg away from where they were meant to go. So the session never trusts a model
 further than it has been seen to hold:
 
+Before each round the start model must explain the recorded readings (RMS at most
+:data:`FIT_RMS_DEG`): a model that cannot has earned no wider box.
+
 1. **Scout** (round 0): :data:`SCOUT_COUNT` poses within :data:`SCOUT_DEG` of the
    home orientation, planned *relative to home*: the nominal IK gives the change
    of the actuators from home, which is right to first order whatever the
@@ -51,6 +54,7 @@ ROUND_COUNT = 4          # fit poses per growing round
 TOLERANCE_DEG = 3.0      # measured vs predicted orientation, deg: beyond it the station stops
 MAX_TRIPS = 3            # stops in a row before the session gives up
 MIN_FIT_POSES = 6
+FIT_RMS_DEG = 0.5        # the start model must explain the recorded readings this well
 COMPONENTS = ("alpha", "beta", "gamma")
 ADVICE = ("enter the gear ratios k1, k2, k3 (from the drives' data sheets) and the slider "
           "offsets you know as start values (app.py run --nominal k1=...), check that the "
@@ -150,6 +154,12 @@ class WristPlanner:
             raise WristStopped(f"the wrist's start model cannot be fitted to the {len(records)} "
                                f"poses recorded ({e}); stopped before driving further: "
                                + ADVICE) from e
+        rms = max(v for k, v in start.result.residual_rms.items() if not k.startswith("q"))
+        if not np.isfinite(rms) or math.degrees(rms) > FIT_RMS_DEG:
+            raise WristStopped(f"the wrist's start model does not explain the {len(records)} "
+                               f"poses recorded (reading residual RMS {math.degrees(rms):.2f} "
+                               f"deg, more than {FIT_RMS_DEG:g}); stopped before driving "
+                               "further: " + ADVICE)
         self.xi = start.x[:robot.n_params].copy()
         return start.X
 

@@ -264,30 +264,38 @@ def passive_angles(X, xi) -> dict:
                 "centre joint": np.arccos(np.clip(n[:, 2], -1, 1))}
 
 
-def envelope_violation(X, xi, qm=None, qm_range=None) -> str | None:
-    """What the pose ``X (3,)`` of the model ``xi`` (actuator values ``qm (3,)``)
-    would hit, in words, or None: a rod that cannot reach, a slider outside its stroke
-    ``qm_range (3, 2)`` (actuator units), a passive joint outside :data:`PASSIVE_RANGE`."""
+def envelope_hit(X, xi, qm=None, qm_range=None) -> tuple[str, int, str] | None:
+    """What the pose ``X (3,)`` of the model ``xi`` (actuator values ``qm (3,)``) would
+    hit, or None: ``(kind, rod, text)`` with kind ``"reach"`` (a rod cannot reach its
+    platform point), ``"stroke"`` (a slider outside ``qm_range (3, 2)``, actuator units)
+    or a joint of :data:`PASSIVE_RANGE` outside its range; ``rod`` 0-based (the
+    centre joint: the rod nearest its limit's direction, 0 if none)."""
     X = np.asarray(X, dtype=float).reshape(1, 3)
     if qm is None:
         qm = AgebotPM().ik_actuators(X, xi, strict=False)[0]
     qm = np.asarray(qm, dtype=float)
     if not np.all(np.isfinite(qm)):
         bad = int(np.flatnonzero(~np.isfinite(qm))[0])
-        return f"rod {bad + 1} cannot reach its platform point"
+        return "reach", bad, f"rod {bad + 1} cannot reach its platform point"
     if qm_range is not None:
         lo, hi = np.asarray(qm_range, dtype=float).T
         for i in np.flatnonzero((qm < lo) | (qm > hi)):
-            return (f"slider {i + 1} stroke ({qm[i]:.1f} outside {lo[i]:g}..{hi[i]:g} "
-                    "actuator units)")
+            return "stroke", int(i), (f"slider {i + 1} stroke ({qm[i]:.1f} outside "
+                                      f"{lo[i]:g}..{hi[i]:g} actuator units)")
     for name, a in passive_angles(X, xi).items():
         a = np.atleast_1d(a[0])
         if np.any(a > PASSIVE_RANGE[name]):
-            i = int(np.argmax(a))
+            i = int(np.argmax(a)) if a.size > 1 else 0
             which = f" of rod {i + 1}" if a.size > 1 else ""
-            return (f"{name}{which} range ({math.degrees(a[i]):.1f} deg, limit "
-                    f"{math.degrees(PASSIVE_RANGE[name]):.0f})")
+            return name, i, (f"{name}{which} range ({math.degrees(a[i]):.1f} deg, limit "
+                             f"{math.degrees(PASSIVE_RANGE[name]):.0f})")
     return None
+
+
+def envelope_violation(X, xi, qm=None, qm_range=None) -> str | None:
+    """:func:`envelope_hit` in words (None: the pose is inside the envelope)."""
+    hit = envelope_hit(X, xi, qm, qm_range)
+    return None if hit is None else hit[2]
 
 # -- physical dual-axis inclinometer -----------------------------------------------------
 def _rx(a: float) -> np.ndarray:

@@ -41,6 +41,25 @@ class SimAxis:
             self._v = abs(float(velocity)) if velocity else self.velocity
             self._a = abs(float(acceleration)) if acceleration else self.acceleration
 
+    def stop_at(self, t: float) -> None:
+        """Stop where the axis was at time ``t`` (a limit hit then): it stays there."""
+        with self._lock:
+            self._start = self._target = self._position_at(t)
+            self._t0 = self._clock()
+
+    def position_at(self, t: float) -> float:
+        """Position at time ``t`` (the clock's time) of the move under way."""
+        with self._lock:
+            return self._position_at(t)
+
+    def now(self) -> float:
+        return self._clock()
+
+    def end_time(self) -> float:
+        """Clock time at which the move under way ends (or ended)."""
+        with self._lock:
+            return self._t0 + self._duration()
+
     def stop(self) -> None:
         """Stop where the axis is now (quick stop)."""
         with self._lock:

@@ -49,11 +49,15 @@ class SimulatedDrives:
     increments: optional ``increments(i, resolution) -> int`` giving axis ``i``'s encoder
                 value (e.g. ``SimulatedAgebot.encoder_increments``, with noise); default
                 ``round(axes[i].position() * resolution)``.
+    supervise:  optional ``supervise() -> (i, data) | None``, asked before each statusword
+                read: the robot hit a physical limit at axis ``i``, whose drive goes to
+                FAULT with EMCY 0x8612 (reference limit) and manufacturer bytes ``data``.
     """
 
     def __init__(self, bus: dict, nodes, axes, resolution, plan: FaultPlan | None = None,
-                 profile: str = "cia402", increments=None):
+                 profile: str = "cia402", increments=None, supervise=None):
         self.increments = increments
+        self.supervise = supervise
         self.bus_config = dict(bus)
         self.node_ids = [int(n) for n in nodes]
         self.axes = list(axes)
@@ -77,12 +81,21 @@ class SimulatedDrives:
         kind = SimDrive402 if self.profile == "cia402" else SimEncoder406
         for i, (nid, axis, res) in enumerate(zip(self.node_ids, self.axes, self.resolution)):
             inc = None if self.increments is None else functools.partial(self.increments, i, res)
-            self.nodes[nid] = kind(network, nid, axis, res, self.plan, increments=inc)
+            self.nodes[nid] = kind(network, nid, axis, res, self.plan, increments=inc,
+                                   check=self._check_limits if self.supervise else None)
         network.subscribe(0x80, self._on_sync)
         self.network = network
         for node in self.nodes.values():
             node.boot()
         return self
+
+    def _check_limits(self) -> None:
+        hit = self.supervise()
+        if hit is not None:
+            i, data = hit
+            node = self.nodes[self.node_ids[i]]
+            if node.state != "FAULT":
+                node.fault(0x8612, register=0x21, data=data)
 
     def _on_sync(self, can_id, data, timestamp):
         for node in self.nodes.values():
@@ -128,14 +141,15 @@ class CanopenSim:
 
 def start_canopen_sim(axes, nodes, resolution, plan: FaultPlan | None = None, *, host: str = "127.0.0.1",
                       port: int = 0, channel: str = "can0", profile: str = "cia402",
-                      increments=None) -> CanopenSim:
+                      increments=None, supervise=None) -> CanopenSim:
     """Start a socketcand hub on ``host:port`` (0: ephemeral) and the simulated nodes
     on it, in this process (threads). Arguments as :class:`SimulatedDrives`.
     Returns a :class:`CanopenSim` (``.endpoint``, ``.drives``, ``.hub``, ``.stop()``)."""
     from drivers.sim.socketcand_hub import SocketcandHub
     hub = SocketcandHub(host, port, channel).start()
     try:
-        drives = SimulatedDrives(hub.endpoint, nodes, axes, resolution, plan, profile, increments).start()
+        drives = SimulatedDrives(hub.endpoint, nodes, axes, resolution, plan, profile, increments,
+                                 supervise).start()
     except BaseException:
         hub.stop()
         raise

@@ -34,6 +34,17 @@ Inclinometer conventions (the calibration's measurement model builds on these):
   :func:`gravity_tilt` (:mod:`calibration.robots.agebot_pm`) is this function, pure
   and vectorized; the calibration model uses the same one.
 
+Physical limits (PM): the wrist cannot go where it cannot be built. Whenever a
+simulated drive is asked for its state (:meth:`SimulatedAgebot.supervise`), the
+motion since the last check is walked in steps of at most :data:`SUPERVISE_STEP`
+actuator units; at the first point beyond the envelope -- a slider outside its
+stroke (``qm_range``, the station config's ``[limits]``), a passive joint outside
+:data:`calibration.robots.agebot_pm.PASSIVE_RANGE`, a rod that cannot reach its
+platform point -- every axis stops at the last point inside, and the drive of
+that rod goes to FAULT with EMCY 0x8612 (reference limit) whose manufacturer
+bytes name what was hit (:data:`LIMIT_NAMES`: ``STRK`` stroke, ``SLDJ`` slider
+joint, ``PLTJ`` platform joint, ``CTRJ`` centre joint, ``REACH`` a rod cannot reach).
+
 The draw-wire reads ``|p - anchor|`` (m) where ``p`` is the end-effector
 position (SM: ``X[:3]``; PM: the fixed platform centre ``(0, 0, v)``) and the
 anchor is the true ``p`` when :meth:`SimulatedAgebot.zero_drawwire` was called
@@ -52,7 +63,8 @@ import numpy as np
 
 from calibration.errors import CalibrationError, ConfigError, UnreachablePose
 from calibration.robots import get_robot
-from calibration.robots.agebot_pm import (gravity_tilt,  # noqa: F401 (re-exported: the one tilt convention)
+from calibration.robots.agebot_pm import (envelope_hit,
+                                          gravity_tilt,  # noqa: F401 (re-exported: the one tilt convention)
                                           rot_xyz, sensor_heading)
 from drivers.sim.axis import SimAxis
 from drivers.sim.faults import FaultPlan
@@ -64,6 +76,10 @@ HOME = {"agebot-sm": (1.2, 1.4, 0.0, 0.0), "agebot-pm": (0.0, 0.0, 0.0)}
 # default axis speeds (actuator units/s) and accelerations (units/s^2)
 VELOCITY = {"agebot-sm": (50.0, 200.0, 200.0, 200.0), "agebot-pm": (3000.0,) * 3}
 ACCELERATION = {"agebot-sm": (400.0, 2000.0, 2000.0, 2000.0), "agebot-pm": (30000.0,) * 3}
+SUPERVISE_STEP = 20.0      # actuator units between two checks of the PM's envelope
+#: EMCY manufacturer bytes (ASCII) naming the limit a PM drive faulted on
+LIMIT_NAMES = {"stroke": b"STRK", "slider joint": b"SLDJ", "platform joint": b"PLTJ",
+               "centre joint": b"CTRJ", "reach": b"REACH"}
 
 
 def pose_tilt(X, mount=(0.0, 0.0)):
@@ -92,11 +108,12 @@ class SimulatedAgebot:
              and however often it is visited); readings while moving keep drawing from
              the generator. For tests that compare a resumed session with an
              uninterrupted one reading by reading.
+    qm_range: PM slider stroke ``(3, 2)`` (actuator units), or None (no stroke limit).
     """
 
     def __init__(self, truth: SimTruth, *, faults: FaultPlan | None = None,
                  seed: int | None = None, home=None, velocity=None, acceleration=None,
-                 clock=time.monotonic, pose_noise: bool = False):
+                 clock=time.monotonic, pose_noise: bool = False, qm_range=None):
         self.truth = truth
         self.model = get_robot(truth.robot)
         self._xi = truth.xi()
@@ -119,6 +136,8 @@ class SimulatedAgebot:
         self.axes = tuple(SimAxis(float(p), float(v), float(a), clock=clock)
                           for p, v, a in zip(self.home_qm, vel, acc))
         self._last_pose = self.home_pose.copy()  # PM: keeps the FK's assembly mode
+        self.qm_range = None if qm_range is None else np.asarray(qm_range, dtype=float)
+        self._checked = (clock(), self.home_qm.copy(), self.home_pose.copy())
         self._anchor = self.ee_position()
 
     # -- state -----------------------------------------------------------------------------
@@ -175,6 +194,40 @@ class SimulatedAgebot:
               else self.model.ik(X, self._xi))
         self.move_to(qm)
         return qm
+
+    def supervise(self) -> tuple[int, str] | None:
+        """PM: walk the motion since the last call (module docstring); at a limit, stop
+        every axis at the last point inside and return ``(axis, kind)`` (0-based axis,
+        kind a key of :data:`LIMIT_NAMES`), else None. The SM: always None."""
+        if self.model.name != "agebot-pm":
+            return None
+        with self._lock:
+            t0, q0, X = self._checked
+            t1 = self.axes[0].now()
+            q1 = np.array([a.position_at(t1) for a in self.axes])
+            t_end = min(t1, max(max(a.end_time() for a in self.axes), t0))
+            # displacement over time is not uniform (acceleration): twice the steps
+            n = max(1, 2 * int(np.ceil(np.max(np.abs(q1 - q0)) / SUPERVISE_STEP)))
+            for t in np.linspace(t0, t_end, n + 1)[1:]:
+                q = np.array([a.position_at(t) for a in self.axes])
+                try:
+                    Xt = self.model.fk(np.atleast_2d(q), self._xi, guess=X)[0]
+                    hit = envelope_hit(Xt, self._xi, q, self.qm_range)
+                except CalibrationError:
+                    moved = np.abs(q - q0)
+                    hit = ("reach", int(np.argmax(moved)), "")
+                if hit is not None and hit[0] == "centre joint":   # the slider that drove it
+                    hit = (hit[0], int(np.argmax(np.abs(q - q0))), hit[2])
+                if hit is not None:
+                    t_ok = t - (t_end - t0) / n
+                    for a in self.axes:
+                        a.stop_at(t_ok)
+                    self._checked = (self.axes[0].now(), self.qm(), X)
+                    log.warning("simulated PM: %s hit at qm %s", hit[0], np.round(q, 1).tolist())
+                    return hit[1], hit[0]
+                X = Xt
+            self._checked = (t1, q1, X)
+        return None
 
     def target_reached(self) -> bool:
         return all(a.target_reached() for a in self.axes)

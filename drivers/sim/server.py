@@ -59,7 +59,7 @@ from drivers.sim.cia402_drive import start_canopen_sim
 from drivers.sim.drawwire_sim import SimDrawWire
 from drivers.sim.faults import FaultPlan
 from drivers.sim.inclinometer_sim import SimInclinometer
-from drivers.sim.robot import SimulatedAgebot
+from drivers.sim.robot import LIMIT_NAMES, SimulatedAgebot
 from drivers.sim.truth import SimTruth, load_truth, report_truth
 
 log = logging.getLogger("drivers.sim")
@@ -97,7 +97,7 @@ class SimStation:
         self.robot = SimulatedAgebot(truth, faults=self.plan, seed=seed,
                                      velocity=cc.profile_velocity or None,
                                      acceleration=cc.profile_acceleration or None,
-                                     pose_noise=pose_noise)
+                                     pose_noise=pose_noise, qm_range=config.qm_range)
         self._inclinometer_hz, self._rtu, self._control = inclinometer_hz, rtu, control
         self.canopen = self.inclinometer = self.drawwire = None
         self._server: socketserver.ThreadingTCPServer | None = None
@@ -109,7 +109,8 @@ class SimStation:
             cc = self.config.canopen
             self.canopen = start_canopen_sim(
                 self.robot.axes, cc.nodes, list(cc.increments_per_unit), self.plan,
-                channel=cc.channel, profile=cc.mode, increments=self.robot.encoder_increments)
+                channel=cc.channel, profile=cc.mode, increments=self.robot.encoder_increments,
+                supervise=self._limit if self.truth.robot == "agebot-pm" else None)
             if self.config.inclinometer is not None:
                 self.inclinometer = SimInclinometer(
                     self.robot.inclinometer_angles_deg, rate_hz=self._inclinometer_hz,
@@ -130,6 +131,12 @@ class SimStation:
             self.stop()
             raise
         return self
+
+    def _limit(self):
+        """The simulated PM's physical limit hit since the last check, as ``(axis, EMCY
+        manufacturer bytes)`` for the drives (:meth:`SimulatedAgebot.supervise`)."""
+        hit = self.robot.supervise()
+        return None if hit is None else (hit[0], LIMIT_NAMES[hit[1]])
 
     def stop(self) -> None:
         """Stop every simulated device (idempotent)."""

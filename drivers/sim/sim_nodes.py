@@ -32,9 +32,10 @@ class SimNode:
     """One simulated node: a LocalNode with TPDOs on SYNC from its own PDO objects."""
 
     def __init__(self, network: SimNetwork, node_id: int, axis: SimAxis, resolution: float,
-                 plan: FaultPlan, od=None, increments=None):
+                 plan: FaultPlan, od=None, increments=None, check=None):
         self.id, self.axis, self.resolution, self.plan = node_id, axis, float(resolution), plan
         self._increments = increments
+        self._check = check        # the robot's physical limits, asked before a state read
         self.node = canopen.LocalNode(node_id, od or canopen.import_od(str(EDS_PATH), node_id))
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
@@ -103,6 +104,8 @@ class SimDrive402(SimNode):
 
     def _on_read(self, index, subindex, od):
         if index == 0x6041:
+            if self._check is not None:
+                self._check()
             return self.statusword()
         if index == 0x6064:
             return self.increments()
@@ -161,8 +164,9 @@ class SimDrive402(SimNode):
                           acc / self.resolution if acc else None)
         self.ack = True
 
-    def fault(self, code: int, register: int = 0x01) -> None:
-        """Go to FAULT, stop the axis, log 0x1003 and send EMCY ``code``."""
+    def fault(self, code: int, register: int = 0x01, data: bytes = b"") -> None:
+        """Go to FAULT, stop the axis, log 0x1003 and send EMCY ``code`` (with up to 5
+        manufacturer bytes ``data``)."""
         self.axis.stop()
         self.state, self.ack = "FAULT", False
         self.store(0x1001, register)
@@ -171,7 +175,7 @@ class SimDrive402(SimNode):
         for sub, v in enumerate([code] + history, start=1):
             self.store(0x1003, v, sub)
         self.store(0x1003, min(4, self.value(0x1003, 0) + 1), 0)
-        self.node.emcy.send(code, register)
+        self.node.emcy.send(code, register, data[:5])
 
 
 def cia406_od(node_id: int):
@@ -192,7 +196,7 @@ def cia406_od(node_id: int):
 class SimEncoder406(SimNode):
     """A read-only CiA 406 encoder on ``axis`` (moved by the robot's own controller)."""
 
-    def __init__(self, network, node_id, axis, resolution, plan, increments=None):
+    def __init__(self, network, node_id, axis, resolution, plan, increments=None, check=None):
         super().__init__(network, node_id, axis, resolution, plan, od=cia406_od(node_id), increments=increments)
         self.offset = 0
 

@@ -26,7 +26,7 @@ from calibration.robots import get_robot
 from drivers.config import load_station_config
 from drivers.endpoints import with_endpoints
 from drivers.sim.server import SimulatorProcess
-from drivers.sim.truth import load_truth, save_truth
+from drivers.sim.truth import draw_truth, load_truth, save_truth
 from station.params_file import read_params
 from station.planner import PlanRequest
 from station.session import Session
@@ -106,6 +106,21 @@ def test_sm_distance_tilt_session_recovers_the_unseen_truth(tmp_path):
     assert "theta0" in html and "data:image/png;base64," in html
 
 
+def wrist_checks(session, truth_xi, *, box_deg: float = 15.0) -> tuple[float, float]:
+    """(worst actuator error of the calibrated IK against the true robot over the
+    +-``box_deg`` grid, in actuator units; largest recorded orientation, deg). q3_off
+    and k3 are compensated (eqs. 112-113): the judge is actuator equivalence."""
+    robot = get_robot("agebot-pm")
+    g = np.radians(np.linspace(-box_deg, box_deg, 7))
+    grid = np.array(np.meshgrid(g, g, g)).reshape(3, -1).T
+    x = session.outcome.result.x[:robot.n_params]
+    err = float(np.abs(robot.ik_actuators(grid, x) - robot.ik_actuators(grid, truth_xi)).max())
+    trace = read_trace(session.trace_path)
+    ch = "tilt" if session.method == "pm-tilt" else "orientation"
+    worst = max(float(np.degrees(np.abs(p[ch]).max())) for p in trace.poses)
+    return err, worst
+
+
 def test_pm_fk_session_recovers_the_unseen_truth(tmp_path):
     cfg = fast_config(tmp_path, "agebot-pm")
     # pm-fk takes the sensor's orientation for the platform's: the unseen robot with
@@ -114,25 +129,43 @@ def test_pm_fk_session_recovers_the_unseen_truth(tmp_path):
                                 inclinometer_mount=(0.0, 0.0))
     truth_file = tmp_path / "truth.json"
     save_truth(truth, truth_file)
-    robot = get_robot("agebot-pm")
-    names = list(robot.param_names)
-    xi = truth.xi()
-    # q3_off and k3 are not identifiable and influence the model (report eqs. 112-113):
-    # given their true values, as the report does, every other parameter is the truth's
-    known = {"q3_off": xi[names.index("q3_off")], "k3": xi[names.index("k3")]}
+    # from the report's nominal only: q3_off and k3 are not identifiable and are
+    # compensated (eqs. 112-113); the calibrated model must drive the true robot
     with SimulatorProcess("agebot-pm", truth=str(truth_file), config=str(cfg), seed=4) as sim:
-        with Session(_session_config(sim, cfg), "pm-fk", tmp_path / "run", nominal=known,
+        with Session(_session_config(sim, cfg), "pm-fk", tmp_path / "run",
                      request=PlanRequest(count=24, validation=5, seed=2)) as s:
             s.run()
     res = s.outcome.result
     assert res.converged and res.n_identifiable == 8
-    assert not _identifiable_within(res, xi, names)
+    err, worst = wrist_checks(s, truth.xi())
+    assert err < 1.0 and worst < 25.0, (err, worst)
     assert all(v["rms_after"] < 5e-4 for v in s.validation)
     trace = read_trace(s.trace_path)
     assert len({p["plan_index"] for p in trace.poses}) == len(trace.poses)
-    # 12 scout poses near home, then the +-20 deg box planned with their start model
+    # 12 scout poses near home, then boxes grown round by round up to +-20 deg
     assert len(trace.fit_poses) == 24 and len(trace.validation_poses) == 5
-    assert len([e for e in trace.events if e["kind"] == "plan"]) == 2
+    plans = [e for e in trace.events if e["kind"] == "plan"]
+    assert len(plans) >= 2 and plans[-1]["wrist"]["final"] and plans[-1]["wrist"]["box_deg"] == 20
+    assert [p["wrist"]["box_deg"] for p in plans] == sorted(p["wrist"]["box_deg"] for p in plans)
+
+
+def test_a_far_off_wrist_session_converges_from_the_nominal(tmp_path):
+    """A wrist drawn far from the report's (gear ratios 30-40 % off): the session grows
+    its box from home, never leaves +-20 deg by more than the tolerance, and its
+    calibrated IK drives the true robot within 1 actuator unit over +-15 deg."""
+    truth = draw_truth("agebot-pm", np.random.default_rng(9003), seed=9003,
+                       noise={"roll": 1.7e-4, "pitch": 1.7e-4, "yaw": 1.7e-4})
+    gear = truth.xi()[7:10] / get_robot("agebot-pm").nominal[7:10]
+    assert np.max(np.abs(gear - 1)) > 0.25
+    save_truth(truth, tmp_path / "truth.json")
+    cfg = fast_config(tmp_path, "agebot-pm")
+    with SimulatorProcess("agebot-pm", truth=str(tmp_path / "truth.json"), config=str(cfg),
+                          seed=5) as sim:
+        with Session(_session_config(sim, cfg), "pm-fk", tmp_path / "run",
+                     request=PlanRequest(count=20, validation=4, seed=3)) as s:
+            s.run()
+    err, worst = wrist_checks(s, truth.xi())
+    assert s.outcome.result.converged and err < 1.0 and worst < 25.0, (err, worst)
 
 
 def _poses_in(path: Path) -> int:

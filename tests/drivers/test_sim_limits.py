@@ -1,0 +1,96 @@
+"""The simulated wrist's physical limits: a command it cannot follow stops it at the
+last point inside its envelope and faults the drive with a name of what was hit,
+seen by the station over CANopen (EMCY 0x8612 with manufacturer bytes)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calibration.robots.agebot_pm import PASSIVE_RANGE, envelope_hit, passive_angles
+from drivers.config import load_station_config, parse_station_config, with_endpoints
+from drivers.errors import ProtocolError
+from drivers.rig import Rig
+from drivers.sim.robot import LIMIT_NAMES, SimulatedAgebot
+from drivers.sim.server import SimulatorProcess
+from drivers.sim.truth import report_truth
+from calibration.errors import ConfigError
+from tests.station.test_session import FIX, fast_config
+
+
+class Clock:
+    t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def _robot(qm_range=None):
+    clock = Clock()
+    return SimulatedAgebot(report_truth("agebot-pm"), clock=clock, qm_range=qm_range), clock
+
+
+@pytest.mark.parametrize("target, kinds", [
+    ((2150.0, 1425.0, 1783.0), {"stroke"}),
+    ((2018.0, 1425.0, -500.0), {"centre joint", "reach", "slider joint", "platform joint"}),
+    ((2018.0, 4000.0, 4000.0), {"centre joint", "reach", "slider joint", "platform joint"}),
+])
+def test_the_simulated_wrist_stops_inside_its_envelope(target, kinds):
+    robot, clock = _robot([[1900, 2100], [-1000, 6000], [-1000, 6000]])
+    robot.move_to(target)
+    clock.t += 10.0
+    axis, kind = robot.supervise()
+    assert kind in kinds and 0 <= axis < 3
+    qm = robot.qm()
+    assert np.max(np.abs(qm - target)) > 1.0            # stopped short of the target
+    assert envelope_hit(robot.ee_pose(), robot.xi, qm, robot.qm_range) is None   # stopped inside
+    clock.t += 10.0
+    assert robot.supervise() is None and np.allclose(robot.qm(), qm)   # and stays there
+    robot.move_to(robot.home_qm)                                        # back out is allowed
+    clock.t += 10.0
+    assert robot.supervise() is None and np.allclose(robot.qm(), robot.home_qm)
+
+
+def test_a_move_inside_the_envelope_is_not_stopped():
+    robot, clock = _robot([[0, 6000]] * 3)
+    robot.move_to((2100.0, 1500.0, 1800.0))
+    clock.t += 10.0
+    assert robot.supervise() is None and np.allclose(robot.qm(), (2100.0, 1500.0, 1800.0))
+    a = passive_angles(robot.ee_pose(), robot.xi)
+    assert all(np.all(a[k] <= PASSIVE_RANGE[k]) for k in PASSIVE_RANGE)
+
+
+def test_a_too_far_command_faults_with_the_limit_named_over_the_wire(tmp_path):
+    cfg = fast_config(tmp_path, "agebot-pm")
+    text = cfg.read_text().replace("qm_min = -1000.0", "qm_min = [-1000.0, -1000.0, -1000.0]")
+    text = text.replace("qm_max = 6000.0", "qm_max = [2100.0, 6000.0, 6000.0]")
+    cfg.write_text(text)
+    with SimulatorProcess("agebot-pm", config=str(cfg), seed=2) as sim:
+        config = with_endpoints(load_station_config(cfg), sim.endpoints, source="simulator")
+        rig = Rig(config).open()
+        try:
+            home = np.array(rig.qm())
+            with pytest.raises(ProtocolError) as err:       # slider 1 beyond its stroke
+                rig.move_to(home + [300.0, 0.0, 0.0])
+            assert err.value.code == 0x8612 and "STRK" in str(err.value)
+            assert "node 1" in str(err.value) or err.value.device.endswith("1")
+            rig.recover()
+            with pytest.raises(ProtocolError) as err:       # slider 3 alone, far: a joint or a rod
+                rig.move_to(home + [0.0, 0.0, -2500.0])
+            names = [n.decode() for k, n in LIMIT_NAMES.items() if k != "stroke"]
+            assert err.value.code == 0x8612 and any(n in str(err.value) for n in names), err.value
+            rig.recover()
+            rig.move_to(home)                               # back home: no fault
+            assert np.allclose(rig.qm(), home, atol=1.0)
+        finally:
+            rig.close()
+
+
+def test_limits_in_the_station_config():
+    base = {"robot": "agebot-pm", "canopen": {"interface": "virtual", "nodes": [1, 2, 3],
+                                              "increments_per_unit": [1000, 1000, 1000]}}
+    assert parse_station_config(base).qm_range is None
+    c = parse_station_config({**base, "limits": {"qm_min": 0.0, "qm_max": [1.0, 2.0, 3.0]}})
+    assert c.qm_range == ((0.0, 1.0), (0.0, 2.0), (0.0, 3.0))
+    with pytest.raises(ConfigError, match="limits.qm_max"):
+        parse_station_config({**base, "limits": {"qm_min": 5.0, "qm_max": [1.0, 2.0, 3.0]}})
+    assert load_station_config(FIX / "stations" / "sim-pm.toml").qm_range is not None
