@@ -12,7 +12,7 @@ from calibration.robots import get_robot
 from calibration.robots.agebot_pm import envelope_violation
 from drivers.sim.truth import draw_truth
 from station.planner import PlanRequest
-from station.wrist_plan import (ADVICE, BOX_DEG, MAX_TRIPS, TOLERANCE_DEG, WristPlanner,
+from station.wrist_plan import (ADVICE, BOX_DEG, TOLERANCE_DEG, WristPlanner,
                                 WristStopped)
 
 ROBOT = get_robot("agebot-pm")
