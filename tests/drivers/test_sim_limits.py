@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from calibration.robots.agebot_pm import PASSIVE_RANGE, envelope_hit, passive_angles
-from drivers.config import load_station_config, parse_station_config, with_endpoints
+from drivers.config import load_station_config, parse_station_config
+from drivers.endpoints import with_endpoints
 from drivers.errors import ProtocolError
 from drivers.rig import Rig
 from drivers.sim.robot import LIMIT_NAMES, SimulatedAgebot
