@@ -120,11 +120,13 @@ class Chain:
         poses contiguous); a factor moves the origin along one axis or turns
         the two others about it, so a step is a few vector operations whatever
         the number of poses, and the axes a factor leaves alone are shared,
-        not copied. Returns ``(axes, origin, cols, o)``: the tool frame's axes
-        (three ``(3, m)``) and origin; ``cols (F, 6, m)`` with each factor's
-        axis ``u`` in rows 0-2 (translation) or 3-5 (rotation), and ``o (R,
-        3, m)`` the origin of the frame each rotation factor acts in. With
-        ``whole`` also the four columns of the frame before every factor."""
+        not copied. Returns ``(axes, origin, dp, w, o)``: the tool frame's axes
+        (three ``(3, m)``) and origin; ``dp (F, m, 3)``, in the plan's factor
+        order (translations first), with each translation's axis (the tool's
+        displacement per unit value; the rotations' rows are filled by
+        :meth:`_columns`); ``w (R, m, 3)`` each rotation's axis and ``o (R, m,
+        3)`` the origin of the frame it acts in. With ``whole`` also the four
+        columns of the frame before every factor."""
         plan = self._plan()
         q = self.joints(qm, xi)
         m = q.shape[0]
@@ -134,24 +136,26 @@ class Chain:
         eye = np.eye(3)
         axes = [np.broadcast_to(eye[:, i, None], (3, m)) for i in range(3)]
         origin = np.zeros((3, m))
-        cols = np.zeros((len(self.factors), 6, m))
-        o = np.empty((len(plan.rot_factors), 3, m))
+        dp = np.empty((len(self.factors), m, 3))
+        w = np.empty((len(plan.rot_factors), m, 3))
+        o = np.empty((len(plan.rot_factors), m, 3))
         kept = []
-        for j, (t, a, k) in enumerate(plan.steps):
+        for j, (t, a, k, slot) in enumerate(plan.steps):
             if whole:
                 kept.append((*axes, origin))
             if t:  # T <- T Trans(axis, v): the origin moves along the frame's axis
-                cols[j, :3] = axes[a]
+                dp[slot] = axes[a].T
                 origin = origin + axes[a] * vals[j]
             else:  # T <- T Rot(axis, v): the two other axes turn about it
-                cols[j, 3:] = axes[a]
-                o[k] = origin
+                w[k] = axes[a].T
+                o[k] = origin.T
                 c, s = cos[k], sin[k]
                 b1, b2 = _TURNS[a]
                 x, y = axes[b1], axes[b2]
                 axes = list(axes)
                 axes[b1], axes[b2] = c * x + s * y, c * y - s * x
-        return (axes, origin, cols, o, kept) if whole else (axes, origin, cols, o)
+        out = (axes, origin, dp, w, o)
+        return (*out, kept) if whole else out
 
     @staticmethod
     def _tool(axes, origin) -> np.ndarray:
@@ -171,7 +175,7 @@ class Chain:
         product of all factors before it).
         """
         xi = np.asarray(xi, dtype=float)
-        axes, origin, _c, _o, kept = self._sweep(qm, xi, whole=True)
+        axes, origin, *_cols, kept = self._sweep(qm, xi, whole=True)
         m, nf = origin.shape[1], len(self.factors)
         before = np.zeros((m, nf, 4, 4))
         for i in range(4):  # (F, 3, m) -> (m, F, 3)
@@ -181,42 +185,43 @@ class Chain:
 
     def fk(self, qm: np.ndarray, xi: np.ndarray) -> np.ndarray:
         """Tool frames ``(m, 4, 4)`` in the base frame."""
-        axes, origin, _c, _o = self._sweep(qm, np.asarray(xi, dtype=float))
+        axes, origin, *_cols = self._sweep(qm, np.asarray(xi, dtype=float))
         return self._tool(axes, origin)
 
     # -- generalized Jacobian ------------------------------------------------
-    def _cross_columns(self, cols: np.ndarray, o: np.ndarray, p_e: np.ndarray) -> np.ndarray:
-        """Complete ``cols (F, 6, m)`` in place: a rotation about ``u`` through
-        ``o`` moves the tool point ``p_e (3, m)`` by ``u x (p_e - o)``."""
-        rt = self._plan().rot_factors
-        u = cols[rt, 3:]
-        v = p_e - o  # u x v, written out (np.cross is slow on small arrays)
-        u0, u1, u2 = u[:, 0], u[:, 1], u[:, 2]
-        v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
-        cols[rt, 0] = u1 * v2 - u2 * v1
-        cols[rt, 1] = u2 * v0 - u0 * v2
-        cols[rt, 2] = u0 * v1 - u1 * v0
-        return cols
-
     def factor_columns(self, T: np.ndarray, before: np.ndarray) -> np.ndarray:
         """Spatial columns ``(m, 6, F)``: tool displacement ``[dp; dw]`` per unit
         change of each factor's value (eqs. 16-19)."""
         plan = self._plan()
         nf = before.shape[1]
-        u = before[:, np.arange(nf), :3, plan.axis].transpose(0, 2, 1)  # (F, 3, m)
-        cols = np.zeros((nf, 6, before.shape[0]))
+        u = before[:, np.arange(nf), :3, plan.axis]  # (F, m, 3)
         tr, rt = plan.trans_factors, plan.rot_factors
-        cols[tr, :3] = u[tr]
-        cols[rt, 3:] = u[rt]
-        o = before[:, :, :3, 3][:, rt].transpose(1, 2, 0)  # (R, 3, m)
-        return self._cross_columns(cols, o, T[:, :3, 3].T).transpose(2, 1, 0)
+        cols = np.zeros((before.shape[0], 6, nf))
+        cols[:, :3, tr] = u[tr].transpose(1, 2, 0)
+        v = T[:, :3, 3] - before[:, :, :3, 3][:, rt].transpose(1, 0, 2)  # (R, m, 3)
+        cols[:, :3, rt] = np.cross(u[rt], v).transpose(1, 2, 0)
+        cols[:, 3:, rt] = u[rt].transpose(1, 2, 0)
+        return cols
 
-    def _kinematics(self, qm, xi, rows: int = 6):
-        """``(T, flat)``: tool frames and the factor columns ``(F, rows m)``
-        (rows 3: the translation rows only)."""
-        axes, origin, cols, o = self._sweep(qm, xi)
-        cols = self._cross_columns(cols, o, origin)
-        return self._tool(axes, origin), cols[:, :rows].reshape(cols.shape[0], -1)
+    def _columns(self, qm, xi):
+        """``(T, dp, w)``: tool frames; every factor's position column ``dp``
+        (``(F, 3 m)``, plan order, rows (pose, coordinate)): a translation's
+        axis, a rotation's ``u x (p_e - o)`` (the tool point turning about the
+        axis ``u`` through ``o``); and the rotations' axes ``w`` (``(R, 3 m)``)."""
+        axes, origin, dp, w, v = self._sweep(qm, xi)
+        nt = len(self._plan().trans_factors)
+        np.subtract(origin.T, v, out=v)  # v = p_e - o; u x v, written out
+        u0, u1, u2 = w[..., 0], w[..., 1], w[..., 2]
+        v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
+        r = dp[nt:]
+        np.multiply(u1, v2, out=r[..., 0])
+        r[..., 0] -= u2 * v1
+        np.multiply(u2, v0, out=r[..., 1])
+        r[..., 1] -= u0 * v2
+        np.multiply(u0, v1, out=r[..., 2])
+        r[..., 2] -= u1 * v0
+        F = dp.shape[0]
+        return self._tool(axes, origin), dp.reshape(F, -1), w.reshape(len(w), -1)
 
     def jacobian(self, qm: np.ndarray, xi: np.ndarray, *, position_only: bool = False):
         """Generalized Jacobian by the geometric method.
@@ -224,27 +229,37 @@ class Chain:
         Returns ``(T, Psi)``: tool frames ``(m, 4, 4)`` and ``Psi (m, 6, N)``, the
         spatial tool displacement ``[dp; dw]`` (base frame, dw a rotation vector)
         per unit change of each parameter (eq. 24); ``position_only``: only its
-        rows ``dp``, ``(m, 3, N)`` (half the work, for position measurements).
+        rows ``dp``, ``(m, 3, N)`` (less work, for position measurements).
         """
         qm = np.atleast_2d(np.asarray(qm, dtype=float))
         xi = np.asarray(xi, dtype=float)
         plan = self._plan()
-        rows = 3 if position_only else 6
-        T, flat = self._kinematics(qm, xi, rows)
+        T, dp, w = self._columns(qm, xi)
         m = qm.shape[0]
+        nt = len(plan.trans_factors)
         # each parameter's column: its factors' columns times their
         # coefficients, plus its joint's (offsets): one matrix product
-        psi = flat.T @ plan.to_params  # (rows m, N), rows (component, pose)
-        if plan.to_gains is not None:  # eq. 23: Psi_k = Psi_q * Qm[i]
-            jac_q = (flat.T @ plan.to_joints).reshape(rows, m, -1) * qm
-            psi += jac_q.reshape(rows * m, -1) @ plan.to_gains
-        return T, psi.reshape(rows, m, -1).transpose(1, 0, 2)
+        parts = [(dp, plan.to_params, plan.to_joints)]
+        if not position_only:  # dw: only rotations turn the tool
+            parts.append((w, plan.to_params[nt:], plan.to_joints[nt:]))
+        psis = []
+        for cols, to_params, to_joints in parts:
+            psi = (cols.T @ to_params).reshape(m, 3, -1)
+            if plan.gain_params.size:  # eq. 23: Psi_k = Psi_q * Qm[i]
+                jac_q = (cols.T @ to_joints).reshape(m, 3, -1)
+                psi[:, :, plan.gain_params] += jac_q[:, :, plan.gain_joints] * \
+                    qm[:, None, plan.gain_joints]
+            psis.append(psi)
+        return T, psis[0] if position_only else np.concatenate(psis, axis=1)
 
     def joint_jacobian(self, qm: np.ndarray, xi: np.ndarray) -> np.ndarray:
         """Kinematic Jacobian ``J(Q) (m, 6, n)``: tool displacement per joint coordinate."""
         qm = np.atleast_2d(np.asarray(qm, dtype=float))
-        _T, flat = self._kinematics(qm, np.asarray(xi, dtype=float))
-        return (flat.T @ self._plan().to_joints).reshape(6, qm.shape[0], -1).transpose(1, 0, 2)
+        plan = self._plan()
+        _T, dp, w = self._columns(qm, np.asarray(xi, dtype=float))
+        m, nt = qm.shape[0], len(plan.trans_factors)
+        return np.concatenate([(dp.T @ plan.to_joints).reshape(m, 3, -1),
+                               (w.T @ plan.to_joints[nt:]).reshape(m, 3, -1)], axis=1)
 
 
 # For a rotation about axis a, the two axes that turn: (first, second) with
@@ -270,7 +285,6 @@ class _Plan:
                 self.coef[j, i] += c
             if f.joint is not None:
                 to_joints[j, f.joint] = 1.0
-        self.to_joints = to_joints
         self.joint_factors = np.array([j for j, f in enumerate(fs) if f.joint is not None],
                                       dtype=np.intp)
         self.joint_of = np.array([f.joint for f in fs if f.joint is not None], dtype=np.intp)
@@ -279,18 +293,24 @@ class _Plan:
         self.rot_factors = np.flatnonzero(is_rot)
         self.trans_factors = np.flatnonzero(np.logical_not(is_rot))
         rank = np.cumsum(is_rot) - 1
-        self.steps = tuple((not r, int(a), int(k)) for r, a, k in zip(is_rot, self.axis, rank))
+        nt = len(self.trans_factors)
+        # the Jacobian's factor columns are kept translations first, then
+        # rotations (slot); each step: translation?, axis, rotation rank, slot
+        self.steps = tuple((not r, int(a), int(k), int(nt + k if r else j - k - 1))
+                           for j, (r, a, k) in enumerate(zip(is_rot, self.axis, rank)))
+        order = np.r_[self.trans_factors, self.rot_factors]
         # Psi = cols @ (coef + offsets) + (cols @ to_joints) * Qm on the gains
         to_params = self.coef.copy()
         for jt, i in enumerate(chain.offset_idx):
             if i >= 0:
                 to_params[:, i] += to_joints[:, jt]
-        self.to_params = to_params
-        to_gains = np.zeros((n, N))
-        for jt, i in enumerate(chain.gain_idx):
-            if i >= 0:
-                to_gains[jt, i] = 1.0
-        self.to_gains = to_gains if to_gains.any() else None
+        self.to_params = to_params[order]
+        self.to_joints = to_joints[order]
+        gains = [(jt, i) for jt, i in enumerate(chain.gain_idx) if i >= 0]
+        self.gain_joints = np.array([jt for jt, _i in gains], dtype=np.intp)
+        self.gain_params = np.array([i for _jt, i in gains], dtype=np.intp)
+        if len(set(self.gain_params.tolist())) < len(gains):
+            raise ValueError("two joints share a transmission ratio parameter")
 
 
 @dataclass(frozen=True)
