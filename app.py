@@ -53,6 +53,11 @@ def _cmd_params_verify(args) -> int:
 
 
 def _cmd_trace_generate(args) -> int:
+    if args.robot and args.robot not in ("agebot-sm", "agebot-pm"):
+        from station.tracegen_serial import generate_command
+
+        print(generate_command(args))
+        return 0
     from station.tracegen import generate_from_truth
 
     generate_from_truth(args.out, args.method, truth=args.truth, noise=args.noise or (),
@@ -103,6 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     tsub = t.add_subparsers(dest="trace_command", required=True)
     g = tsub.add_parser("generate", help="simulate a trace from a truth file plus noise")
     g.add_argument("--method", required=True)
+    g.add_argument("--robot", help="a robot file (TOML); default: the method's built-in robot")
     g.add_argument("--out", required=True)
     g.add_argument("--truth", help="simulator truth file (default: the report's true values)")
     g.add_argument("--noise", action="append", metavar="CHANNEL=STD",

@@ -6,22 +6,29 @@ parameter file is written unless the fit converged.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from calibration import identifiability as ident
 from calibration.errors import CalibrationError
-from calibration.methods import METHODS, build
-from calibration.robots import get_robot
+from calibration.methods import METHODS, build, extra_params
 from calibration.solver import CalibrationResult, SolverOptions, solve
 from station.params_file import params_document, write_params
 from station.trace import Trace, read_trace
 
 # vector channels of a trace and the solver's row channels they map to
 VECTOR_CHANNELS = {"pose": ("x", "y", "z", "phi"),
+                   "position": ("x", "y", "z"),
                    "orientation": ("alpha", "beta", "gamma"),
                    "tilt": ("roll", "pitch")}
+# the same for a robot file's 6-row pose
+SERIAL_POSE = ("x", "y", "z", "roll", "pitch", "yaw")
+
+
+class ConditioningWarning(UserWarning):
+    """The model's form is ill-conditioned for this robot (e.g. DH on parallel axes)."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +53,8 @@ def solver_sigma(model, trace: Trace) -> dict | None:
             out[key] = float(v)
         elif key in VECTOR_CHANNELS:
             names = tuple(comps) if key == "orientation" and comps else VECTOR_CHANNELS[key]
+            if key == "pose" and "roll" in model.channels:
+                names = SERIAL_POSE
             vals = v if isinstance(v, list) else [v] * len(names)
             out.update({n: float(x) for n, x in zip(names, vals) if n in model.channels})
     return out or None
@@ -55,8 +64,8 @@ def make_model(trace: Trace, *, method: str | None = None, residual: str | None 
     """The measurement model of a trace and its nominal vector."""
     method = method or trace.method
     mi = METHODS[method]
-    robot = get_robot(trace.robot)
-    nominal = trace.nominal_vector(robot, mi.extra_params)
+    robot = trace.robot_model()
+    nominal = trace.nominal_vector(robot, extra_params(method, robot))
     options = {}
     if residual:
         if method not in ("sm-distance", "sm-distance-tilt"):
@@ -94,10 +103,16 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
     trace_path = trace.path
     model, nominal = make_model(trace, method=method, residual=residual)
     opts = options or SolverOptions()
+    fixed = tuple(getattr(model.robot, "fixed", ()) or ())
+    if fixed and not opts.fixed:  # the robot file's fixed parameters
+        opts = SolverOptions(**{**opts.__dict__, "fixed": fixed})
     if opts.sigma is None:
         sig = solver_sigma(model, trace)
         if sig:
             opts = SolverOptions(**{**opts.__dict__, "sigma": sig})
+    for note in getattr(model, "notes", ()) or ():
+        if "ill-conditioned" in note:
+            warnings.warn(note, ConditioningWarning, stacklevel=2)
     result = solve(model, opts, callback=callback)
     if not result.converged:
         infl = [s.name for s in result.status if not s.identifiable and s.influences_model]
@@ -111,8 +126,10 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
         notes.append(f"only {model.n_poses} poses for {result.n_identifiable} identifiable "
                      f"parameters; eq. 60 recommends at least {need}")
     if out:
+        src = trace.header.get("robot_file")
         doc = params_document(result, robot=trace.robot, nominal=model.x0, trace_path=trace_path,
-                              frame=frame_statement(trace), notes=notes)
+                              frame=frame_statement(trace), notes=notes,
+                              extra={"robot_file": src} if src else None)
         doc = write_params(out, doc)
     return BatchOutcome(trace, model, result, model.x0, doc)
 
@@ -126,11 +143,13 @@ def _fmt(v, width=13):
 def format_table(outcome: BatchOutcome) -> str:
     """The parameter table (nominal, calibrated, std, identifiability) and fit figures."""
     res, model = outcome.result, outcome.model
+    fixed = set(getattr(getattr(model, "robot", None), "fixed", ()) or ())
     lines = [f"{'parameter':<10}{'start':>13}{'calibrated':>13}{'std':>13}  identifiability",
              "-" * 72]
     for j, (name, st) in enumerate(zip(res.names, res.status)):
         std = res.std[j] if st.identifiable else None
-        label = "identifiable" if st.identifiable else (
+        label = "identifiable" if st.identifiable else "held (the robot file's fixed)" if (
+            name in fixed) else (
             "not identifiable, influences the model" if st.influences_model
             else "not identifiable, no influence")
         lines.append(f"{name:<10}{_fmt(outcome.nominal[j])}{_fmt(res.x[j])}{_fmt(std)}  {label}")

@@ -30,7 +30,7 @@ from calibration.errors import CalibrationError, UnreachablePose
 from calibration.identifiability import minimum_poses
 from calibration.methods import METHODS
 from calibration.methods.sm_distance_tilt import reframe_nominal
-from calibration.robots import get_robot
+from calibration.robots import BUILTIN, get_robot
 
 # where the operator puts the end effector for the reference (report 7.2 and 7.5)
 SM_REFERENCE_POINT = np.array([1.0, 1.0, 0.0, 0.2])   # relative to the base offset
@@ -126,7 +126,7 @@ def minimum_count(method: str, components=None) -> int:
 
 def reference_pose(method: str, nominal) -> tuple[np.ndarray | None, str | None, str]:
     """``(qm, role, instructions)`` of the reference step; qm None where the method has none."""
-    robot = get_robot(METHODS[method].robot)
+    robot = get_robot(BUILTIN[METHODS[method].kind])
     if method == "sm-distance-tilt":
         qm = robot.ik(SM_BASE_ORIGIN, nominal, elbow=-1)
         return qm, "base-origin", (

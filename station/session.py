@@ -143,12 +143,13 @@ class Session:
                  nominal: dict | None = None, touch: Touch | None = None):
         planner.check_method(method)
         mi = METHODS[method]
-        if config.robot != mi.robot:
-            raise ConfigError(f"the station is for {config.robot}, method {method} for {mi.robot}",
-                              source=config.source, key="robot")
+        robot = get_robot(config.robot)
+        if robot.kind != mi.kind:
+            raise ConfigError(f"the station is for {config.robot} (a {robot.kind} robot), method "
+                              f"{method} needs a {mi.kind} one", source=config.source, key="robot")
         self.config, self.method, self.info = config, method, mi
         self.units = units_from_config(config)         # numbers for people
-        self.robot = get_robot(mi.robot)
+        self.robot = robot
         self.out = Path(out_dir)
         self.request = request or PlanRequest()
         self.observer = observer

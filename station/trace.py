@@ -18,10 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from calibration.errors import CalibrationError, ConfigError, TraceFormatError
-from calibration.methods import METHODS, MethodData
+from calibration.methods import METHODS, MethodData, extra_params
 from calibration.methods.sm_distance import ZEROS   # the reference's ``zero`` (added field)
 from calibration.robots import ROBOTS, get_robot
 from drivers.atomic import write_atomic
+from drivers.robot_file import spec_from_source
 
 FORMAT = "calstation-trace"
 VERSION = 1
@@ -29,9 +30,10 @@ RECORDS = ("header", "reference", "pose", "event")
 ROLES = ("base-origin", "reference-point")
 # channel -> (shape per pose, methods); shape None = scalar
 CHANNELS = {
-    "pose": 4,
+    "pose": 4,  # [x, y, z, phi] (agebot-sm); [x, y, z, roll, pitch, yaw] (robot files)
+    "position": 3,
     "distance": None,
-    "tilt": None,  # phi (sm-distance-tilt); [roll, pitch] for pm-tilt
+    "tilt": None,  # phi (agebot-sm); [roll, pitch] for pm-tilt and robot files
     "orientation": 3,
 }
 COMPONENTS = ("alpha", "beta", "gamma")
@@ -56,9 +58,20 @@ class Trace:
     events: list[dict] = field(default_factory=list)
     truncated_tail: bool = False
 
+    _model: object = field(default=None, repr=False, compare=False)
+
     @property
     def robot(self) -> str:
         return self.header["robot"]
+
+    def robot_model(self):
+        """The robot model: the header's ``robot_file`` where it has one, else the
+        built-in ``robot``."""
+        if self._model is None:
+            src = self.header.get("robot_file")
+            self._model = get_robot(self.robot if src is None else
+                                    spec_from_source(src, f"{self.path}:1: robot_file"))
+        return self._model
 
     @property
     def method(self) -> str:
@@ -67,7 +80,7 @@ class Trace:
     def nominal_vector(self, robot=None, extra: tuple[str, ...] = (),
                        extra_default=None) -> np.ndarray:
         """Start values: the header's ``nominal`` over the robot model's nominal."""
-        robot = robot or get_robot(self.robot)
+        robot = robot or self.robot_model()
         nom = dict(self.header.get("nominal") or {})
         ext = {k: nom.pop(k) for k in list(nom) if k in extra}
         xi = robot.params(nom, source=f"{self.path}:1: nominal")
@@ -159,8 +172,10 @@ def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -
         if lineno == 1:
             if kind != "header":
                 fail("the first line must be the header record")
-            trace = Trace(path, _check_header(rec, fail, method_override))
-            n_act = get_robot(trace.robot).n_actuators
+            head = _check_header(rec, fail, method_override)
+            model = head.pop("_model")
+            trace = Trace(path, head, _model=model)
+            n_act = trace._model.n_actuators
             continue
         assert trace is not None
         if kind == "header":
@@ -205,19 +220,27 @@ def _check_header(rec, fail, method_override):
     if rec.get("version") != VERSION:
         fail(f"unsupported trace version {rec.get('version')!r} (this reader knows version {VERSION})")
     robot = rec.get("robot")
-    if robot not in ROBOTS:
-        fail(f"unknown robot {robot!r} (known: {', '.join(ROBOTS)})")
+    if "robot_file" in rec:
+        try:
+            model = get_robot(spec_from_source(rec["robot_file"], "robot_file"))
+        except ConfigError as e:
+            fail(str(e))
+        if model.name != robot:
+            fail(f"robot {robot!r} is not the robot file's name {model.name!r}")
+    elif robot not in ROBOTS:
+        fail(f"unknown robot {robot!r} (known: {', '.join(ROBOTS)}, or a trace with robot_file)")
+    else:
+        model = get_robot(robot)
     method = method_override or rec.get("method")
     if method not in METHODS:
         fail(f"unknown method {method!r} (known: {', '.join(METHODS)})")
-    if METHODS[method].robot != robot:
-        fail(f"method {method} is for robot {METHODS[method].robot}, not {robot}")
-    rec = dict(rec, method=method)
+    if METHODS[method].kind != model.kind:
+        fail(f"method {method} needs a {METHODS[method].kind} robot; {robot} is a {model.kind} one")
+    rec = dict(rec, method=method, _model=model)
     nominal = rec.get("nominal", {})
     if not isinstance(nominal, dict):
         fail("nominal must be an object: parameter name -> value")
-    model = get_robot(robot)
-    known = set(model.param_names) | set(METHODS[method].extra_params)
+    known = set(model.param_names) | set(extra_params(method, model))
     for k, v in nominal.items():
         if k not in known:
             fail(f"nominal: unknown parameter {k!r} for {robot}/{method}")
@@ -242,15 +265,18 @@ def _check_header(rec, fail, method_override):
 def _check_pose_channels(rec, trace, fail):
     method = trace.method
     comps = trace.header.get("components") or list(COMPONENTS)
+    builtin = "robot_file" not in trace.header
     for ch in METHODS[method].channels:
         if ch not in rec:
             fail(f"pose has no {ch!r} reading, which method {method} needs")
         v = rec[ch]
         if ch == "pose":
-            _check_vector(v, 4, ch, fail)
+            _check_vector(v, 4 if builtin else 6, ch, fail)
+        elif ch == "position":
+            _check_vector(v, 3, ch, fail)
         elif ch == "orientation":
             _check_vector(v, len(comps) if method == "pm-fk" else 3, ch, fail)
-        elif ch == "tilt" and method == "pm-tilt":
+        elif ch == "tilt" and (method == "pm-tilt" or not builtin):
             _check_vector(v, 2, "tilt ([roll, pitch])", fail)
         elif not _num(v):
             fail(f"{ch} must be a finite number, not {v!r}")

@@ -16,7 +16,7 @@ from calibration import planning, simulate
 from calibration.errors import CalibrationError, ConfigError, UnreachablePose
 from calibration.methods import METHODS
 from calibration.methods.sm_distance_tilt import reframe_nominal
-from calibration.robots import get_robot
+from calibration.robots import BUILTIN, get_robot
 from station import pose_design
 from station.planner import SM_BASE_ORIGIN, SM_REFERENCE_POINT, minimum_count
 from station.trace import write_trace
@@ -44,7 +44,7 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
     nominal (what the report assumes known for the methods whose
     non-identifiable parameters influence the model; plane_a/b/c for sm-plane)."""
     mi = METHODS[method]
-    robot = get_robot(mi.robot)
+    robot = get_robot(BUILTIN[mi.kind])
     xi_true = np.asarray(truth_xi, dtype=float)
     nom = robot.nominal.copy() if nominal is None else np.asarray(nominal, dtype=float)
     rng = np.random.default_rng(seed)
@@ -65,7 +65,7 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
     if meas_noise:
         header["sigma"] = {k: (list(v) if isinstance(v, (list, tuple)) else v)
                            for k, v in meas_noise.items() if k in mi.channels}
-    if mi.robot == "agebot-sm":
+    if mi.kind == "serial":
         off = np.r_[robot.base_offset(nom), 0.0]
         box = planning.box_array(robot, planning.SM_BOX_7_1, off)
         if method == "sm-full-pose":

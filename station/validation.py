@@ -8,8 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.errors import CalibrationError
-from calibration.methods import METHODS, build
-from calibration.robots import get_robot
+from calibration.methods import build, extra_params
 from station.batch import BatchOutcome
 
 
@@ -20,9 +19,9 @@ def validation_errors(outcome: BatchOutcome) -> list[dict]:
     trace = outcome.trace
     if not trace.validation_poses:
         return []
-    robot = get_robot(trace.robot)
+    robot = trace.robot_model()
     if robot.name == "agebot-pm":    # the start values there are already a fit
-        x_before = trace.nominal_vector(robot, METHODS[trace.method].extra_params)
+        x_before = trace.nominal_vector(robot, extra_params(trace.method, robot))
     else:
         x_before = np.asarray(outcome.model.x0, dtype=float)
     data = trace.method_data(use="validation")

@@ -38,29 +38,48 @@ class MethodData:
 
 @dataclass(frozen=True)
 class MethodInfo:
+    """kind: the kind of robot the method needs (``RobotModel.kind``): ``"serial"``
+    (agebot-sm and every robot file) or ``"parallel-wrist"`` (agebot-pm)."""
+
     name: str
-    robot: str
+    kind: str
     module: str
     cls: str
     channels: tuple[str, ...]  # trace channels the method reads
     reference: str | None = None  # role of the reference record it needs
     extra_params: tuple[str, ...] = ()
     section: str = ""
+    file_cls: str | None = None  # the class for a robot file, where it differs
+    file_extra: tuple[str, ...] = ()  # extra parameters on a robot file
+
+
+def is_robot_file(robot) -> bool:
+    """Whether ``robot`` (a model) comes from a robot file (not a built-in)."""
+    return getattr(robot, "spec", None) is not None
+
+
+def extra_params(name: str, robot) -> tuple[str, ...]:
+    """The method's parameters after the robot's, on ``robot`` (a model)."""
+    mi = info(name)
+    return mi.extra_params + (mi.file_extra if is_robot_file(robot) else ())
 
 
 METHODS: dict[str, MethodInfo] = {m.name: m for m in (
-    MethodInfo("sm-full-pose", "agebot-sm", "sm_full_pose", "FullPose", ("pose",), section="7.1"),
-    MethodInfo("sm-distance", "agebot-sm", "sm_distance", "Distance", ("distance",),
+    MethodInfo("sm-full-pose", "serial", "sm_full_pose", "FullPose", ("pose",), section="7.1"),
+    MethodInfo("sm-position", "serial", "sm_position", "Position", ("position",),
+               section="7.1, position only (a laser tracker's reflector)"),
+    MethodInfo("sm-distance", "serial", "sm_distance", "Distance", ("distance",),
                reference="reference-point", section="7.2"),
-    MethodInfo("sm-self-redundancy", "agebot-sm", "sm_self_redundancy", "SelfRedundancy", (),
+    MethodInfo("sm-self-redundancy", "serial", "sm_self_redundancy", "SelfRedundancy", (),
                section="7.3"),
-    MethodInfo("sm-plane", "agebot-sm", "sm_plane", "Plane", (),
+    MethodInfo("sm-plane", "serial", "sm_plane", "Plane", (),
                extra_params=("plane_a", "plane_b", "plane_c"), section="7.4"),
-    MethodInfo("sm-distance-tilt", "agebot-sm", "sm_distance_tilt", "DistanceTilt",
-               ("distance", "tilt"), reference="base-origin", section="7.5"),
-    MethodInfo("pm-ik", "agebot-pm", "pm_ik", "InverseKinematics", ("orientation",), section="10.1"),
-    MethodInfo("pm-fk", "agebot-pm", "pm_fk", "ForwardKinematics", ("orientation",), section="10.2"),
-    MethodInfo("pm-tilt", "agebot-pm", "pm_tilt", "Tilt", ("tilt",),
+    MethodInfo("sm-distance-tilt", "serial", "sm_distance_tilt", "DistanceTilt",
+               ("distance", "tilt"), reference="base-origin", section="7.5",
+               file_cls="InclinometerDistanceTilt", file_extra=("mount_x", "mount_y")),
+    MethodInfo("pm-ik", "parallel-wrist", "pm_ik", "InverseKinematics", ("orientation",), section="10.1"),
+    MethodInfo("pm-fk", "parallel-wrist", "pm_fk", "ForwardKinematics", ("orientation",), section="10.2"),
+    MethodInfo("pm-tilt", "parallel-wrist", "pm_tilt", "Tilt", ("tilt",),
                extra_params=("mount_x", "mount_y"), section="10.2 + physical inclinometer"),
 )}
 
@@ -72,6 +91,19 @@ def info(name: str) -> MethodInfo:
         raise CalibrationError(f"unknown method {name!r} (known: {', '.join(METHODS)})") from None
 
 
+def check_kind(name: str, robot) -> None:
+    """CalibrationError unless method ``name`` takes ``robot`` (its kind)."""
+    mi = info(name)
+    if robot.kind != mi.kind:
+        raise CalibrationError(f"method {name} needs a {mi.kind} robot; {robot.name} is "
+                               f"a {robot.kind} one")
+
+
+def methods_for(robot) -> tuple[str, ...]:
+    """The methods that take ``robot`` (a model), in registry order."""
+    return tuple(n for n, mi in METHODS.items() if mi.kind == robot.kind)
+
+
 def build(name: str, robot, data: MethodData, nominal: np.ndarray, **options):
     """The measurement model of method ``name`` over ``data``.
 
@@ -79,9 +111,9 @@ def build(name: str, robot, data: MethodData, nominal: np.ndarray, **options):
     then the method's extra parameters). options: method-specific keywords
     (e.g. ``residual="squared"``)."""
     mi = info(name)
-    if robot.name != mi.robot:
-        raise CalibrationError(f"method {name} is for robot {mi.robot}, not {robot.name}")
-    cls = getattr(import_module(f"calibration.methods.{mi.module}"), mi.cls)
+    check_kind(name, robot)
+    cls_name = mi.file_cls if (mi.file_cls and is_robot_file(robot)) else mi.cls
+    cls = getattr(import_module(f"calibration.methods.{mi.module}"), cls_name)
     kwargs = dict(options)
     if mi.reference is not None:
         kwargs["reference_qm"] = data.reference_qm

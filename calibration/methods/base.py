@@ -11,13 +11,13 @@ class RobotMethod(MeasurementModel):
     """A method over a robot model; ``x`` starts with the robot's parameters,
     extra parameters (e.g. a plane) follow."""
 
-    robot_name = "agebot-sm"
+    robot_kind = "serial"
     extra_names: tuple[str, ...] = ()
 
     def __init__(self, robot, qm, nominal):
-        if robot.name != self.robot_name:
-            raise CalibrationError(f"method {self.method} is for robot {self.robot_name}, "
-                                   f"not {robot.name}")
+        if robot.kind != self.robot_kind:
+            raise CalibrationError(f"method {self.method} needs a {self.robot_kind} robot; "
+                                   f"{robot.name} is a {robot.kind} one")
         self.robot = robot
         self.qm = require_finite("qm", np.atleast_2d(qm))
         if self.qm.shape[1] != robot.n_actuators:
@@ -31,6 +31,9 @@ class RobotMethod(MeasurementModel):
                                    f"needs {len(self.names)} ({', '.join(self.names)})")
         self.nominal = nominal
         self.x0 = nominal.copy()
+        conditioning = getattr(robot, "warnings", None)
+        if conditioning is not None:
+            self.notes = tuple(conditioning(nominal[:robot.n_params]))
 
     @property
     def nr(self) -> int:

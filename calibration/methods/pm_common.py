@@ -76,7 +76,7 @@ def wrap(a):
 class PMMethod(RobotMethod):
     """A method over the PM model (``xi = a1, a2, l, v, q_off, k``)."""
 
-    robot_name = "agebot-pm"
+    robot_kind = "parallel-wrist"
     default_damping = 1e-4
     notes = (COMPENSATION_NOTE,)
 

@@ -18,7 +18,10 @@ import numpy as np
 
 from calibration.methods.base import RobotMethod, channel
 from calibration.methods.sm_distance import check_inputs, distance_rows, with_zero, zero_names
+from calibration.robots.agebot_pm import gravity_tilt_jacobian
 from calibration.robots.agebot_sm import wrap
+
+MOUNT = ("mount_x", "mount_y")  # the tool inclinometer's mounting rotation (robot files)
 
 
 def reframe_nominal(robot, nominal: np.ndarray, origin_qm) -> np.ndarray:
@@ -61,3 +64,56 @@ class DistanceTilt(RobotMethod):
         Wt[:, :self.nr] = psi[:, 3, :]
         W = np.stack([Wd, Wt], axis=1).reshape(-1, self.n_params)
         return r, W
+
+
+class InclinometerDistanceTilt(RobotMethod):
+    """sm-distance-tilt on a robot file: the distance of the tool origin from the
+    reference point (captured at ``reference_qm``, role ``base-origin``) plus a
+    physical dual-axis inclinometer on the tool (trace channel ``tilt = [roll,
+    pitch]``, :func:`calibration.robots.agebot_pm.gravity_tilt` of the tool's
+    orientation, gravity ``(0, 0, -1)`` of the base frame). Its mounting rotation
+    ``R_mount = Rx(mount_x) Ry(mount_y)`` on the tool is calibrated too.
+
+    Rows per pose: distance (as sm-distance), ``roll_M - roll``, ``pitch_M - pitch``
+    (wrapped); the tilt rows' observation matrix ``dT/dw Psi_w`` for the robot
+    and ``dT/dmount`` for the mount. A rotation about the vertical and the base's
+    position are not seen. With ``distance_zero = "reading"`` the draw-wire's
+    zero offset ``distance_off`` is calibrated too (before the mount), as on AGEBOT."""
+
+    method = "sm-distance-tilt"
+    default_damping = 1e-2
+
+    def __init__(self, robot, qm, measured: dict, nominal, *, reference_qm, residual="plain",
+                 distance_zero="exact"):
+        zero = zero_names(distance_zero)
+        self.extra_names = zero + MOUNT
+        nominal = np.asarray(nominal, dtype=float)
+        nr = robot.n_params
+        if nominal.size == nr:
+            nominal = np.r_[nominal, np.zeros(len(self.extra_names))]
+        elif zero and nominal.size == nr + len(MOUNT):  # distance_off starts at 0
+            nominal = np.r_[nominal[:nr], 0.0, nominal[nr:]]
+        super().__init__(robot, qm, nominal)
+        self.zero = bool(zero)
+        self.reference_qm = np.atleast_2d(check_inputs(
+            self.method, residual, reference_qm, "the reference point's actuator values "
+            "(a 'reference' record with role 'base-origin')"))
+        self.D_m = channel(measured, "distance", self.method).reshape(-1)
+        self.T_m = channel(measured, "tilt", self.method, shape=(2,))
+        self.residual = residual
+        self._channels(("distance", "roll", "pitch"), [0, 1, 2])
+
+    def evaluate(self, x):
+        nr = self.nr
+        xi, mount = x[:nr], x[-2:]
+        off = x[nr] if self.zero else None
+        T, psi = self.robot.spatial_jacobian(np.vstack([self.qm, self.reference_qm]), xi)
+        p = T[:, :3, 3]
+        rd, Wd = distance_rows(p[:-1], psi[:-1], (p[-1:], psi[-1:]), self.D_m, self.residual, off)
+        tilt, dT_dw, dT_dm = gravity_tilt_jacobian(T[:-1, :3, :3], mount)
+        rt = wrap(self.T_m - tilt)
+        W = np.zeros((self.n_poses, 3, len(self.names)))
+        W[:, 0, :Wd.shape[1]] = Wd
+        W[:, 1:, :nr] = dT_dw @ psi[:-1, 3:]
+        W[:, 1:, -2:] = dT_dm
+        return np.column_stack([rd, rt]).reshape(-1), W.reshape(-1, len(self.names))

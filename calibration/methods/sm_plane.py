@@ -54,14 +54,14 @@ class Plane(RobotMethod):
 
     def consistent_twin(self, x):
         """Contact points moved onto the plane of ``x`` along its normal
-        (IK of ``x``, phi kept)."""
+        (IK of ``x``, the orientation kept as far as the arm allows)."""
         X = self.robot.fk(self.qm, x[:self.nr])
         n = x[self.nr:]
         p = X[:, :3] - np.outer(X[:, :3] @ n + 1.0, n) / (n @ n)
         keep = []
         for i in range(len(p)):
             try:
-                keep.append(self.robot.ik(np.r_[p[i], X[i, 3]], x[:self.nr]))
+                keep.append(self.robot.move_to(self.qm[i], p[i], x[:self.nr]))
             except UnreachablePose:
                 pass  # a contact point the model cannot reach on the plane drops out
         twin = copy.copy(self)

@@ -1,9 +1,10 @@
 """sm-self-redundancy (report 7.3): the end effector is brought to the same
-``(x, y)`` with different ``phi`` (poses of one ``group``); no sensor.
+point with different orientations (poses of one ``group``); no sensor.
 
 For each group, every pose after the first gives the rows
-``0 - (X_first[x, y] - X_other[x, y])`` (eq. 68; z is dropped: its row holds
-only the rail and is always singular). ``q1_off, q2_off, k1, theta0, a0`` have no
+``0 - (X_first[c] - X_other[c])`` (eq. 68) over the robot's ``group_rows`` ``c``:
+AGEBOT's ``x, y`` (z is dropped: its row holds only the rail and is always
+singular), a robot file's ``x, y, z``. On AGEBOT: ``q1_off, q2_off, k1, theta0, a0`` have no
 influence; ``L4`` is dependent on the other lengths (the scale of a
 self-calibration) and influences the model: its nominal must be right.
 """
@@ -36,29 +37,32 @@ class SelfRedundancy(RobotMethod):
             other += list(idx[1:])
         self.first, self.other = np.array(first), np.array(other)
         self.n_pose_rows = len(self.first)
-        self._channels(("dx", "dy"), [0, 1])
-        self.row_channel = np.tile([0, 1], self.n_pose_rows)
+        self.rows = list(robot.group_rows)
+        self._channels(tuple("d" + "xyz"[c] for c in self.rows), list(range(len(self.rows))))
+        self.row_channel = np.tile(np.arange(len(self.rows)), self.n_pose_rows)
 
     @property
     def p(self) -> int:
-        return 2
+        return len(self.rows)
 
     def evaluate(self, x):
         X, psi = self.robot.fk_jacobian(self.qm, x)
-        pred = X[self.first, :2] - X[self.other, :2]
-        J = psi[self.first, :2, :] - psi[self.other, :2, :]
+        c = self.rows
+        pred = X[self.first][:, c] - X[self.other][:, c]
+        J = psi[self.first][:, c, :] - psi[self.other][:, c, :]
         return (-pred).reshape(-1), J.reshape(-1, self.nr)
 
     def consistent_twin(self, x):
-        """Poses moved so that the model ``x`` puts each group at one (x, y):
-        the other poses of a group go to the first pose's (x, y), keeping their
-        z and phi (IK of ``x``)."""
+        """Poses moved so that the model ``x`` puts each group at one point: the
+        other poses of a group go to the first pose's coordinates ``group_rows``,
+        keeping the rest of their pose as far as the arm allows (IK of ``x``)."""
         X = self.robot.fk(self.qm, x)
         qm = self.qm.copy()
         for f, o in zip(self.first, self.other):
-            target = np.array([X[f, 0], X[f, 1], X[o, 2], X[o, 3]])
+            target = X[o, :3].copy()
+            target[self.rows] = X[f, self.rows]
             try:
-                qm[o] = self.robot.ik(target, x)
+                qm[o] = self.robot.move_to(self.qm[o], target, x)
             except UnreachablePose:
                 qm[o] = qm[f]  # a pair that cannot be made consistent drops out (zero rows)
         twin = copy.copy(self)

@@ -1,20 +1,34 @@
-"""Robot models known to the station, by the name used in traces and files."""
+"""Robot models known to the station: the built-ins by name, any serial robot
+from a robot file (:class:`calibration.robots.serial.SerialSpec`, read by
+:mod:`drivers.robot_file`)."""
 from __future__ import annotations
 
 from calibration.errors import ConfigError
 from calibration.robots.base import RobotModel
 
 ROBOTS = ("agebot-sm", "agebot-pm")
+# what kind of robot a method needs (MethodInfo.kind) -> robots of that kind
+KINDS = ("serial", "parallel-wrist")
+# the built-in robot of each kind (the station's sessions and planner know these)
+BUILTIN = {"serial": "agebot-sm", "parallel-wrist": "agebot-pm"}
 
 
-def get_robot(name: str) -> RobotModel:
-    """The robot model called ``name`` (``agebot-sm`` or ``agebot-pm``)."""
-    if name == "agebot-sm":
+def get_robot(robot) -> RobotModel:
+    """The robot model of ``robot``: a built-in name (``agebot-sm``, ``agebot-pm``),
+    a parsed robot file (``SerialSpec``) or a model (returned as is)."""
+    if isinstance(robot, RobotModel):
+        return robot
+    if robot == "agebot-sm":
         from calibration.robots.agebot_sm import AgebotSM
 
         return AgebotSM()
-    if name == "agebot-pm":
+    if robot == "agebot-pm":
         from calibration.robots.agebot_pm import AgebotPM
 
         return AgebotPM()
-    raise ConfigError(f"unknown robot {name!r} (known: {', '.join(ROBOTS)})", key="robot")
+    from calibration.robots.serial import SerialRobot, SerialSpec
+
+    if isinstance(robot, SerialSpec):
+        return SerialRobot(robot)
+    raise ConfigError(f"unknown robot {robot!r} (known: {', '.join(ROBOTS)}, or a robot file)",
+                      key="robot")

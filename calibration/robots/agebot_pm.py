@@ -71,6 +71,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 class AgebotPM(RobotModel):
     name = "agebot-pm"
+    kind = "parallel-wrist"
     param_names = PARAM_NAMES
     coords = ("alpha", "beta", "gamma")
     n_actuators = 3
@@ -380,26 +381,36 @@ def _tilt_of_gravity(g):
     return tilt, D
 
 
-def tilt_jacobian(X, mount=(0.0, 0.0)):
-    """Inclinometer reading of PM orientations and its derivatives.
+def gravity_tilt_jacobian(R, mount=(0.0, 0.0)):
+    """Inclinometer reading of orientations ``R (m, 3, 3)`` and its derivatives.
 
-    X: ``(m, 3)`` Euler angles. Returns ``(tilt (m, 2), dT/dX (m, 2, 3),
-    dT/dmount (m, 2, 2))`` with ``tilt = (roll, pitch)`` of :func:`gravity_tilt`.
-    Chain rule: ``dR = [H dX]x R`` (eq. 118), so ``d(R^T e_z) = R^T [e_z]x H dX``.
+    Returns ``(tilt (m, 2), dT/dw (m, 2, 3), dT/dmount (m, 2, 2))`` with ``tilt =
+    (roll, pitch)`` of :func:`gravity_tilt` and ``w`` a spatial rotation
+    (``dR = [dw]x R``), so ``d(R^T e_z) = R^T [e_z]x dw``.
     """
-    X = np.atleast_2d(np.asarray(X, dtype=float))
-    R = rot_xyz(X)
+    R = np.asarray(R, dtype=float).reshape(-1, 3, 3)
     mx, my = float(mount[0]), float(mount[1])
     Rm = mount_rotation(mount)
     gb = R[:, 2, :]  # R^T e_z, platform frame
     g = -gb @ Rm  # (Rm^T gb)^T, with the minus of gravity
     tilt, D = _tilt_of_gravity(g)
     ez = _skew(np.array([0.0, 0.0, 1.0]))
-    dgb_dX = np.einsum("mji,jk,mkl->mil", R, ez, euler_rates(X))  # R^T [e_z]x H
-    dg_dX = -np.einsum("ji,mjl->mil", Rm, dgb_dX)
+    dgb_dw = np.einsum("mji,jk->mik", R, ez)  # R^T [e_z]x
+    dg_dw = -np.einsum("ji,mjl->mil", Rm, dgb_dw)
     c, s = math.cos(mx), math.sin(mx)
     dRx = np.array([[0.0, 0.0, 0.0], [0.0, -s, -c], [0.0, c, -s]])
     c, s = math.cos(my), math.sin(my)
     dRy = np.array([[-s, 0.0, c], [0.0, 0.0, 0.0], [-c, 0.0, -s]])
     dg_dm = np.stack([-gb @ (dRx @ _ry(my)), -gb @ (_rx(mx) @ dRy)], axis=-1)  # (m, 3, 2)
-    return tilt, D @ dg_dX, D @ dg_dm
+    return tilt, D @ dg_dw, D @ dg_dm
+
+
+def tilt_jacobian(X, mount=(0.0, 0.0)):
+    """Inclinometer reading of PM orientations and its derivatives.
+
+    X: ``(m, 3)`` Euler angles. Returns ``(tilt (m, 2), dT/dX (m, 2, 3),
+    dT/dmount (m, 2, 2))``: :func:`gravity_tilt_jacobian` with ``dw = H dX`` (eq. 118).
+    """
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    tilt, dT_dw, dT_dm = gravity_tilt_jacobian(rot_xyz(X), mount)
+    return tilt, dT_dw @ euler_rates(X), dT_dm

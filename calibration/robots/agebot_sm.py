@@ -55,6 +55,8 @@ class AgebotSM(RobotModel):
     name = "agebot-sm"
     param_names = PARAM_NAMES
     coords = ("x", "y", "z", "phi")
+    angle_coords = (3,)
+    group_rows = (0, 1)  # sm-self-redundancy: z holds only the rail (always singular)
     n_actuators = 4
     joint_limits = JOINT_LIMITS
 
@@ -117,6 +119,12 @@ class AgebotSM(RobotModel):
         """Elbow of the configuration at actuator values ``qm``: +1 where theta3 >= 0."""
         q = self.chain.joints(np.atleast_2d(qm), xi)[0]
         return 1 if q[2] >= 0 else -1
+
+    def move_to(self, qm, p, xi) -> np.ndarray:
+        """Actuator values that put the end effector at ``p`` with the phi of the
+        pose at ``qm`` (IK of ``xi``, elbow up where it can)."""
+        phi = self.fk(qm, xi)[0, 3]
+        return self.ik(np.r_[np.asarray(p, dtype=float)[:3], phi], xi)
 
     def ik(self, X, xi, elbow: int | None = None) -> np.ndarray:
         """Actuator values ``Qm (4,)`` for one pose ``X`` (eq. 57).

@@ -17,6 +17,8 @@ class RobotModel:
     """
 
     name: str
+    kind: str = "serial"  # what methods it takes (calibration.methods.MethodInfo.kind)
+    fixed: tuple[str, ...] = ()  # parameters held at their nominal values
     param_names: tuple[str, ...]
     nominal: np.ndarray
     true: np.ndarray

@@ -17,6 +17,12 @@ seen::
                                          # R_mount = Rx(rx) Ry(ry), rad (default 0, 0)
      "comment": "..."}                   # optional, free text
 
+A robot file's truth (shared/spec/robot-file.md) adds ``"robot_file": "<path to the
+TOML>"`` (relative to the truth file) and ``"robot"`` is the file's name; names
+left out of ``parameters`` take the file's nominal; ``inclinometer_mount`` is
+the tool inclinometer's; noise also takes ``position`` [m] and ``pose``
+(a number or 6 values: m, m, m, rad, rad, rad).
+
 Unknown keys are errors; every error is a :class:`ConfigError` naming the file
 and the key path (``truth.json: parameters.k3: missing required key``).
 """
@@ -35,7 +41,7 @@ from calibration.robots import ROBOTS, get_robot
 from drivers.atomic import write_atomic
 from drivers.config_reader import KeyReader, frozen_map, load_json
 
-NOISE_CHANNELS = ("distance", "tilt", "roll", "pitch", "yaw", "qm")
+NOISE_CHANNELS = ("distance", "tilt", "roll", "pitch", "yaw", "qm", "position", "pose")
 PLANE_KEYS = ("plane_a", "plane_b", "plane_c")
 
 
@@ -61,10 +67,16 @@ class SimTruth:
     inclinometer_mount: tuple[float, float] = (0.0, 0.0)
     comment: str | None = None
     source: str | None = None
+    spec: Any = None  # the robot file's SerialSpec, or None for a built-in robot
+    robot_file: str | None = None  # its path as the truth file gives it
+
+    def model(self):
+        """The robot model (built-in or the robot file's)."""
+        return get_robot(self.spec if self.spec is not None else self.robot)
 
     def xi(self) -> np.ndarray:
         """The true parameter vector ``(N,)`` in the model's order."""
-        names = get_robot(self.robot).param_names
+        names = self.model().param_names
         return np.array([self.parameters[n] for n in names], dtype=float)
 
     def sigma(self, channel: str) -> float:
@@ -85,19 +97,32 @@ def report_truth(robot: str) -> SimTruth:
 def parse_truth(data: Any, source: str | None = None) -> SimTruth:
     """Parse a decoded truth JSON object; errors name ``source`` and the key path."""
     top = KeyReader(data, "", source)
-    robot = top.choice("robot", ROBOTS)
-    model = get_robot(robot)
+    spec, file_path = None, None
+    if "robot_file" in top.data:
+        from drivers.robot_file import load_robot_file
+
+        file_path = top.str("robot_file")
+        base = Path(source).parent if source else Path(".")
+        spec = load_robot_file(base / file_path)
+        robot = top.str("robot")
+        if robot != spec.name:
+            top.fail("robot", f"{robot!r} is not the robot file's name {spec.name!r}")
+        model = get_robot(spec)
+    else:
+        robot = top.choice("robot", ROBOTS)
+        model = get_robot(robot)
     pr = top.table("parameters")
-    params = {n: pr.float(n) for n in model.param_names}
+    params = ({n: pr.float(n, default=float(v)) for n, v in zip(model.param_names, model.nominal)}
+              if spec is not None else {n: pr.float(n) for n in model.param_names})
     plane = None
-    if robot == "agebot-sm" and any(k in pr.data for k in PLANE_KEYS):
+    if model.kind == "serial" and any(k in pr.data for k in PLANE_KEYS):
         plane = tuple(pr.float(k) for k in PLANE_KEYS)
         if plane == (0.0, 0.0, 0.0):
             pr.fail("plane_a", "a plane a x + b y + c z + 1 = 0 needs (a, b, c) != 0")
     for k in pr.keys():
         if k not in params and not (plane and k in PLANE_KEYS):
             pr.fail(k, f"unknown parameter for {robot} (known: {', '.join(model.param_names)}"
-                    + (", plane_a, plane_b, plane_c)" if robot == "agebot-sm" else ")"))
+                    + (", plane_a, plane_b, plane_c)" if model.kind == "serial" else ")"))
     pr.finish()
     noise = {}
     nr = top.table("noise", required=False)
@@ -105,12 +130,14 @@ def parse_truth(data: Any, source: str | None = None) -> SimTruth:
         for ch in nr.keys():
             if ch not in NOISE_CHANNELS:
                 nr.fail(ch, f"unknown channel (known: {', '.join(NOISE_CHANNELS)})")
-            noise[ch] = nr.float(ch, lo=0.0)
+            noise[ch] = (list(nr.float_list(ch, length=6, lo=0.0, scalar_ok=True)) if ch == "pose"
+                         else nr.float(ch, lo=0.0))
     seed = top.int("seed", default=None, lo=0)
     mount = (0.0, 0.0)
     if "inclinometer_mount" in top.data:
-        if robot != "agebot-pm":
-            top.fail("inclinometer_mount", "only the agebot-pm has a platform inclinometer mount")
+        if robot != "agebot-pm" and spec is None:
+            top.fail("inclinometer_mount", "only the agebot-pm and robot files have an "
+                     "inclinometer mount")
         mount = top.float_list("inclinometer_mount", length=2)
         if max(abs(m) for m in mount) > math.pi / 4:
             top.fail("inclinometer_mount", "a mounting rotation is small: |rx|, |ry| <= pi/4")
@@ -118,7 +145,7 @@ def parse_truth(data: Any, source: str | None = None) -> SimTruth:
     top.finish()
     return SimTruth(robot=robot, parameters=frozen_map(params), noise=frozen_map(noise),
                     seed=seed, plane=plane, inclinometer_mount=tuple(mount),
-                    comment=comment, source=source)
+                    comment=comment, source=source, spec=spec, robot_file=file_path)
 
 
 def load_truth(path: str | Path) -> SimTruth:
@@ -132,11 +159,13 @@ def truth_to_dict(truth: SimTruth) -> dict:
     if truth.plane is not None:
         params.update(zip(PLANE_KEYS, truth.plane))
     out: dict[str, Any] = {"robot": truth.robot, "parameters": params}
+    if truth.robot_file is not None:
+        out["robot_file"] = truth.robot_file
     if truth.noise:
         out["noise"] = dict(truth.noise)
     if truth.seed is not None:
         out["seed"] = truth.seed
-    if truth.robot == "agebot-pm" and any(truth.inclinometer_mount):
+    if (truth.robot == "agebot-pm" or truth.spec is not None) and any(truth.inclinometer_mount):
         out["inclinometer_mount"] = list(truth.inclinometer_mount)
     if truth.comment:
         out["comment"] = truth.comment

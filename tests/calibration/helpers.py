@@ -6,7 +6,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from calibration.methods import METHODS, MethodData, build
-from calibration.robots import get_robot
+from calibration.robots import BUILTIN, get_robot
 from station.tracegen import generate
 
 KNOWN = {"sm-self-redundancy": ("L4",),
@@ -21,7 +21,7 @@ def dataset(method, *, seed=0, noise=None, known=None, truth=None, count=None, c
     ``distance_off`` calibrated, appended to the truth vector) and the offset (m)
     that every distance reading carries."""
     mi = METHODS[method]
-    robot = get_robot(mi.robot)
+    robot = get_robot(BUILTIN[mi.kind])
     xi = robot.true if truth is None else np.asarray(truth, float)
     known = KNOWN.get(method, ()) if known is None else known
     header, ref, poses = generate(method, xi, noise=noise, seed=seed, known=known, count=count,

@@ -9,6 +9,7 @@ from PySide6.QtWidgets import (QComboBox, QFileDialog, QFormLayout, QGroupBox, Q
                                QLineEdit, QMessageBox, QPushButton, QSpinBox, QWidget)
 
 from calibration.methods import METHODS
+from calibration.robots import get_robot
 from station.gui.controller import ROBOTS, summarize_folder
 from station.gui.pages.base import Page, error_text
 from station.gui.widgets import BAD_COLOR, OK_COLOR, DeviceTable, note
@@ -140,7 +141,7 @@ class SetupPage(Page):
     def _robot_changed(self, *_):
         self.method.clear()
         for m in SESSION_METHODS:
-            if METHODS[m].robot == self.robot_key:
+            if METHODS[m].kind == get_robot(self.robot_key).kind:
                 self.method.addItem(f"{m} (report {METHODS[m].section})", m)
         self._method_changed()
 

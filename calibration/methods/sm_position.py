@@ -1,0 +1,26 @@
+"""sm-position: the position of the tool origin is measured (a laser tracker's
+reflector on the tool), channel ``position = [x, y, z]`` in the base frame, m.
+
+Residual ``p_M - p(Qm, xi)``, observation matrix the position rows of the
+generalized Jacobian (eqs. 16-24). The tool's orientation is not seen: of a
+general serial robot's ``4 n_R + 2 n_P + 6`` geometric parameters, the three
+that only turn the tool about its origin are not identifiable (27 for a 6R arm
+with fixed ratios).
+"""
+from __future__ import annotations
+
+from calibration.methods.base import RobotMethod, channel
+
+
+class Position(RobotMethod):
+    method = "sm-position"
+    default_damping = 1e-4
+
+    def __init__(self, robot, qm, measured: dict, nominal):
+        super().__init__(robot, qm, nominal)
+        self.p_m = channel(measured, "position", self.method, shape=(3,))
+        self._channels(("x", "y", "z"), [0, 1, 2])
+
+    def evaluate(self, x):
+        X, psi = self.robot.fk_jacobian(self.qm, x)
+        return (self.p_m - X[:, :3]).reshape(-1), psi[:, :3, :].reshape(-1, self.nr)

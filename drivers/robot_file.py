@@ -1,0 +1,134 @@
+"""Robot files: TOML, ``format = "calstation-robot"``, ``version = 1``
+(shared/spec/robot-file.md, docs/robot-files.md).
+
+:func:`load_robot_file` reads one into a :class:`calibration.robots.serial.SerialSpec`
+that carries its own source (``{name, sha256, text}``), which is what a trace's
+header stores as ``robot_file`` and :func:`spec_from_source` reads back. Every
+error is a one-line :class:`ConfigError` naming the file, the key and what is
+wrong; unknown keys are errors. Below both the station and the simulator (truth
+files of a robot file name one).
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import tomllib
+from pathlib import Path
+
+from calibration.errors import ConfigError
+from calibration.robots.serial import FRAME_KEYS, JointSpec, SerialSpec, param_layout
+from drivers.config_reader import KeyReader
+
+FORMAT = "calstation-robot"
+VERSION = 1
+
+
+def _frame(top: KeyReader, key: str) -> tuple[float, ...]:
+    t = top.table(key, required=False)
+    if t is None:
+        return (0.0,) * 6
+    out = tuple(t.float(k, default=0.0) for k in FRAME_KEYS)
+    t.finish()
+    return out
+
+
+def _joint(j: KeyReader, i: int) -> JointSpec:
+    kind = j.choice("type", ("R", "P"))
+    if kind == "P" and "d" in j.data:
+        j.fail("d", "a P joint has no 'd' (its d is the joint coordinate: k * qm + offset)")
+    if "beta" in j.data:
+        if kind == "P":
+            j.fail("beta", "Hayati's beta is for R joints only")
+        if "d" in j.data:
+            j.fail("beta", "a joint with Hayati's beta has no 'd' (give either d or beta)")
+    if kind == "R" and "theta" in j.data:
+        j.fail("theta", "an R joint has no 'theta' (its theta is k * qm + offset; use 'offset')")
+    d = j.float("d", default=0.0) if kind == "R" else 0.0
+    theta = j.float("theta", default=0.0) if kind == "P" else 0.0
+    beta = j.float("beta", default=None)
+    k = j.float("k", default=1.0)
+    if k == 0.0:
+        j.fail("k", "a transmission ratio of 0 would freeze the joint")
+    lim = j.float_list("limits", length=2)
+    if not lim[0] < lim[1]:
+        j.fail("limits", f"[lo, hi] needs lo < hi, got {list(lim)}")
+    spec = JointSpec(kind=kind, d=d, theta=theta, a=j.float("a", default=0.0),
+                     alpha=j.float("alpha", default=0.0), beta=beta, k=k,
+                     offset=j.float("offset", default=0.0), limits=tuple(lim))
+    j.finish()
+    return spec
+
+
+def parse_robot_file(text: str, source: str = "<robot file>", name: str | None = None) -> SerialSpec:
+    """A :class:`SerialSpec` from the TOML ``text``; ``source`` names it in errors;
+    ``name`` (default: the base name of ``source``) becomes the source's name."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"not valid TOML: {e}", source=source) from None
+    top = KeyReader(data, "", source)
+    if data.get("format") != FORMAT:
+        top.fail("format", f"must be {FORMAT!r}, not {data.get('format')!r}")
+    top.str("format")
+    if top.int("version") != VERSION:
+        top.fail("version", f"unsupported version {data['version']!r} (this reader knows {VERSION})")
+    robot_name = top.str("name")
+    if robot_name in ("agebot-sm", "agebot-pm"):
+        top.fail("name", f"{robot_name!r} is a built-in robot; give the file's robot another name")
+    raw = data.get("joint")
+    if not isinstance(raw, list) or not raw:
+        top.fail("joint", "needs at least one [[joint]] table")
+    top._used.add("joint")
+    joints = tuple(_joint(KeyReader(t, f"joint[{i}]", source), i)
+                   for i, t in enumerate(raw, start=1))
+    base, tool = _frame(top, "base"), _frame(top, "tool")
+    fixed = top._list("fixed", None, (), False, lambda s, i: s.str(i))
+    spec = SerialSpec(name=robot_name, joints=joints, base=base, tool=tool, fixed=tuple(fixed),
+                      source={"name": name or Path(source).name,
+                              "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest(),
+                              "text": text})
+    known = [n for n, _ in param_layout(spec)]
+    for f in spec.fixed:
+        if f not in known:
+            top.fail("fixed", f"unknown parameter {f!r} (known: {', '.join(known)})")
+    top.finish()
+    return spec
+
+
+def load_robot_file(path) -> SerialSpec:
+    """Read and parse a robot file; errors name the file."""
+    path = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as e:
+        raise ConfigError(f"cannot read the robot file: {e.strerror or e}", source=path) from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"not UTF-8 text: {e}", source=path) from None
+    return parse_robot_file(text, path)
+
+
+def spec_from_source(src, where: str = "robot_file") -> SerialSpec:
+    """The spec of a trace header's ``robot_file`` object ``{name, sha256, text}``;
+    the checksum must match the text."""
+    if not isinstance(src, dict) or not isinstance(src.get("text"), str):
+        raise ConfigError("must be an object with the robot file's name, sha256 and text",
+                          source=where)
+    digest = hashlib.sha256(src["text"].encode("utf-8")).hexdigest()
+    if src.get("sha256") != digest:
+        raise ConfigError("sha256 does not match the robot file's text (damaged or edited)",
+                          source=where)
+    return parse_robot_file(src["text"], f"{where} ({src.get('name', '?')})",
+                            name=str(src.get("name") or "robot.toml"))
+
+
+def is_robot_file(robot: str) -> bool:
+    """Whether a ``--robot`` value names a robot file (not a built-in robot)."""
+    return robot.endswith(".toml") or Path(robot).is_file()
+
+
+def format_float(v: float) -> str:
+    """A TOML float that reads back to the same double."""
+    if not math.isfinite(v):
+        raise ValueError(f"not a finite number: {v!r}")
+    r = repr(float(v))
+    return r if ("." in r or "e" in r) else r + ".0"

@@ -1,0 +1,208 @@
+"""Simulated traces of a robot file (``trace generate --robot FILE``).
+
+The poses are actuator values drawn uniformly in the middle 80 % of each
+joint's limits; the readings come from the true robot there, plus noise.
+Physical constraints are where the true robot really is: a group of
+sm-self-redundancy poses shares the true tool position, sm-plane contacts lie
+on the true plane. The header carries the robot file (``robot_file``), so the
+trace is complete on its own (shared/spec/robot-file.md).
+"""
+from __future__ import annotations
+
+import io
+import json
+
+import numpy as np
+
+from calibration.errors import CalibrationError, UnreachablePose
+from calibration.identifiability import minimum_poses
+from calibration.methods import METHODS, check_kind, extra_params
+from calibration.methods.sm_plane import PLANE
+from calibration.robots import get_robot
+from calibration.robots.agebot_pm import gravity_tilt
+from station.trace import FORMAT, VERSION, utc_now, write_trace
+
+# rows per pose of each method on a robot file (eq. 60's p)
+ROWS = {"sm-full-pose": 6, "sm-position": 3, "sm-distance": 1, "sm-distance-tilt": 3,
+        "sm-plane": 1, "sm-self-redundancy": 3}
+MIN_COS_PITCH = 0.2  # sm-full-pose: poses farther than ~78 deg from the rpy singularity
+NOISE = ("position", "pose", "distance", "tilt")
+
+
+def default_count(robot, method: str) -> int:
+    """Eq. 60 over the robot file's free parameters and the method's extra ones."""
+    free = robot.n_params - len(robot.fixed) + len(extra_params(method, robot))
+    return minimum_poses(free, ROWS[method])
+
+
+def _draw(robot, rng, n) -> np.ndarray:
+    lo, hi = robot.limits[:, 0], robot.limits[:, 1]
+    mid, half = (lo + hi) / 2, 0.4 * (hi - lo)
+    return rng.uniform(mid - half, mid + half, size=(n, robot.n_actuators))
+
+
+def _noise(noise: dict, ch: str, shape, rng) -> np.ndarray:
+    s = np.asarray(noise.get(ch, 0.0), dtype=float)
+    return rng.normal(size=shape) * s if np.any(s) else np.zeros(shape)
+
+
+def generate(robot, method: str, truth_xi, *, nominal=None, noise=None, seed=0, count=None,
+             mount=(0.0, 0.0), plane=None, known=()):
+    """Plan and simulate a data set of a robot file's ``robot`` (a SerialRobot).
+    Returns ``(header, reference, poses)``; see :func:`station.tracegen.generate`."""
+    check_kind(method, robot)
+    if method not in ROWS:
+        raise CalibrationError(f"method {method} cannot be simulated on a robot file")
+    xi = np.asarray(truth_xi, dtype=float)
+    nom = robot.nominal.copy() if nominal is None else np.asarray(nominal, dtype=float)
+    rng = np.random.default_rng(seed)
+    noise = {k: v for k, v in (noise or {}).items() if k in NOISE}
+    count = count or default_count(robot, method)
+    mi = METHODS[method]
+    header = {"robot": robot.name, "robot_file": dict(robot.spec.source), "method": method,
+              "nominal": robot.as_dict(nom),
+              "station": {"generator": "station.tracegen_serial", "seed": seed}}
+    sig = {k: (list(v) if isinstance(v, (list, tuple)) else v) for k, v in noise.items()
+           if k in mi.channels}
+    if sig:
+        header["sigma"] = sig
+    reference, group, channels = None, None, {}
+    if method in ("sm-distance", "sm-distance-tilt"):
+        qref = robot.limits.mean(axis=1)
+        reference = {"role": mi.reference, "qm": qref.tolist()}
+    if method == "sm-self-redundancy":
+        qm, group = _groups(robot, xi, count, rng)
+    elif method == "sm-plane":
+        plane, qm = _contacts(robot, xi, plane, count, rng)
+        for k in known:
+            if k in PLANE:
+                header["nominal"][k] = float(plane[PLANE.index(k)])
+    else:
+        qm = _draw(robot, rng, count)
+        if method == "sm-full-pose":
+            while True:
+                bad = np.abs(np.cos(robot.fk(qm, xi)[:, 4])) < MIN_COS_PITCH
+                if not bad.any():
+                    break
+                qm[bad] = _draw(robot, rng, int(bad.sum()))
+    m = len(qm)
+    if method in ("sm-full-pose", "sm-position"):
+        X = robot.fk(qm, xi)
+        if method == "sm-position":
+            channels["position"] = X[:, :3] + _noise(noise, "position", (m, 3), rng)
+        else:
+            X = X + _noise(noise, "pose", (m, 6), rng)
+            X[:, 3:] = (X[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+            channels["pose"] = X
+    elif method in ("sm-distance", "sm-distance-tilt"):
+        T = robot.frames(qm, xi)
+        p_ref = robot.frames(qref, xi)[0, :3, 3]
+        channels["distance"] = (np.linalg.norm(T[:, :3, 3] - p_ref, axis=1)
+                                + _noise(noise, "distance", m, rng))
+        if method == "sm-distance-tilt":
+            roll, pitch = gravity_tilt(T[:, :3, :3], mount)
+            channels["tilt"] = np.column_stack([roll, pitch]) + _noise(noise, "tilt", (m, 2), rng)
+            header["nominal"].update(mount_x=0.0, mount_y=0.0)
+    for name in known:
+        if name not in PLANE:
+            header["nominal"][name] = float(xi[robot.index(name)])
+    poses = []
+    for i in range(m):
+        rec = {"index": i, "qm": [float(v) for v in qm[i]]}
+        if group is not None:
+            rec["group"] = int(group[i])
+        for ch, arr in channels.items():
+            v = arr[i]
+            rec[ch] = v.tolist() if np.ndim(v) else float(v)
+        poses.append(rec)
+    return header, reference, poses
+
+
+def _groups(robot, xi, count, rng, spread: float = 0.1):
+    """sm-self-redundancy: ``count`` pairs of poses at one true tool position; the
+    second pose starts up to ``spread`` of each joint's range away and moves back to it."""
+    qm, group = [], []
+    draws = 0
+    while len(group) < 2 * count:
+        draws += 1
+        if draws > 400 * count:
+            raise CalibrationError("cannot find enough pose pairs within the limits")
+        q1 = _draw(robot, rng, 1)[0]
+        start = q1 + rng.uniform(-spread, spread, size=q1.size) * np.ptp(robot.limits, axis=1)
+        try:
+            q2 = robot.move_to(start, robot.frames(q1, xi)[0, :3, 3], xi)
+        except UnreachablePose:
+            continue
+        g = len(group) // 2
+        qm += [q1, q2]
+        group += [g, g]
+    return np.array(qm), np.array(group)
+
+
+def _contacts(robot, xi, plane, count, rng):
+    """sm-plane: poses of the true robot on a plane (default: through the middle of
+    the drawn workspace, normal (1, 0.3, 0.2))."""
+    if plane is None:
+        c = robot.fk(_draw(robot, rng, 50), xi)[:, :3].mean(axis=0)
+        n = np.array([1.0, 0.3, 0.2]) / np.linalg.norm([1.0, 0.3, 0.2])
+        plane = -n / float(n @ c)
+    a = np.asarray(plane, dtype=float)
+    qm = []
+    draws = 0
+    while len(qm) < count:
+        draws += 1
+        if draws > 400 * count:
+            raise CalibrationError("the plane crosses too little of the reachable workspace")
+        q = _draw(robot, rng, 1)[0]
+        p = robot.frames(q, xi)[0, :3, 3]
+        p = p - (a @ p + 1.0) * a / (a @ a)
+        try:
+            qm.append(robot.move_to(q, p, xi))
+        except UnreachablePose:
+            continue
+    return a, np.array(qm)
+
+
+def generate_trace(path, robot, method: str, truth_xi, **kw) -> None:
+    header, reference, poses = generate(robot, method, truth_xi, **kw)
+    write_trace(path, header, reference, poses)
+
+
+def generate_command(args) -> str:
+    """``app.py trace generate --robot FILE``: the truth is ``--truth`` (a truth file
+    of this robot file) or the file's nominal; ``--noise CHANNEL=STD`` adds to the
+    truth file's noise. Writes ``args.out`` atomically; returns a summary line."""
+    from drivers.robot_file import load_robot_file
+    from drivers.sim.truth import load_truth
+    from station.params_file import write_atomic
+
+    spec = load_robot_file(args.robot)
+    robot = get_robot(spec)
+    mount, plane, noise = (0.0, 0.0), None, {}
+    xi = robot.nominal.copy()
+    if args.truth:
+        truth = load_truth(args.truth)
+        if truth.spec is None or truth.spec.source["sha256"] != spec.source["sha256"]:
+            raise CalibrationError(f"{args.truth}: the truth is not of the robot file {args.robot}")
+        xi, mount, plane, noise = truth.xi(), truth.inclinometer_mount, truth.plane, dict(truth.noise)
+    for item in args.noise or ():
+        k, _, v = item.partition("=")
+        if k not in NOISE:
+            raise CalibrationError(f"--noise {item}: unknown channel {k!r} for a robot file "
+                                   f"(known: {', '.join(NOISE)})")
+        try:
+            noise[k] = float(v)
+        except ValueError:
+            raise CalibrationError(f"--noise {item}: {v!r} is not a number") from None
+    known = tuple(k for k in (args.known or "").split(",") if k)
+    header, reference, poses = generate(robot, args.method, xi, noise=noise, seed=args.seed,
+                                        count=args.count, mount=mount, plane=plane, known=known)
+    buf = io.StringIO()
+    recs = [{"record": "header", "format": FORMAT, "version": VERSION, "created": utc_now(), **header}]
+    if reference is not None:
+        recs.append({"record": "reference", **reference})
+    recs += [{"record": "pose", **p} for p in poses]
+    for rec in recs:
+        buf.write(json.dumps(rec, separators=(",", ":"), allow_nan=False) + "\n")
+    write_atomic(args.out, buf.getvalue().encode("utf-8"))
+    return f"trace written to {args.out} ({len(poses)} poses of {robot.name}, {args.method})"
