@@ -189,14 +189,14 @@ class SerialRobot(RobotModel):
         return np.column_stack([T[:, :3, 3], rpy]), dX
 
     def warnings(self, xi, tol: float = 0.05) -> tuple[str, ...]:
-        """Conditioning warnings of the DH form: an R joint in DH form whose axis is
-        (nearly) parallel to the next joint's (``|sin alpha_i| < tol``) has an
+        """Conditioning warnings of the DH form: an R joint in DH form (its ``d`` not
+        fixed) whose axis is (nearly) parallel to the next joint's (``|sin alpha_i| < tol``) has an
         ill-defined ``d`` (its common normal slides along the axes): a small
         misalignment needs a huge ``d`` and the fit is ill-conditioned."""
         out = []
         n = len(self.spec.joints)
         for i, jt in enumerate(self.spec.joints[:-1], start=1):
-            if jt.kind == "R" and not jt.hayati:
+            if jt.kind == "R" and not jt.hayati and f"d{i}" not in self.fixed:
                 alpha = float(xi[self.index(f"alpha{i}")])
                 if abs(math.sin(alpha)) < tol and i < n:
                     out.append(f"joints {i} and {i + 1} of {self.name} have (nearly) parallel axes "

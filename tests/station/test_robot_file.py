@@ -1,0 +1,146 @@
+"""Robot files at the station: the reader's errors, traces that carry their robot
+file, batch and trace generation from the command line, and AGEBOT's serial part
+as a robot file reproducing the built-in model on the fixture traces."""
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+
+from calibration.errors import ConfigError, TraceFormatError
+from drivers.robot_file import load_robot_file, parse_robot_file
+from station.batch import calibrate, calibrate_trace
+from station.trace import read_trace, write_trace
+from tests.station.test_cli import ROOT, TRACES, app
+
+ROBOTS = os.path.join(ROOT, "fixtures", "robots")
+GOOD = """format = "calstation-robot"
+version = 1
+name = "two-link"
+[[joint]]
+type = "R"
+d = 0.1
+a = 0.5
+limits = [-3.0, 3.0]
+[[joint]]
+type = "P"
+a = 0.2
+limits = [0.0, 0.3]
+"""
+
+
+def test_good_file_and_parameter_names():
+    spec = parse_robot_file(GOOD, "two.toml")
+    from calibration.robots import get_robot
+
+    rob = get_robot(spec)
+    assert rob.param_names[:4] == ("q1_off", "q2_off", "k1", "k2")
+    assert {"d1", "a1", "alpha1", "theta2", "a2", "alpha2", "base_gamma", "tool_d"} <= set(rob.param_names)
+    assert "d2" not in rob.param_names
+    assert spec.source["name"] == "two.toml" and spec.source["text"] == GOOD
+
+
+@pytest.mark.parametrize("edit,key,words", [
+    (("limits = [0.0, 0.3]", "limits = [0.3, 0.0]"), "joint[2].limits", "lo < hi"),
+    (("a = 0.2", "d = 0.1\na = 0.2"), "joint[2].d", "P joint has no 'd'"),
+    (("a = 0.5", "a = 0.5\nbeta = 0.0"), "joint[1].beta", "no 'd'"),
+    (("a = 0.5", "a = 0.5\nlenght = 2.0"), "joint[1].lenght", "unknown key"),
+    (('type = "P"', 'type = "X"'), "joint[2].type", "is not one of"),
+    (("version = 1", 'version = 1\nfixed = ["k9"]'), "fixed", "unknown parameter 'k9'"),
+    (('name = "two-link"', 'name = "agebot-sm"'), "name", "built-in"),
+    (("version = 1", "version = 2"), "version", "unsupported version"),
+])
+def test_errors_name_the_file_the_key_and_the_fault(tmp_path, edit, key, words):
+    path = tmp_path / "arm.toml"
+    path.write_text(GOOD.replace(*edit, 1))
+    with pytest.raises(ConfigError) as e:
+        load_robot_file(path)
+    msg = str(e.value)
+    assert str(path) in msg and key in msg and words in msg and "\n" not in msg
+
+
+def test_trace_checksum_guards_the_robot_file(tmp_path):
+    out = tmp_path / "t.jsonl"
+    r = app("trace", "generate", "--robot", os.path.join(ROBOTS, "scara-like.toml"),
+            "--method", "sm-position", "--noise", "position=1e-4", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    lines = out.read_text().splitlines()
+    head = json.loads(lines[0])
+    head["robot_file"]["text"] = head["robot_file"]["text"].replace("a = 0.35", "a = 0.36")
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("\n".join([json.dumps(head)] + lines[1:]) + "\n")
+    with pytest.raises(TraceFormatError, match="sha256 does not match"):
+        read_trace(bad)
+
+
+def test_generate_and_batch_need_nothing_but_the_trace(tmp_path):
+    t = tmp_path / "ur5.jsonl"
+    r = app("trace", "generate", "--robot", os.path.join(ROBOTS, "ur5-like-hayati.toml"),
+            "--method", "sm-full-pose", "--noise", "position=1e-4", "--out", str(t))
+    assert r.returncode == 0, r.stderr
+    assert "60" not in r.stderr
+    p = tmp_path / "p.json"
+    r = app("batch", str(t), "--out", str(p), cwd=str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    assert "identifiable 30 of" in r.stdout and "held (the robot file's fixed)" in r.stdout
+    doc = json.loads(p.read_text())
+    assert doc["robot"] == "ur5-like-hayati" and "ur5-like-hayati" in doc["robot_file"]["text"]
+    r = app("trace", "generate", "--robot", os.path.join(ROBOTS, "ur5-like-dh.toml"),
+            "--method", "sm-position", "--out", str(tmp_path / "dh.jsonl"))
+    r = app("batch", str(tmp_path / "dh.jsonl"), "--out", str(tmp_path / "dh.json"))
+    assert r.returncode == 0 and "warning:" in r.stderr and "joints 2 and 3" in r.stderr
+
+
+# -- AGEBOT's serial part as a robot file ----------------------------------------------
+def _as_robot_file(trace, spec):
+    """The agebot-sm trace as a trace of the robot file: same readings, the pose's
+    phi as yaw (roll = pitch = 0), nominal (theta0, a0) as base_a = x0, a1 = y0."""
+    h = dict(trace.header)
+    nom = dict(h["nominal"])
+    th, a0 = nom.pop("theta0"), nom.pop("a0")
+    for i, L in enumerate(("L2", "L3", "L4"), start=2):
+        nom[f"a{i}"] = nom.pop(L)
+    nom["base_a"], nom["a1"] = a0 * math.cos(th), a0 * math.sin(th)
+    h.update(robot=spec.name, robot_file=dict(spec.source), nominal=nom)
+    for k in ("record", "format", "version", "created"):
+        h.pop(k, None)
+    poses = []
+    for p in trace.poses:
+        p = {k: v for k, v in p.items() if k != "record"}
+        if "pose" in p:
+            x, y, z, phi = p["pose"]
+            p["pose"] = [x, y, z, 0.0, 0.0, phi]
+        poses.append(p)
+    ref = None if trace.reference is None else {k: v for k, v in trace.reference.items()
+                                                if k != "record"}
+    return h, ref, poses
+
+
+@pytest.mark.parametrize("method", ["sm-full-pose", "sm-distance", "sm-plane",
+                                    "sm-self-redundancy"])
+def test_agebot_robot_file_reproduces_the_builtin_model(tmp_path, method):
+    spec = load_robot_file(os.path.join(ROBOTS, "agebot-sm.toml"))
+    built = calibrate_trace(os.path.join(TRACES, f"{method}.jsonl"))
+    path = tmp_path / "file.jsonl"
+    write_trace(path, *_as_robot_file(built.trace, spec))
+    mine = calibrate(read_trace(path))
+    xb, xf = built.result, mine.result
+    assert xb.n_identifiable == xf.n_identifiable
+    v = {n: xb.value(n) for n in xb.names}
+    expect = {"q1_off": v["q1_off"], "q2_off": v["q2_off"], "q3_off": v["q3_off"],
+              "q4_off": v["q4_off"], "k1": v["k1"], "k2": v["k2"], "k3": v["k3"], "k4": v["k4"],
+              "a2": v["L2"], "a3": v["L3"], "a4": v["L4"],
+              "base_a": v["a0"] * math.cos(v["theta0"]), "a1": v["a0"] * math.sin(v["theta0"])}
+    for n, e in expect.items():
+        assert abs(xf.value(n) - e) <= 1e-9 * max(1.0, abs(e)), (n, xf.value(n), e)
+    for n in ("q3_off", "k2", "k3", "L2", "L3"):  # the same names in both models
+        m = {"L2": "a2", "L3": "a3"}.get(n, n)
+        if xb.status[xb.names.index(n)].identifiable:
+            assert abs(xf.error_of(m) / xb.error_of(n) - 1) < 1e-9, n
+    qm = np.array([p["qm"] for p in built.trace.poses])
+    pb = built.model.robot.fk(qm, xb.x[:13])[:, :3]
+    pf = mine.model.robot.fk(qm, xf.x[:mine.model.robot.n_params])[:, :3]
+    assert np.abs(pb - pf).max() < 1e-9
