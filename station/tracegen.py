@@ -225,7 +225,7 @@ def generate_from_truth(path, method: str, *, truth: str | None = None, noise=()
     mi = METHODS.get(method)
     if mi is None:
         raise ConfigError(f"unknown method {method!r} (known: {', '.join(METHODS)})")
-    robot = get_robot(mi.robot)
+    robot = get_robot(BUILTIN[mi.kind])
     plane, mount, base_noise = None, (0.0, 0.0), {}
     if truth:
         from drivers.sim.truth import load_truth

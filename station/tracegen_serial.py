@@ -174,7 +174,7 @@ def generate_command(args) -> str:
     truth file's noise. Writes ``args.out`` atomically; returns a summary line."""
     from drivers.robot_file import load_robot_file
     from drivers.sim.truth import load_truth
-    from station.params_file import write_atomic
+    from drivers.atomic import write_atomic
 
     spec = load_robot_file(args.robot)
     robot = get_robot(spec)
