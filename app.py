@@ -52,6 +52,14 @@ def _cmd_params_verify(args) -> int:
     return 0
 
 
+def _cmd_params_export(args) -> int:
+    from station.export import export_command
+
+    for line in export_command(args):
+        print(line)
+    return 0
+
+
 def _cmd_trace_generate(args) -> int:
     if args.robot and args.robot not in ("agebot-sm", "agebot-pm"):
         from station.tracegen_serial import generate_command
@@ -103,6 +111,12 @@ def build_parser() -> argparse.ArgumentParser:
     v = psub.add_parser("verify", help="check format, version and checksum")
     v.add_argument("file")
     v.set_defaults(func=_cmd_params_verify)
+    ex = psub.add_parser("export", help="a robot file's calibration as URDF and/or a "
+                                        "calibrated robot file (docs/robot-files.md)")
+    ex.add_argument("file")
+    ex.add_argument("--urdf", help="URDF to write (refused where a ratio k is not 1)")
+    ex.add_argument("--robot-file", help="calibrated robot file (TOML) to write")
+    ex.set_defaults(func=_cmd_params_export)
 
     t = sub.add_parser("trace", help="traces")
     tsub = t.add_subparsers(dest="trace_command", required=True)

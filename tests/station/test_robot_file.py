@@ -144,3 +144,49 @@ def test_agebot_robot_file_reproduces_the_builtin_model(tmp_path, method):
     pb = built.model.robot.fk(qm, xb.x[:13])[:, :3]
     pf = mine.model.robot.fk(qm, xf.x[:mine.model.robot.n_params])[:, :3]
     assert np.abs(pb - pf).max() < 1e-9
+
+
+# -- exports ---------------------------------------------------------------------------
+def test_urdf_and_calibrated_robot_file_give_the_parameter_files_model(tmp_path):
+    import yourdfpy
+
+    from calibration.robots import get_robot
+    from station.export import calibrated_model
+    from station.params_file import read_params
+
+    t, p = tmp_path / "t.jsonl", tmp_path / "p.json"
+    r = app("trace", "generate", "--robot", os.path.join(ROBOTS, "ur5-like-hayati.toml"),
+            "--method", "sm-position", "--noise", "position=1e-4", "--seed", "4", "--out", str(t))
+    assert r.returncode == 0, r.stderr
+    assert app("batch", str(t), "--out", str(p)).returncode == 0
+    urdf, toml = tmp_path / "cal.urdf", tmp_path / "cal.toml"
+    r = app("params", "export", str(p), "--urdf", str(urdf), "--robot-file", str(toml))
+    assert r.returncode == 0, r.stderr
+    robot, xi = calibrated_model(read_params(p))
+    assert not np.allclose(xi, robot.nominal)  # calibrated values, not the nominal
+    u = yourdfpy.URDF.load(str(urdf), build_scene_graph=True, load_meshes=False)
+    assert [j for j in u.actuated_joint_names] == [f"joint{i}" for i in range(1, 7)]
+    rng = np.random.default_rng(0)
+    qm = rng.uniform(robot.limits[:, 0], robot.limits[:, 1], size=(25, 6))
+    for q in qm:
+        u.update_cfg(dict(zip(u.actuated_joint_names, q)))
+        T = u.get_transform("tool0", "base_link")
+        assert np.abs(T - robot.frames(q, xi)[0]).max() < 1e-9
+    back = get_robot(load_robot_file(toml))
+    assert back.param_names == robot.param_names and back.fixed == robot.fixed
+    assert np.array_equal(back.nominal, xi)
+    assert np.abs(back.frames(qm, back.nominal) - robot.frames(qm, xi)).max() < 1e-12
+
+
+def test_urdf_export_refuses_a_ratio_other_than_one(tmp_path):
+    t, p = tmp_path / "t.jsonl", tmp_path / "p.json"
+    assert app("trace", "generate", "--robot", os.path.join(ROBOTS, "agebot-sm.toml"),
+               "--method", "sm-position", "--out", str(t)).returncode == 0
+    assert app("batch", str(t), "--out", str(p)).returncode == 0
+    out = tmp_path / "a.urdf"
+    r = app("params", "export", str(p), "--urdf", str(out))
+    assert r.returncode != 0 and not out.exists()
+    assert r.stderr.startswith("error: ") and "joint 1: k1 = " in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    r = app("params", "export", os.path.join(TRACES, "..", "..", "README.md"), "--urdf", str(out))
+    assert r.returncode != 0 and "Traceback" not in r.stderr
