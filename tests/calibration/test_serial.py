@@ -122,3 +122,49 @@ def test_noise_free_converges_to_truth(name, method):
             assert abs(res.x[j] - truth[j]) < 1e-9 * max(1.0, abs(truth[j])), (n, res.x[j], truth[j])
     assert len(extra_params(method, rob)) == (2 if method == "sm-distance-tilt" else
                                               3 if method == "sm-plane" else 0)
+
+
+NOISE = {"sm-full-pose": {"pose": [1e-4, 1e-4, 1e-4, 2e-4, 2e-4, 2e-4]},
+         "sm-position": {"position": 1e-4}, "sm-distance": {"distance": 1e-4},
+         "sm-distance-tilt": {"distance": 1e-4, "tilt": 2e-4}, "sm-plane": {}}
+SIGMA_ROWS = {"sm-full-pose": dict(zip(("x", "y", "z", "roll", "pitch", "yaw"),
+                                       NOISE["sm-full-pose"]["pose"])),
+              "sm-position": {"x": 1e-4, "y": 1e-4, "z": 1e-4}, "sm-distance": {"distance": 1e-4},
+              "sm-distance-tilt": {"distance": 1e-4, "roll": 2e-4, "pitch": 2e-4}}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ("ur5-like-hayati", "scara-like"))
+@pytest.mark.parametrize("method,trials", [("sm-full-pose", 25), ("sm-position", 25),
+                                           ("sm-distance", 25), ("sm-distance-tilt", 25),
+                                           ("sm-plane", 20)])
+def test_monte_carlo_normalized_errors(name, method, trials):
+    """Reported std covers the real error: ``(x - truth) / std`` over the identifiable
+    parameters has RMS near 1 (known sigma; sm-plane estimates its own)."""
+    rob = robot(name)
+    rng = np.random.default_rng(17)
+    count = 40 if method == "sm-plane" else None
+    ids = identifiable_at(rob, method, rob.nominal, seed=2, count=count)
+    xi = perturbed(rob, ids, rng, 1e-3)
+    mount = tuple(0.01 if n in ids else 0.0 for n in ("mount_x", "mount_y"))
+    truth = np.r_[xi, mount] if method == "sm-distance-tilt" else xi
+    z = []
+    for t in range(trials):
+        data, header = data_of(rob, method, xi, seed=100 + t, count=count, mount=mount,
+                               noise=NOISE[method])
+        opts, extra = {}, None
+        if method == "sm-plane":
+            # contacts touched with 1e-4 m of noise along the plane's normal
+            n = np.array([header["nominal"][k] for k in ("plane_a", "plane_b", "plane_c")])
+            extra, opts["plane_given"] = n, True
+            p = rob.frames(data.qm, xi)[:, :3, 3]
+            p += np.outer(rng.normal(size=len(p)) * 1e-4, n / np.linalg.norm(n))
+            qm = np.array([rob.move_to(q, pt, xi) for q, pt in zip(data.qm, p)])
+            data = type(data)(qm=qm, channels={})
+        res = fit(model_of(rob, method, data, extra=extra, **opts), rob,
+                  sigma=SIGMA_ROWS.get(method))
+        assert res.converged
+        k = [j for j, s in enumerate(res.status[:len(truth)]) if s.identifiable]
+        z.extend((res.x[k] - truth[k]) / res.std[k])
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.8 < rms < 1.25, rms
