@@ -23,13 +23,13 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from calibration import design as dz  # noqa: E402
 from calibration.methods import METHODS  # noqa: E402
-from calibration.robots import get_robot  # noqa: E402
+from calibration.robots import BUILTIN, get_robot  # noqa: E402
 from station.pose_design import DEFAULT_NOISE  # noqa: E402
 from station.tracegen import candidate_pool  # noqa: E402
 
 
 def compare(method: str, n: int, pool: int, draws: int, seed: int = 1) -> dict:
-    robot = get_robot(METHODS[method].robot)
+    robot = get_robot(BUILTIN[METHODS[method].kind])
     x_plan = robot.nominal if robot.name == "agebot-sm" else robot.true
     model, _, group = candidate_pool(method, x_plan, pool, seed=seed)
     info = dz.pose_information(model, model.x0, DEFAULT_NOISE, group=group)

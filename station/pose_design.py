@@ -99,7 +99,7 @@ def pool_model(method: str, robot, x_plan, qm, *, reference_qm=None, group=None,
         options["plane_given"] = True
     elif method == "pm-tilt":
         extras = list(mount)
-    if mi.robot == "agebot-pm":
+    if mi.kind == "parallel-wrist":
         options["start"] = "nominal"
     return build(method, robot, data, np.r_[x_plan, extras], **options)
 

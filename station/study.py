@@ -62,8 +62,9 @@ class StudySpec:
 
     def robot_name(self) -> str:
         from calibration.methods import METHODS
+        from calibration.robots import BUILTIN
 
-        return METHODS[self.method].robot
+        return BUILTIN[METHODS[self.method].kind]
 
 
 def is_angle(name: str, robot) -> bool:
@@ -90,7 +91,7 @@ def run_one(spec: dict, index: int, design: str) -> dict:
     """One calibration of the study: robot ``index`` drawn, simulated, calibrated and
     compared with its truth. Never raises for a failed calibration: the record says."""
     from calibration.methods import METHODS, build
-    from calibration.robots import get_robot
+    from calibration.robots import BUILTIN, get_robot
     from drivers.sim.truth import draw_truth
     from station.batch import calibrate
     from station.trace import Trace
@@ -98,7 +99,7 @@ def run_one(spec: dict, index: int, design: str) -> dict:
 
     s = StudySpec(**{**spec, "designs": tuple(spec["designs"])})
     mi = METHODS[s.method]
-    robot = get_robot(mi.robot)
+    robot = get_robot(BUILTIN[mi.kind])
     rng = np.random.default_rng([s.seed, index])
     truth = draw_truth(robot.name, rng, gear=s.gear, length=s.length, offset=s.offset)
     xi = truth.xi()
@@ -264,12 +265,13 @@ def run_study(spec: StudySpec, out_dir, *, scheduler: str | None = None,
 def cli(args) -> int:
     """``app.py study``: check the options, run, print the summary."""
     from calibration.methods import METHODS
+    from calibration.robots import BUILTIN
     from station.pose_design import DESIGNS
     from station.tracegen import parse_noise
 
     if args.method not in METHODS:
         raise StationError(f"unknown method {args.method!r} (known: {', '.join(METHODS)})")
-    robot = METHODS[args.method].robot
+    robot = BUILTIN[METHODS[args.method].kind]
     if args.robot and args.robot != robot:
         raise StationError(f"method {args.method} is for {robot}, not {args.robot}")
     designs = tuple(d.strip() for d in args.design.split(",") if d.strip())

@@ -100,7 +100,7 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
         if method == "pm-fk" and components:
             header["components"] = list(components)
     if design == "optimal":
-        x_plan = xi_true if mi.robot == "agebot-pm" else nom
+        x_plan = xi_true if mi.kind == "parallel-wrist" else nom
         ref_qm = None if reference is None else np.array(reference["qm"])
         model = pose_design.pool_model(method, robot, x_plan, qm, reference_qm=ref_qm,
                                        group=group, components=components, mount=mount,
@@ -249,7 +249,7 @@ def candidate_pool(method: str, x_plan, size: int, *, seed=0, components=None, p
     robot ``x_plan`` (the current model), and the method's measurement model over it
     (:func:`station.pose_design.pool_model`). Returns ``(model, qm, group)``."""
     mi = METHODS[method]
-    robot = get_robot(mi.robot)
+    robot = get_robot(BUILTIN[mi.kind])
     x_plan = np.asarray(x_plan, dtype=float)
     header, reference, poses = generate(method, x_plan, nominal=x_plan, plane=plane,
                                         seed=seed, count=size, components=components)
