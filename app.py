@@ -60,6 +60,13 @@ def _cmd_params_export(args) -> int:
     return 0
 
 
+def _cmd_trace_import(args) -> int:
+    from station.trace_import import import_command
+
+    print(import_command(args))
+    return 0
+
+
 def _cmd_trace_generate(args) -> int:
     if args.robot and args.robot not in ("agebot-sm", "agebot-pm"):
         from station.tracegen_serial import generate_command
@@ -136,6 +143,19 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--known", help="parameters whose true values go into the nominal, e.g. "
                                    "L4 (sm-self-redundancy) or L4,theta0,a0,plane_a,plane_b,plane_c")
     g.set_defaults(func=_cmd_trace_generate)
+    im = tsub.add_parser("import", help="a robot file's trace from a CSV of joint values and "
+                                        "measurements (columns: docs/robot-files.md)")
+    im.add_argument("csv")
+    im.add_argument("--robot", required=True, help="the robot file (TOML)")
+    im.add_argument("--method", required=True)
+    im.add_argument("--out", required=True)
+    im.add_argument("--length-unit", choices=("m", "mm"), default="m",
+                    help="unit of x, y, z and distance in the CSV")
+    im.add_argument("--angle-unit", choices=("rad", "deg"), default="rad",
+                    help="unit of roll, pitch, yaw, tilt_roll, tilt_pitch in the CSV")
+    im.add_argument("--sigma", action="append", metavar="CHANNEL=STD",
+                    help="std of one reading in SI units (repeatable), e.g. position=1e-4")
+    im.set_defaults(func=_cmd_trace_import)
 
     s = sub.add_parser("simulate", help="run the simulated devices until stopped")
     s.add_argument("--robot", required=True, choices=("agebot-sm", "agebot-pm"))

@@ -9,9 +9,6 @@ trace is complete on its own (shared/spec/robot-file.md).
 """
 from __future__ import annotations
 
-import io
-import json
-
 import numpy as np
 
 from calibration.errors import CalibrationError, UnreachablePose
@@ -20,7 +17,7 @@ from calibration.methods import METHODS, check_kind, extra_params
 from calibration.methods.sm_plane import PLANE
 from calibration.robots import get_robot
 from calibration.robots.agebot_pm import gravity_tilt
-from station.trace import FORMAT, VERSION, utc_now, write_trace
+from station.trace import write_trace
 
 # rows per pose of each method on a robot file (eq. 60's p)
 ROWS = {"sm-full-pose": 6, "sm-position": 3, "sm-distance": 1, "sm-distance-tilt": 3,
@@ -174,7 +171,6 @@ def generate_command(args) -> str:
     truth file's noise. Writes ``args.out`` atomically; returns a summary line."""
     from drivers.robot_file import load_robot_file
     from drivers.sim.truth import load_truth
-    from drivers.atomic import write_atomic
 
     spec = load_robot_file(args.robot)
     robot = get_robot(spec)
@@ -197,12 +193,5 @@ def generate_command(args) -> str:
     known = tuple(k for k in (args.known or "").split(",") if k)
     header, reference, poses = generate(robot, args.method, xi, noise=noise, seed=args.seed,
                                         count=args.count, mount=mount, plane=plane, known=known)
-    buf = io.StringIO()
-    recs = [{"record": "header", "format": FORMAT, "version": VERSION, "created": utc_now(), **header}]
-    if reference is not None:
-        recs.append({"record": "reference", **reference})
-    recs += [{"record": "pose", **p} for p in poses]
-    for rec in recs:
-        buf.write(json.dumps(rec, separators=(",", ":"), allow_nan=False) + "\n")
-    write_atomic(args.out, buf.getvalue().encode("utf-8"))
+    write_trace(args.out, header, reference, poses)
     return f"trace written to {args.out} ({len(poses)} poses of {robot.name}, {args.method})"

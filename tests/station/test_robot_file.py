@@ -190,3 +190,65 @@ def test_urdf_export_refuses_a_ratio_other_than_one(tmp_path):
     assert len(r.stderr.strip().splitlines()) == 1
     r = app("params", "export", os.path.join(TRACES, "..", "..", "README.md"), "--urdf", str(out))
     assert r.returncode != 0 and "Traceback" not in r.stderr
+
+
+# -- trace import ----------------------------------------------------------------------
+def _csv_of(trace_path, csv_path, *, mm_deg: bool):
+    """A CSV as a user would have it, from a generated trace (lengths in mm and angles
+    in degrees where ``mm_deg``)."""
+    tr = read_trace(trace_path)
+    n = len(tr.poses[0]["qm"])
+    L, A = (1e3, 180 / math.pi) if mm_deg else (1.0, 1.0)
+    cols = [f"qm{i}" for i in range(1, n + 1)]
+    if tr.method == "sm-full-pose":
+        cols += ["x", "y", "z", "roll", "pitch", "yaw"]
+    elif tr.method == "sm-distance-tilt":
+        cols += ["distance", "tilt_roll", "tilt_pitch"]
+    lines = [",".join(cols + ["use"])]
+    if tr.reference is not None:
+        lines.append(",".join(repr(v) for v in tr.reference["qm"]) + "," * (len(cols) - n)
+                     + ",reference")
+    for p in tr.poses:
+        vals = list(p["qm"])
+        if tr.method == "sm-full-pose":
+            vals += [v * L for v in p["pose"][:3]] + [v * A for v in p["pose"][3:]]
+        elif tr.method == "sm-distance-tilt":
+            vals += [p["distance"] * L] + [v * A for v in p["tilt"]]
+        lines.append(",".join(repr(v) for v in vals) + ",fit")
+    csv_path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("method", ["sm-full-pose", "sm-distance-tilt"])
+def test_import_csv_gives_the_same_calibration(tmp_path, method):
+    t = tmp_path / "gen.jsonl"
+    robot = os.path.join(ROBOTS, "scara-like.toml")
+    assert app("trace", "generate", "--robot", robot, "--method", method, "--seed", "3",
+               "--out", str(t)).returncode == 0
+    csv_path, imp = tmp_path / "meas.csv", tmp_path / "imp.jsonl"
+    _csv_of(t, csv_path, mm_deg=True)
+    r = app("trace", "import", str(csv_path), "--robot", robot, "--method", method,
+            "--length-unit", "mm", "--angle-unit", "deg", "--out", str(imp))
+    assert r.returncode == 0, r.stderr
+    a, b = calibrate_trace(str(t)), calibrate_trace(str(imp))
+    assert np.allclose(a.result.x, b.result.x, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("edit,words", [
+    (lambda ls: ls[:2] + [ls[2].replace(ls[2].split(",")[1], "abc", 1)] + ls[3:], ":3: column qm2: 'abc'"),
+    (lambda ls: [ls[0].replace("yaw", "jaw")] + ls[1:], ":1: column 'jaw'"),
+    (lambda ls: ls[:3] + [ls[3] + ",1"] + ls[4:], ":4: 12 values for 11 columns"),
+    (lambda ls: ls[:2] + ["999," + ls[2].split(",", 1)[1]] + ls[3:], ":3: column qm1: 999.0 is outside"),
+])
+def test_import_errors_name_the_csv_line(tmp_path, edit, words):
+    t = tmp_path / "gen.jsonl"
+    robot = os.path.join(ROBOTS, "scara-like.toml")
+    assert app("trace", "generate", "--robot", robot, "--method", "sm-full-pose", "--count", "5",
+               "--out", str(t)).returncode == 0
+    csv_path = tmp_path / "m.csv"
+    _csv_of(t, csv_path, mm_deg=False)
+    csv_path.write_text("\n".join(edit(csv_path.read_text().splitlines())) + "\n")
+    out = tmp_path / "imp.jsonl"
+    r = app("trace", "import", str(csv_path), "--robot", robot, "--method", "sm-full-pose",
+            "--out", str(out))
+    assert r.returncode != 0 and not out.exists()
+    assert len(r.stderr.strip().splitlines()) == 1 and words in r.stderr, r.stderr

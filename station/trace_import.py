@@ -1,0 +1,166 @@
+"""``app.py trace import``: a trace of a robot file from a CSV of joint values and
+measurements (docs/robot-files.md, "Importing measurements").
+
+One row per pose, a header row naming the columns (any order, extra columns
+are errors):
+
+====================  ==========================================================
+``qm1 .. qmN``        actuator values, in the robot file's actuator units (required)
+``x, y, z``           tool position in the base frame (sm-position, sm-full-pose)
+``roll, pitch, yaw``  tool orientation, ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (sm-full-pose)
+``distance``          distance from the reference point (sm-distance, sm-distance-tilt)
+``tilt_roll, tilt_pitch``  the tool inclinometer (sm-distance-tilt)
+``group``             integer, poses sharing the tool position (sm-self-redundancy)
+``use``               ``fit`` (default), ``validation`` (held out) or ``reference``
+                      (the one row where the draw-wire was zeroed; distance methods)
+====================  ==========================================================
+
+Lengths are in ``--length-unit`` (``m`` default, or ``mm``), angles in
+``--angle-unit`` (``rad`` default, or ``deg``); the trace holds SI units. Every
+error names the CSV file and line.
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import math
+from pathlib import Path
+
+from calibration.errors import ConfigError
+from calibration.methods import METHODS, check_kind
+from calibration.robots import get_robot
+from drivers.robot_file import load_robot_file
+from station.trace import write_trace
+
+LENGTH = {"m": 1.0, "mm": 1e-3}
+ANGLE = {"rad": 1.0, "deg": math.pi / 180}
+# columns each method reads (besides qm and use), and the trace channel they form
+COLUMNS = {"sm-position": {"position": ("x", "y", "z")},
+           "sm-full-pose": {"pose": ("x", "y", "z", "roll", "pitch", "yaw")},
+           "sm-distance": {"distance": ("distance",)},
+           "sm-distance-tilt": {"distance": ("distance",), "tilt": ("tilt_roll", "tilt_pitch")},
+           "sm-plane": {}, "sm-self-redundancy": {}}
+ANGLES = {"roll", "pitch", "yaw", "tilt_roll", "tilt_pitch"}
+USES = ("fit", "validation", "reference")
+
+
+def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit="rad",
+               sigma: dict | None = None) -> tuple[dict, dict | None, list[dict]]:
+    """``(header, reference, poses)`` of the trace (see module doc)."""
+    src = str(csv_path)
+    spec = load_robot_file(robot_path)
+    robot = get_robot(spec)
+    if method not in COLUMNS:
+        raise ConfigError(f"method {method!r} cannot be imported for a robot file (known: "
+                          f"{', '.join(COLUMNS)})", source=src)
+    check_kind(method, robot)
+    if length_unit not in LENGTH or angle_unit not in ANGLE:
+        raise ConfigError(f"units must be {'/'.join(LENGTH)} and {'/'.join(ANGLE)}, not "
+                          f"{length_unit!r}, {angle_unit!r}", source=src)
+    try:
+        raw = Path(src).read_bytes()
+        text = raw.decode("utf-8-sig")
+    except OSError as e:
+        raise ConfigError(f"cannot read: {e.strerror or e}", source=src) from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"not UTF-8 text: {e}", source=src) from None
+    rows = csv.reader(io.StringIO(text))
+    try:
+        head = [c.strip() for c in next(rows)]
+    except StopIteration:
+        raise ConfigError("empty file: the first line must name the columns", source=src) from None
+    qcols = [f"qm{i}" for i in range(1, robot.n_actuators + 1)]
+    need = qcols + [c for cols in COLUMNS[method].values() for c in cols]
+    if method == "sm-self-redundancy":
+        need.append("group")
+    allowed = set(need) | {"use"}
+    for c in head:
+        if c not in allowed:
+            raise ConfigError(f"column {c!r} is not one that {method} on {robot.name} reads "
+                              f"(columns: {', '.join(need)}, optional use)", source=f"{src}:1")
+    for c in need:
+        if c not in head:
+            raise ConfigError(f"missing column {c!r} ({method} on {robot.name} needs "
+                              f"{', '.join(need)})", source=f"{src}:1")
+    if len(set(head)) != len(head):
+        raise ConfigError("a column is named twice", source=f"{src}:1")
+    col = {c: head.index(c) for c in head}
+    scale = {c: (ANGLE[angle_unit] if c in ANGLES else LENGTH[length_unit]) for c in need
+             if c not in qcols and c != "group"}
+    poses, reference = [], None
+    for lineno, row in enumerate(rows, start=2):
+        where = f"{src}:{lineno}"
+        if not any(v.strip() for v in row):
+            continue
+        if len(row) != len(head):
+            raise ConfigError(f"{len(row)} values for {len(head)} columns", source=where)
+
+        def num(c):
+            v = row[col[c]].strip()
+            try:
+                x = float(v)
+            except ValueError:
+                raise ConfigError(f"column {c}: {v!r} is not a number", source=where) from None
+            if not math.isfinite(x):
+                raise ConfigError(f"column {c}: {v!r} is not finite", source=where)
+            return x
+
+        use = row[col["use"]].strip() if "use" in col else "fit"
+        use = use or "fit"
+        if use not in USES:
+            raise ConfigError(f"column use: {use!r} is not one of {', '.join(USES)}", source=where)
+        qm = [num(c) for c in qcols]
+        for i, (v, (lo, hi)) in enumerate(zip(qm, robot.limits), start=1):
+            if not lo <= v <= hi:
+                raise ConfigError(f"column qm{i}: {v!r} is outside the joint's limits "
+                                  f"[{lo!r}, {hi!r}] of {Path(str(robot_path)).name}", source=where)
+        if use == "reference":
+            if METHODS[method].reference is None:
+                raise ConfigError(f"{method} has no reference row", source=where)
+            if reference is not None:
+                raise ConfigError("a second reference row", source=where)
+            reference = {"role": METHODS[method].reference, "qm": qm}
+            continue
+        rec = {"index": len(poses), "qm": qm}
+        for ch, cols in COLUMNS[method].items():
+            vals = [num(c) * scale[c] for c in cols]
+            rec[ch] = vals[0] if ch == "distance" else vals
+        if method == "sm-self-redundancy":
+            g = row[col["group"]].strip()
+            if not g.lstrip("-").isdigit():
+                raise ConfigError(f"column group: {g!r} is not an integer", source=where)
+            rec["group"] = int(g)
+        if use == "validation":
+            rec["use"] = "validation"
+        poses.append(rec)
+    if not poses:
+        raise ConfigError("no poses (one row per pose after the header)", source=src)
+    if METHODS[method].reference and reference is None:
+        raise ConfigError(f"{method} needs the reference row (use = reference): the actuator "
+                          f"values where the draw-wire was zeroed", source=src)
+    header = {"robot": robot.name, "robot_file": dict(spec.source), "method": method,
+              "nominal": robot.as_dict(robot.nominal),
+              "station": {"imported_from": {"file": Path(src).name,
+                                            "sha256": hashlib.sha256(raw).hexdigest()},
+                          "units": {"length": length_unit, "angle": angle_unit}}}
+    if sigma:
+        header["sigma"] = sigma
+    return header, reference, poses
+
+
+def import_command(args) -> str:
+    """``app.py trace import``: write the trace atomically; returns a summary line."""
+    sigma = {}
+    for item in args.sigma or ():
+        k, _, v = item.partition("=")
+        try:
+            sigma[k] = float(v)
+        except ValueError:
+            raise ConfigError(f"--sigma {item}: {v!r} is not a number (CHANNEL=STD, SI units)") \
+                from None
+    header, reference, poses = import_csv(args.csv, args.robot, args.method,
+                                          length_unit=args.length_unit,
+                                          angle_unit=args.angle_unit, sigma=sigma or None)
+    write_trace(args.out, header, reference, poses)
+    return f"trace written to {args.out} ({len(poses)} poses of {header['robot']}, {args.method})"
