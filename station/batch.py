@@ -78,7 +78,8 @@ def make_model(trace: Trace, *, method: str | None = None, residual: str | None 
 
 
 def frame_statement(trace: Trace) -> dict | None:
-    if trace.method != "sm-distance-tilt" or trace.reference is None:
+    if (trace.method != "sm-distance-tilt" or trace.reference is None
+            or "robot_file" in trace.header):  # a robot file's distances are from the point
         return None
     return {"origin_qm": trace.reference["qm"],
             "statement": ("theta0, a0 and q1_off refer to the base frame whose origin is the "
@@ -164,6 +165,6 @@ def format_table(outcome: BatchOutcome) -> str:
     lines.append(f"residual RMS: {rms}")
     for note in getattr(model, "notes", ()) or ():
         lines.append(f"note: {note}")
-    if outcome.trace.method == "sm-distance-tilt":
+    if outcome.trace.method == "sm-distance-tilt" and "robot_file" not in outcome.trace.header:
         lines.append("note: theta0, a0 and q1_off refer to the captured base origin")
     return "\n".join(lines)
