@@ -4,9 +4,9 @@ Importing this module fails with ImportError where figaroh is not installed;
 bench_chain.py then prints "figaroh not installed".
 
 The same arm and data as bench_chain.py, given to FIGAROH the way its users
-give them: the nominal arm as a URDF (written here from the DH nominal: joint
-``i``'s origin is ``Trans(x, a_{i-1}) Rot(x, alpha_{i-1}) Trans(z, d_i)``, the
-reflector a fixed link), a unified YAML config (``full_params`` calibration
+give them: the nominal arm as a URDF (the station's own export,
+``station.export.urdf_text``: joints ``joint1..6``, the reflector the fixed
+link ``tool0``), a unified YAML config (``full_params`` calibration
 level, base and tip frames unknown, one marker with position-only
 measurability) and the CSV of joint values and reflector positions. The
 calibration is FIGAROH's :class:`figaroh.calibration.BaseCalibration` with the
@@ -36,42 +36,9 @@ with warnings.catch_warnings():
     from figaroh.calibration import BaseCalibration
     from figaroh.calibration.calibration_tools import calc_updated_fkm
 
+from station.export import urdf_text  # noqa: E402
+
 JOINTS = [f"joint{i}" for i in range(1, 7)]
-
-
-def urdf_of(dh) -> str:
-    """The nominal of a ``dh_model`` 6R chain as a URDF (reflector: link ``reflector``)."""
-    x = {n: float(v) for n, v in zip(dh.names, dh.nominal)}
-    if any(abs(x[n]) > 0 for n in ("d0", "theta0", "a0", "alpha0")) or any(
-            abs(x[f"q{i}_off"]) > 0 for i in range(1, 7)):
-        raise ValueError("the URDF writer here assumes a zero base transform and zero offsets")
-
-    def link(name):
-        return (f'  <link name="{name}"><inertial><mass value="1"/><origin xyz="0 0 0"/>'
-                f'<inertia ixx="1e-3" iyy="1e-3" izz="1e-3" ixy="0" ixz="0" iyz="0"/>'
-                f"</inertial></link>\n")
-
-    def origin(a, alpha, d):  # Trans(x, a) Rot(x, alpha) Trans(z, d)
-        return (f'<origin xyz="{a!r} {-math.sin(alpha) * d!r} {math.cos(alpha) * d!r}" '
-                f'rpy="{alpha!r} 0 0"/>')
-
-    out = ['<?xml version="1.0"?>\n<robot name="ur5like">\n', link("base_link")]
-    a_prev, al_prev = 0.0, 0.0
-    parent = "base_link"
-    for i in range(1, 7):
-        out.append(link(f"link{i}"))
-        out.append(f'  <joint name="joint{i}" type="revolute"><parent link="{parent}"/>'
-                   f'<child link="link{i}"/>{origin(a_prev, al_prev, x[f"d{i}"])}'
-                   f'<axis xyz="0 0 1"/><limit lower="-6.3" upper="6.3" effort="100" '
-                   f'velocity="3"/></joint>\n')
-        a_prev, al_prev, parent = x[f"a{i}"], x[f"alpha{i}"], f"link{i}"
-    if abs(x["gamma_e"]) > 0:
-        raise ValueError("the URDF writer here assumes gamma_e = 0")
-    out.append(link("reflector"))
-    out.append(f'  <joint name="reflector_joint" type="fixed"><parent link="link6"/>'
-               f'<child link="reflector"/>{origin(a_prev, al_prev, x["b_e"])}</joint>\n')
-    out.append("</robot>\n")
-    return "".join(out)
 
 
 CONFIG = """\
@@ -91,7 +58,7 @@ tasks:
       outlier_threshold: 1.0
     kinematics:
       base_frame: "universe"
-      tool_frame: "reflector"
+      tool_frame: "tool0"
     measurements:
       markers:
         - name: "reflector"
@@ -121,12 +88,12 @@ class TrackerCalibration(BaseCalibration):
 class FigarohRun:
     """Build FIGAROH's calibration of bench_chain's problem; ``row`` times it."""
 
-    def __init__(self, dh, model, truth):
-        self.dh, self.model, self.truth = dh, model, truth
+    def __init__(self, robot, model, truth):
+        self.model, self.truth = model, truth
         self.dir = tempfile.TemporaryDirectory(prefix="bench-figaroh-")
         d = self.dir.name
         with open(os.path.join(d, "ur5like.urdf"), "w") as f:
-            f.write(urdf_of(dh))
+            f.write(urdf_text(robot, robot.nominal))
         with open(os.path.join(d, "data.csv"), "w") as f:
             f.write(",".join(["x1", "y1", "z1", *JOINTS]) + "\n")
             for p, q in zip(model.p_m, model.qm):
@@ -138,8 +105,8 @@ class FigarohRun:
         self.robot = pin.RobotWrapper.BuildFromURDF(os.path.join(d, "ur5like.urdf"))
         # the URDF is the same arm: reflector positions at the nominal agree
         rd = self.robot.model.createData()
-        fid = self.robot.model.getFrameId("reflector")
-        p_chain = dh.chain.fk(model.qm[:20], dh.nominal)[:, :3, 3]
+        fid = self.robot.model.getFrameId("tool0")
+        p_chain = robot.frames(model.qm[:20], robot.nominal)[:, :3, 3]
         for q, p in zip(model.qm[:20], p_chain):
             pin.framesForwardKinematics(self.robot.model, rd, q)
             if np.abs(rd.oMf[fid].translation - p).max() > 1e-12:

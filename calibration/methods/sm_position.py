@@ -22,5 +22,6 @@ class Position(RobotMethod):
         self._channels(("x", "y", "z"), [0, 1, 2])
 
     def evaluate(self, x):
-        X, psi = self.robot.fk_jacobian(self.qm, x)
-        return (self.p_m - X[:, :3]).reshape(-1), psi[:, :3, :].reshape(-1, self.nr)
+        # the chain's position rows only (no orientation rates to compute)
+        T, psi = self.robot.chain.jacobian(self.qm, x, position_only=True)
+        return (self.p_m - T[:, :3, 3]).reshape(-1), psi.reshape(-1, self.nr)
