@@ -23,5 +23,5 @@ class Position(RobotMethod):
 
     def evaluate(self, x):
         # the chain's position rows only (no orientation rates to compute)
-        T, psi = self.robot.chain.jacobian(self.qm, x, position_only=True)
-        return (self.p_m - T[:, :3, 3]).reshape(-1), psi.reshape(-1, self.nr)
+        p, J = self.robot.position_jacobian(self.qm, x)
+        return (self.p_m - p).reshape(-1), J.reshape(-1, self.nr)

@@ -58,6 +58,12 @@ class RobotModel:
     def as_dict(self, xi) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.param_names, xi)}
 
+    def position_jacobian(self, qm, xi):
+        """``(p (m, 3), dp/dxi (m, 3, N))``: the tool position and its rows of the
+        generalized Jacobian (serial robots)."""
+        X, psi = self.fk_jacobian(qm, xi)
+        return X[:, :3], psi[:, :3, :]
+
     def fk(self, qm, xi):  # pragma: no cover - interface
         """Generalized coordinates ``(m, len(coords))`` for actuator values ``qm (m, n)``."""
         raise NotImplementedError

@@ -181,6 +181,12 @@ class SerialRobot(RobotModel):
         """``(T (m, 4, 4), Psi (m, 6, N))``: tool displacement ``[dp; dw]`` per parameter."""
         return self.chain.jacobian(np.atleast_2d(np.asarray(qm, dtype=float)), xi)
 
+    def position_jacobian(self, qm, xi):
+        """``(p (m, 3), dp/dxi (m, 3, N))`` (the chain's position rows only)."""
+        T, J = self.chain.jacobian(np.atleast_2d(np.asarray(qm, dtype=float)), xi,
+                                   position_only=True)
+        return T[:, :3, 3], J
+
     def fk_jacobian(self, qm, xi):
         """``(X (m, 6), dX/dxi (m, 6, N))``, the angle rows by the rpy rates of ``dw``."""
         T, psi = self.spatial_jacobian(qm, xi)

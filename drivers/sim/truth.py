@@ -185,12 +185,12 @@ DRAW_SPREAD = {"gear": 0.4, "length": 0.05, "offset": 0.03}
 def _spread_kind(name: str) -> str:
     if name[0] == "k" and name[1:].isdigit():
         return "gear"
-    if name.endswith("_off") or name.startswith("theta"):
+    if name.endswith("_off") or name.startswith(("theta", "alpha", "beta", "gamma")) or name == "off":
         return "offset"
     return "length"
 
 
-def draw_truth(robot: str, rng: np.random.Generator, *, gear: float = DRAW_SPREAD["gear"],
+def draw_truth(robot, rng: np.random.Generator, *, gear: float = DRAW_SPREAD["gear"],
                length: float = DRAW_SPREAD["length"], offset: float = DRAW_SPREAD["offset"],
                noise: Mapping[str, float] | None = None, seed: int | None = None,
                inclinometer_mount: tuple[float, float] = (0.0, 0.0),
@@ -207,17 +207,25 @@ def draw_truth(robot: str, rng: np.random.Generator, *, gear: float = DRAW_SPREA
     ``X = 0``, report section 10), so its lengths ``a1, a2, l, v`` are drawn around
     the report's measured (true) values; gear ratios and offsets still around the
     nominal, which is what a session starts from.
+
+    ``robot`` may also be a robot file's ``SerialSpec``: its angles (``alpha*``,
+    ``beta*``, ``theta*``, the base's and tool's ``theta, alpha, gamma``) are drawn as
+    offsets, its ``fixed`` parameters stay at the file's values.
     """
     model = get_robot(robot)
     spread = {"gear": gear, "length": length, "offset": offset}
     centre = np.asarray(model.nominal, dtype=float).copy()
     if robot == "agebot-pm":
         centre[:4] = np.asarray(model.true, dtype=float)[:4]
+    spec = robot if not isinstance(robot, str) else None
     params = {}
     for name, nom in zip(model.param_names, centre):
-        kind = _spread_kind(name)
+        if spec is not None and name in model.fixed:
+            params[name] = float(nom)
+            continue
+        kind = _spread_kind(name.split("_")[-1] if spec is not None else name)
         u = float(rng.uniform(-spread[kind], spread[kind]))
         params[name] = float(nom + u) if kind == "offset" else float(nom * (1.0 + u))
-    return SimTruth(robot=robot, parameters=frozen_map(params),
+    return SimTruth(robot=model.name, spec=spec, parameters=frozen_map(params),
                     noise=frozen_map(dict(noise or {})), seed=seed,
                     inclinometer_mount=tuple(inclinometer_mount), comment=comment)

@@ -33,7 +33,9 @@ def test_observation_matrix_matches_finite_differences(name, method):
     rng = np.random.default_rng(5)
     xi = perturbed(rob, rob.param_names, rng, 0.02)
     data, _ = data_of(rob, method, xi, seed=1, count=8, mount=(0.02, -0.01))
-    model = model_of(rob, method, data, nominal=xi)
+    opts = {"distance_zero": "reading"} if method == "sm-distance-tilt" else {}
+    model = model_of(rob, method, data, nominal=xi, **opts)
+    assert ("distance_off" in model.names) == (method == "sm-distance-tilt")
     x = model.x0 + 0.01 * rng.uniform(-1, 1, model.x0.size) * np.where(
         [n[0] == "k" for n in model.names], np.abs(model.x0), 1.0)
     W = model.evaluate(x)[1]
@@ -168,3 +170,18 @@ def test_monte_carlo_normalized_errors(name, method, trials):
         z.extend((res.x[k] - truth[k]) / res.std[k])
     rms = float(np.sqrt(np.mean(np.square(z))))
     assert 0.8 < rms < 1.25, rms
+
+
+def test_a_drawn_robot_file_truth_calibrates_from_positions():
+    """draw_truth on a robot file: free parameters drawn around the nominal, fixed
+    ones kept; the position calibration explains the data to the noise."""
+    from drivers.sim.truth import draw_truth
+
+    rob = robot("ur5-like-hayati")
+    truth = draw_truth(rob.spec, np.random.default_rng(8), offset=0.01, length=0.01)
+    xi = truth.xi()
+    assert truth.robot == rob.name and all(xi[rob.index(k)] == 1.0 for k in rob.fixed)
+    data, _ = data_of(rob, "sm-position", xi, seed=5, count=80, noise={"position": 1e-4})
+    res = fit(model_of(rob, "sm-position", data), rob, sigma={"x": 1e-4, "y": 1e-4, "z": 1e-4})
+    assert res.converged and res.n_identifiable == 27
+    assert np.sqrt(np.mean(res.residual ** 2)) < 1.2e-4

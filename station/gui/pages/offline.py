@@ -134,9 +134,11 @@ class OfflinePage(Page):
 
         o = self.outcome
         try:
+            src = o.trace.header.get("robot_file")   # a robot file's calibration keeps it
             doc = params_document(o.result, robot=o.trace.robot, nominal=o.model.x0,
                                   trace_path=str(self.path), frame=frame_statement(o.trace),
-                                  notes=list(getattr(o.model, "notes", ()) or ()))
+                                  notes=list(getattr(o.model, "notes", ()) or ()),
+                                  extra={"robot_file": src} if src else None)
             doc = write_params(path, doc)
         except Exception as e:  # noqa: BLE001 - said to the operator
             self._say(f"The parameter file was not written: {error_text(e)}", BAD_COLOR)
