@@ -14,8 +14,8 @@ errors, missing required keys are named. Layout (see
     [drawwire]       mode "tcp" | "rtu", host/port or serial_port, device_id, ...
     [snapshot]       samples, period, settle, timeout
     [snapshot.std_limits] / [snapshot.drift_limits] / [snapshot.noise_floor]
-    [limits]         qm_min, qm_max: each actuator's range (the wrist's slider stroke),
-                     actuator units; the station plans and commands nothing outside it
+    [envelope]       qm_min, qm_max (per actuator): the range the station may command
+                     (the wrist's slider stroke), actuator units
 
 Endpoint values the simulator picks at run time are written as the placeholder
 ``"@endpoints"`` and filled by :func:`drivers.endpoints.with_endpoints` from the endpoints JSON of
@@ -37,11 +37,14 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Mapping
 
+import numpy as np
+
 from calibration.errors import ConfigError
 from drivers.config_reader import PLACEHOLDER, KeyReader, frozen_map, load_json
 
 __all__ = ["INCLINOMETER_CHANNELS", "LIMIT_CHANNEL", "PLACEHOLDER", "RAW_AXES", "ROBOT_AXES",
-           "AxisMap", "CanopenConfig", "DrawwireConfig", "InclinometerConfig", "KeyReader",
+           "AxisMap", "CanopenConfig", "DrawwireConfig", "EnvelopeConfig", "InclinometerConfig",
+           "KeyReader",
            "SnapshotConfig", "StationConfig", "frozen_map", "load_json",
            "load_station_config", "parse_station_config"]
 
@@ -172,6 +175,29 @@ class SnapshotConfig:
 
 
 @dataclass(frozen=True)
+class EnvelopeConfig:
+    """The range the station may command (``[envelope]``).
+
+    qm_min, qm_max: per actuator, actuator units (None: the config sets no limit on
+                    that side). For the wrist: the sliders' stroke.
+    """
+
+    qm_min: tuple[float, ...] | None = None
+    qm_max: tuple[float, ...] | None = None
+
+    @property
+    def qm_range(self) -> np.ndarray | None:
+        """``(n, 2)`` of ``(min, max)`` per actuator (-inf/inf on an open side), or None
+        when neither side is set."""
+        if self.qm_min is None and self.qm_max is None:
+            return None
+        n = len(self.qm_min if self.qm_min is not None else self.qm_max)
+        lo = np.full(n, -np.inf) if self.qm_min is None else np.asarray(self.qm_min, float)
+        hi = np.full(n, np.inf) if self.qm_max is None else np.asarray(self.qm_max, float)
+        return np.column_stack([lo, hi])
+
+
+@dataclass(frozen=True)
 class StationConfig:
     """The whole station. ``inclinometer``/``drawwire`` are None where the station has none;
     ``unresolved`` lists the key paths still holding ``"@endpoints"``."""
@@ -184,16 +210,7 @@ class StationConfig:
     source: str | None = None
     unresolved: tuple[str, ...] = ()
     display: DisplayConfig = DisplayConfig()
-    qm_min: tuple[float, ...] | None = None
-    qm_max: tuple[float, ...] | None = None
-
-    @property
-    def qm_range(self) -> tuple[tuple[float, float], ...] | None:
-        """Each actuator's ``(min, max)`` from ``[limits]`` (actuator units), or None
-        where the config gives none."""
-        if self.qm_min is None:
-            return None
-        return tuple(zip(self.qm_min, self.qm_max))
+    envelope: EnvelopeConfig = dataclasses.field(default_factory=EnvelopeConfig)
 
     def require_resolved(self) -> "StationConfig":
         """Self, or ConfigError naming the first endpoint placeholder not yet filled."""
@@ -228,14 +245,14 @@ def parse_station_config(data: Mapping[str, Any], source: str | None = None) -> 
     dw = top.table("drawwire", required=False)
     snap = top.table("snapshot", required=False)
     disp = top.table("display", required=False)
-    qm_min, qm_max = _qm_limits(top.table("limits", required=False), n)
+    env = top.table("envelope", required=False)
     config = StationConfig(
         robot=robot, canopen=canopen,
         inclinometer=_inclinometer(incl, unresolved) if incl else None,
         drawwire=_drawwire(dw, unresolved) if dw else None,
         snapshot=_snapshot(snap) if snap else SnapshotConfig(),
         source=source, unresolved=tuple(unresolved),
-        display=_display(disp) if disp else DisplayConfig(), qm_min=qm_min, qm_max=qm_max)
+        display=_display(disp) if disp else DisplayConfig(), envelope=_envelope(env, n) if env else EnvelopeConfig())
     top.finish()
     return config
 
@@ -309,17 +326,13 @@ def _drawwire(r: KeyReader, unresolved: list[str]) -> DrawwireConfig:
     return cfg
 
 
-def _qm_limits(r: KeyReader | None, n: int):
-    """``[limits] qm_min, qm_max`` (one number for every actuator, or one per actuator)."""
-    if r is None:
-        return None, None
-    lo = r.float_list("qm_min", length=n, scalar_ok=True)
-    hi = r.float_list("qm_max", length=n, scalar_ok=True)
-    for i, (a, b) in enumerate(zip(lo, hi)):
-        if a >= b:
-            r.fail("qm_max", f"actuator {i + 1}: {b:g} is not above qm_min {a:g}")
+def _envelope(r: KeyReader, n: int) -> EnvelopeConfig:
+    lo = r.float_list("qm_min", length=n, default=None)
+    hi = r.float_list("qm_max", length=n, default=None)
+    if lo is not None and hi is not None and any(a >= b for a, b in zip(lo, hi)):
+        r.fail("qm_max", "every qm_max must be above its qm_min")
     r.finish()
-    return lo, hi
+    return EnvelopeConfig(qm_min=lo, qm_max=hi)
 
 
 def _limits(r: KeyReader, key: str) -> Mapping[str, float]:

@@ -178,7 +178,7 @@ class Session:
         self._pause = threading.Event()
         self._abort = threading.Event()
         # the wrist's growing box (station/wrist_plan.py)
-        self.wrist = (WristPlanner(method, self.request, self.components, config.qm_range)
+        self.wrist = (WristPlanner(method, self.request, self.components, config.envelope.qm_range)
                       if self.robot.name == "agebot-pm" else None)
         self._lock = FolderLock(self.out).acquire()    # one session per folder
         try:

@@ -23,7 +23,7 @@ Before each round the start model must explain the recorded readings (RMS at mos
 
 Every planned pose is checked against the current model before it is sent: the
 IK reaches it, the sliders stay within their stroke (station config
-``[limits] qm``), the passive joints within their range
+``[envelope] qm_min, qm_max``), the passive joints within their range
 (:func:`calibration.robots.agebot_pm.envelope_violation`). While executing, the
 measured orientation is compared with what the current model predicts for the
 actuator values reached (FK); beyond :data:`TOLERANCE_DEG` the pose is not

@@ -38,7 +38,7 @@ Physical limits (PM): the wrist cannot go where it cannot be built. Whenever a
 simulated drive is asked for its state (:meth:`SimulatedAgebot.supervise`), the
 motion since the last check is walked in steps of at most :data:`SUPERVISE_STEP`
 actuator units; at the first point beyond the envelope -- a slider outside its
-stroke (``qm_range``, the station config's ``[limits]``), a passive joint outside
+stroke (``qm_range``, the station config's ``[envelope]``), a passive joint outside
 :data:`calibration.robots.agebot_pm.PASSIVE_RANGE`, a rod that cannot reach its
 platform point -- every axis stops at the last point inside, and the drive of
 that rod goes to FAULT with EMCY 0x8612 (reference limit) whose manufacturer

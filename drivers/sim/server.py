@@ -97,7 +97,7 @@ class SimStation:
         self.robot = SimulatedAgebot(truth, faults=self.plan, seed=seed,
                                      velocity=cc.profile_velocity or None,
                                      acceleration=cc.profile_acceleration or None,
-                                     pose_noise=pose_noise, qm_range=config.qm_range)
+                                     pose_noise=pose_noise, qm_range=config.envelope.qm_range)
         self._inclinometer_hz, self._rtu, self._control = inclinometer_hz, rtu, control
         self.canopen = self.inclinometer = self.drawwire = None
         self._server: socketserver.ThreadingTCPServer | None = None

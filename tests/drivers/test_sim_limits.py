@@ -62,8 +62,9 @@ def test_a_move_inside_the_envelope_is_not_stopped():
 
 def test_a_too_far_command_faults_with_the_limit_named_over_the_wire(tmp_path):
     cfg = fast_config(tmp_path, "agebot-pm")
-    text = cfg.read_text().replace("qm_min = -1000.0", "qm_min = [-1000.0, -1000.0, -1000.0]")
-    text = text.replace("qm_max = 6000.0", "qm_max = [2100.0, 6000.0, 6000.0]")
+    text = cfg.read_text().replace("qm_max = [6000.0, 6000.0, 6000.0]",
+                                   "qm_max = [2100.0, 6000.0, 6000.0]")
+    assert text != cfg.read_text()
     cfg.write_text(text)
     with SimulatorProcess("agebot-pm", config=str(cfg), seed=2) as sim:
         config = with_endpoints(load_station_config(cfg), sim.endpoints, source="simulator")
@@ -89,9 +90,11 @@ def test_a_too_far_command_faults_with_the_limit_named_over_the_wire(tmp_path):
 def test_limits_in_the_station_config():
     base = {"robot": "agebot-pm", "canopen": {"interface": "virtual", "nodes": [1, 2, 3],
                                               "increments_per_unit": [1000, 1000, 1000]}}
-    assert parse_station_config(base).qm_range is None
-    c = parse_station_config({**base, "limits": {"qm_min": 0.0, "qm_max": [1.0, 2.0, 3.0]}})
-    assert c.qm_range == ((0.0, 1.0), (0.0, 2.0), (0.0, 3.0))
-    with pytest.raises(ConfigError, match="limits.qm_max"):
-        parse_station_config({**base, "limits": {"qm_min": 5.0, "qm_max": [1.0, 2.0, 3.0]}})
-    assert load_station_config(FIX / "stations" / "sim-pm.toml").qm_range is not None
+    assert parse_station_config(base).envelope.qm_range is None
+    c = parse_station_config({**base, "envelope": {"qm_min": [0.0] * 3, "qm_max": [1.0, 2.0, 3.0]}})
+    np.testing.assert_array_equal(c.envelope.qm_range, [[0.0, 1.0], [0.0, 2.0], [0.0, 3.0]])
+    c = parse_station_config({**base, "envelope": {"qm_max": [1.0, 2.0, 3.0]}})
+    assert c.envelope.qm_range[0, 0] == -np.inf
+    with pytest.raises(ConfigError, match="envelope.qm_max"):
+        parse_station_config({**base, "envelope": {"qm_min": [5.0] * 3, "qm_max": [1.0, 2.0, 3.0]}})
+    assert load_station_config(FIX / "stations" / "sim-pm.toml").envelope.qm_range is not None
