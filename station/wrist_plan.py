@@ -91,6 +91,7 @@ class WristPlanner:
         self.final = False                       # the +-20 deg round is planned
         self.trips = 0                           # watch stops since the last recorded round
         self.replan = False
+        self._recorded = 0                       # poses recorded when the last round was planned
 
     # -- state from a trace's events (resume) --------------------------------------------------
     def restore(self, events) -> None:
@@ -168,6 +169,10 @@ class WristPlanner:
         ``(poses, wrist record)``, or None when the final round is done."""
         if self.final and not self.replan:
             return None
+        # (a round all of whose poses faulted is no progress: it counts as a trip below)
+        if self.rounds > 0 and len(records) <= self._recorded and not self.replan:
+            self.tripped()        # nothing recorded in the last round (faults): no progress
+        self._recorded = len(records)
         fits = [r for r in records if r.get("use", "fit") == "fit"]
         if len(fits) < MIN_FIT_POSES:
             raise WristStopped(f"only {len(fits)} poses near home could be recorded; the "

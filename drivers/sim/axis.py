@@ -82,6 +82,8 @@ class SimAxis:
         if dist == 0:
             return self._target
         t = now - self._t0
+        if t <= 0.0:          # before this move was commanded: where it started
+            return self._start
         v, a = self._v, self._a
         if dist < v * v / a:
             t_acc = math.sqrt(dist / a)
