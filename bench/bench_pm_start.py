@@ -51,6 +51,7 @@ def main(dense: bool = False) -> None:
     print(f"wrist start fit, pm-fk alpha+beta, subset {START_SUBSET} poses")
     print(f"{'poses':>6} {'time s':>8} {'peak MiB':>9} {'time ratio':>11} {'mem ratio':>10} "
           f"{'poses ratio':>12}")
+    measure(20, START_SUBSET)          # warm-up: imports and caches are not the fit's
     prev = None
     for m in COUNTS:
         t, mem, _ = measure(m, START_SUBSET)

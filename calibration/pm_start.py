@@ -28,6 +28,12 @@ poses it is run on that many poses spread over the measured orientations
 ``xi`` held, pose by pose (:func:`fit_orientations`, 3 unknowns each): the start
 costs time and memory linear in the number of poses. Up to
 :data:`START_SUBSET` poses nothing changes.
+
+Where step 2 does not converge from the far nominal (pm-tilt on wrists far from
+the report's: the yaw is unseen and the fit drifts along the model's scale), it is
+grown from home outwards as a session grows its box (:func:`_staged_fit`): the
+poses whose readings are within 6, 10, 16 deg, then all, each stage started at the
+last.
 """
 from __future__ import annotations
 
@@ -43,6 +49,8 @@ from calibration.robots.agebot_pm import tilt_jacobian
 
 REACH_MARGIN = 1.02
 START_SUBSET = 60        # poses of the joint-space start fit (module doc)
+STAGES_DEG = (6.0, 10.0, 16.0)   # staged fit (fallback): reading bounds of the stages
+MIN_STAGE_POSES = 10
 
 
 @dataclass(frozen=True)
@@ -215,6 +223,36 @@ def fit_orientations(model: "ImplicitPoses", xe, X0, *, iterations: int = 50,
     return X
 
 
+def _staged_fit(model: ImplicitPoses, opts):
+    """The joint-space fit grown from the poses nearest home outwards (readings within
+    :data:`STAGES_DEG`, then all), each stage started at the last: where the fit of
+    every pose at once from the far nominal does not converge (pm-tilt, whose yaw is
+    unseen, drifts along the scale of the model). ``(model, result)`` of the last
+    stage, or None when a stage fails."""
+    from calibration.solver import solve
+
+    size = np.max(np.abs(model.readings), axis=1)
+    xe, X = model.split(model.x0)
+    X = X.copy()
+    out = None
+    for lim in [np.radians(d) for d in STAGES_DEG] + [np.inf]:
+        sel = size <= lim
+        if lim != np.inf and (sel.sum() < MIN_STAGE_POSES or sel.all()):
+            continue
+        mk = ImplicitPoses(model.robot, model.qm[sel], xe, X[sel], readings=model.readings[sel],
+                           comps=[COMPONENTS[i] for i in model.comp_idx] or None,
+                           tilt=model.tilt)
+        try:
+            res = solve(mk, opts)
+        except CalibrationError:
+            return None
+        if not np.all(np.isfinite(res.x)):
+            return None
+        xe, X[sel] = mk.split(res.x)
+        out = (mk, res)
+    return out
+
+
 def robust_start_detail(robot, method_data, nominal, components=None, *,
                         options=None, subset: int = START_SUBSET) -> StartResult:
     """Start values and per-pose orientations (module doc). ``method_data`` is a
@@ -248,10 +286,14 @@ def robust_start_detail(robot, method_data, nominal, components=None, *,
     # q3_off, k3 are structurally dependent and dropped before iterating
     opts = options or SolverOptions(epsilon=1e-9, max_iter=300, recheck=False)
     res = solve(model, opts)
+    if not res.converged:       # grow the fitted region as a session grows its box
+        staged = _staged_fit(model, opts)
+        if staged is not None:
+            model, res = staged
     if not np.all(np.isfinite(res.x)):
         raise CalibrationError("the PM start-value fit failed: " + res.message)
     xe, X = model.split(res.x)
-    if model is not every:      # every pose's own angles, xi held (module doc)
+    if len(X) < m:              # every pose's own angles, xi held (module doc)
         X0 = X0.copy()
         X0[pick] = X
         X = fit_orientations(every, xe, X0)

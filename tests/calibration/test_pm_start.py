@@ -60,3 +60,24 @@ def test_spread_subset_covers_the_poses():
     r = np.max(np.abs(X[:, None] - X[:40][None]), axis=2).min(axis=1)
     assert d.max() < r.max()
     assert list(spread_subset(X[:10], 40)) == list(range(10))
+
+
+def test_a_start_that_does_not_converge_at_once_is_grown_from_home(monkeypatch):
+    """pm-tilt on a drawn wrist: fitted from the far nominal all at once the start
+    drifts (yaw unseen) and does not converge; grown from the poses nearest home
+    outwards it does, and the method then converges."""
+    import calibration.pm_start as pm_start
+    from calibration.methods import build
+    from calibration.robots.agebot_pm import gravity_tilt, rot_xyz
+    from drivers.sim.truth import draw_truth
+
+    xi = draw_truth("agebot-pm", np.random.default_rng(7203)).xi()
+    plan = sample_poses(ROBOT, xi, box_array(ROBOT, PM_BOX), 24, np.random.default_rng(7203))
+    data = MethodData(plan.qm, {"tilt": np.column_stack(gravity_tilt(rot_xyz(plan.targets)))})
+    nominal = np.r_[NOMINAL, 0.0, 0.0]
+    grown = robust_start_detail(ROBOT, data, nominal)
+    assert grown.result.converged and grown.X.shape == (24, 3)
+    with monkeypatch.context() as mp:
+        mp.setattr(pm_start, "_staged_fit", lambda model, opts: None)
+        assert not robust_start_detail(ROBOT, data, nominal).result.converged
+    assert solve(build("pm-tilt", ROBOT, data, nominal)).converged
