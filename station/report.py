@@ -60,6 +60,24 @@ PARAM_UNITS = {
                   "k1": "m/u", "k2": "m/u", "k3": "m/u", "mount_x": "rad", "mount_y": "rad"},
 }
 CELL_MAX = 300          # characters in one table cell at most
+
+
+def param_units(trace) -> dict:
+    """Units of a trace's parameters: the built-ins' table, or a robot file's by
+    the spec's naming (lengths m, angles rad, a joint's offset and ratio by its type)."""
+    model = trace.robot_model() if hasattr(trace, "robot_model") else None
+    spec = getattr(model, "spec", None)
+    if spec is None:
+        return PARAM_UNITS.get(str(trace.header.get("robot", "")), {})
+    out = {"mount_x": "rad", "mount_y": "rad", "distance_off": "m",
+           "plane_a": "1/m", "plane_b": "1/m", "plane_c": "1/m"}
+    for name in model.param_names:
+        key = name.split("_")[-1].rstrip("0123456789")
+        out[name] = "rad" if key in ("theta", "alpha", "beta", "gamma") else "m"
+    for i, jt in enumerate(spec.joints, start=1):
+        q = "rad" if jt.kind == "R" else "m"
+        out[f"q{i}_off"], out[f"k{i}"] = q, f"{q}/u"
+    return out
 TEMPLATE = "report.html.j2"
 
 
@@ -176,7 +194,7 @@ class _Context:
         self.given_nominal = (nom if nom is not None and nom.shape == self.start.shape
                               and not np.array_equal(nom, self.start)
                               else None)
-        self.units = PARAM_UNITS.get(self.robot, {})
+        self.units = param_units(self.trace)
         self.trace_path = getattr(self.trace, "path", None)
         self.trace_name = os.path.basename(self.trace_path) if self.trace_path else ""
         self.channels = tuple(model.channels)

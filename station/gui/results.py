@@ -13,7 +13,7 @@ from PySide6.QtWidgets import (QHeaderView, QTableWidget, QTableWidgetItem, QVBo
 
 from station.gui.plots import ConvergencePlots
 from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, heading, note
-from station.report import IDENT_GROUPS, IDENT_SYMBOL, PARAM_UNITS
+from station.report import IDENT_GROUPS, IDENT_SYMBOL, param_units
 from station.units import MM_DEG
 
 GROUP_COLOR = {"identifiable": OK_COLOR, "no-influence": "#555555", "influence": BAD_COLOR}
@@ -133,7 +133,7 @@ class CalibrationView(QWidget):
 
     def _show_params(self, outcome) -> None:
         res, t = outcome.result, self.params
-        units = PARAM_UNITS.get(outcome.trace.robot, {})
+        units = param_units(outcome.trace)
         groups = [group_of(st) for st in res.status]
         rows = []
         for key, label, expl in IDENT_GROUPS:

@@ -82,9 +82,14 @@ def test_generate_and_batch_need_nothing_but_the_trace(tmp_path):
             "--method", "sm-full-pose", "--noise", "position=1e-4", "--out", str(t))
     assert r.returncode == 0, r.stderr
     assert "60" not in r.stderr
-    p = tmp_path / "p.json"
-    r = app("batch", str(t), "--out", str(p), cwd=str(tmp_path))
+    p, html = tmp_path / "p.json", tmp_path / "r.html"
+    r = app("batch", str(t), "--out", str(p), "--report", str(html), cwd=str(tmp_path))
     assert r.returncode == 0, r.stderr
+    from station.report import param_units
+
+    units = param_units(read_trace(t))
+    assert units["beta2"] == "rad" and units["d4"] == "m" and units["k1"] == "rad/u"
+    assert "beta2" in html.read_text() and "captured base origin" not in r.stdout
     assert "identifiable 30 of" in r.stdout and "held (the robot file's fixed)" in r.stdout
     doc = json.loads(p.read_text())
     assert doc["robot"] == "ur5-like-hayati" and "ur5-like-hayati" in doc["robot_file"]["text"]
