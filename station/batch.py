@@ -129,6 +129,7 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
     if out:
         src = trace.header.get("robot_file")
         doc = params_document(result, robot=trace.robot, nominal=model.x0, trace_path=trace_path,
+                              poses=model.n_poses,
                               frame=frame_statement(trace), notes=notes,
                               extra={"robot_file": src} if src else None)
         doc = write_params(out, doc)

@@ -43,9 +43,11 @@ def _f(v):
 
 
 def params_document(result, *, robot: str, nominal: np.ndarray, trace_path: str | None,
-                    frame: dict | None = None, notes: list[str] | None = None,
+                    poses: int, frame: dict | None = None, notes: list[str] | None = None,
                     extra: dict | None = None) -> dict:
-    """The parameter file's content (without checksum) for a solver result."""
+    """The parameter file's content (without checksum) for a solver result; ``poses``
+    is the number of fit poses (the model's ``n_poses``; a pose gives one row per
+    measured channel, ``fit.rows``)."""
     params = {}
     for j, (name, st) in enumerate(zip(result.names, result.status)):
         params[name] = {
@@ -72,7 +74,8 @@ def params_document(result, *, robot: str, nominal: np.ndarray, trace_path: str 
             "residual_rms": {k: _f(v) for k, v in result.residual_rms.items()},
             "condition_number": _f(result.condition_number),
             "identifiable_count": int(result.n_identifiable),
-            "poses": int(result.n_rows),
+            "poses": int(poses),
+            "rows": int(result.n_rows),
             "message": result.message,
         },
         "covariance": {"names": list(result.covariance_names),

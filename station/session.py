@@ -754,6 +754,7 @@ class Session:
         o = self.outcome
         notes = list(getattr(o.model, "notes", ()) or ())
         doc = params_document(o.result, robot=self.robot.name, nominal=o.model.x0,
+                              poses=o.model.n_poses,
                               trace_path=str(self.trace_path), frame=frame_statement(o.trace),
                               notes=notes)
         doc = write_params(self.out / PARAMS, doc)

@@ -143,3 +143,17 @@ def test_writer_resume_cuts_partial_line(tmp_path, trace_lines):
     w.append(rec)
     w.close()
     assert len(read_trace(p).poses) == n + 1
+
+
+@pytest.mark.parametrize("name", ["sm-distance-tilt.jsonl", "pm-tilt.jsonl"])
+def test_fit_poses_counts_poses_not_rows(tmp_path, name):
+    """fit.poses is the number of fit poses of the trace (a pose of sm-distance-tilt
+    gives two rows, distance and tilt; pm-tilt two, roll and pitch)."""
+    src = os.path.join(ROOT, "fixtures", "traces", name)
+    out = tmp_path / "p.json"
+    calibrate_trace(src, out=str(out))
+    doc = read_params(out)
+    fit = [r for r in map(json.loads, open(src, encoding="utf-8"))
+           if r.get("record") == "pose" and r.get("use", "fit") == "fit"]
+    assert doc["fit"]["poses"] == len(fit)
+    assert doc["fit"]["rows"] == 2 * len(fit)

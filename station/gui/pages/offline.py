@@ -136,7 +136,8 @@ class OfflinePage(Page):
         try:
             src = o.trace.header.get("robot_file")   # a robot file's calibration keeps it
             doc = params_document(o.result, robot=o.trace.robot, nominal=o.model.x0,
-                                  trace_path=str(self.path), frame=frame_statement(o.trace),
+                                  poses=o.model.n_poses, trace_path=str(self.path),
+                                  frame=frame_statement(o.trace),
                                   notes=list(getattr(o.model, "notes", ()) or ()),
                                   extra={"robot_file": src} if src else None)
             doc = write_params(path, doc)
