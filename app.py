@@ -162,7 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--truth")
     s.add_argument("--config")
     s.add_argument("--endpoints", help="write the devices' endpoints (JSON) here")
-    s.add_argument("--seed", type=int, help="seed of the simulated noise and faults")
+    s.add_argument("--seed", type=int, help="seed of the simulated noise and faults "
+                   "(default: the truth file's)")
     s.add_argument("--pose-noise", action="store_true",
                    help="the noise of a reading at rest is a function of the seed and the pose "
                         "(a pose read twice reads the same; for comparing runs)")
@@ -190,7 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "report.html (an existing trace there is resumed)")
     r.add_argument("--count", type=int, help="poses to fit (default: twice eq. 60's minimum)")
     r.add_argument("--seed", type=int, default=0, help="seed of the pose planner")
-    r.add_argument("--sim-seed", type=int, help="seed of the simulated noise and faults")
+    r.add_argument("--sim-seed", type=int, help="seed of the simulated noise and faults "
+                   "(default: the truth file's; printed and recorded in the trace)")
     r.add_argument("--endpoints", help="without --simulate: fill --config's \"@endpoints\" "
                    "from a running simulator's endpoints file")
     r.add_argument("--nominal", action="append", metavar="NAME=VALUE",
@@ -239,8 +241,8 @@ def main(argv=None) -> int:
     except StationError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        print(str(e) or "interrupted", file=sys.stderr)
         return 130
     except SystemExit as e:
         if isinstance(e.code, str):

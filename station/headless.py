@@ -16,6 +16,8 @@ them; the run says so. Without ``--simulate`` these methods are refused.
 from __future__ import annotations
 
 import argparse
+import json
+import shlex
 import sys
 from pathlib import Path
 
@@ -24,26 +26,34 @@ from drivers.config import load_station_config
 from drivers.endpoints import load_endpoints, with_endpoints
 from station.planner import MUST_KNOW, TOUCH_METHODS, PlanRequest
 from station.session import Progress, Session
+from station.units import MM_DEG
 
 
 class TerminalProgress:
     """Observer printing progress: one updating line on a terminal, one line per pose
-    otherwise (logs, CI)."""
+    otherwise (logs, CI). Readings in the display units (:mod:`station.units`), but
+    the channels in ``hidden`` (a reading the method does not use)."""
 
-    def __init__(self, stream=None):
+    def __init__(self, stream=None, units=MM_DEG, hidden=()):
         self.stream = stream or sys.stdout
         self.tty = self.stream.isatty()
+        self.units = units
+        self.hidden = set(hidden)
         self._open_line = False
+
+    def shown(self, name: str) -> bool:
+        return name not in self.hidden
 
     def __call__(self, kind: str, payload) -> None:
         if kind == "progress" and isinstance(payload, Progress):
             if not payload.readings:
                 if self.tty:
-                    self._line(f"pose {payload.done + 1} of {payload.total}: {payload.message}")
+                    self._line(f"{payload.label(current=True)}: {payload.message}")
                 return
-            text = ", ".join(f"{k} {v:.5g}" for k, v in payload.readings.items())
+            text = ", ".join(self.units.channel(k, v, ".5g")
+                             for k, v in payload.readings.items() if self.shown(k))
             verb = "touched" if "touched" in payload.message else "recorded"
-            self._line(f"pose {payload.done} of {payload.total} {verb}: {text}", final=True)
+            self._line(f"{payload.label()} {verb}: {text}", final=True)
         elif kind == "event" and payload.get("kind") not in ("plan",):
             self._line(f"[{payload['kind']}] {payload['message']}", final=True)
         elif kind == "event":
@@ -70,7 +80,8 @@ def main(args: argparse.Namespace) -> int:
         except ValueError:
             raise ConfigError(f"--nominal {item!r}: expected NAME=VALUE with a number") from None
     if args.simulate:
-        from drivers.sim.server import SimulatorProcess, default_config_path
+        from drivers.sim.server import (SimulatorProcess, default_config_path,
+                                        default_truth_path)
 
         cfg_path = args.config or default_config_path(args.robot)
         config = load_station_config(cfg_path)
@@ -80,18 +91,23 @@ def main(args: argparse.Namespace) -> int:
         measured = {}
         if args.method in TOUCH_METHODS:
             measured = engineer_measurements(args.robot, args.method, args.truth, nominal)
-        print(f"starting the simulated {args.robot} (truth: {args.truth or 'fixtures'}) ...",
-              flush=True)
+        truth = args.truth or str(default_truth_path(args.robot))
+        seed = simulator_seed(truth, getattr(args, "sim_seed", None))
+        print(f"starting the simulated {args.robot} (truth: {truth}; seed {seed}, readings "
+              "repeatable: the same command gives the same values; --sim-seed N for other "
+              "noise) ...", flush=True)
+        record = {"simulator": {"truth": truth, "seed": seed, "repeatable": True}}
         with SimulatorProcess(args.robot, truth=args.truth, config=args.config,
-                              seed=getattr(args, "sim_seed", None)) as sim:
+                              seed=seed, pose_noise=True) as sim:
             config = with_endpoints(config, sim.endpoints, source="simulator")
             if args.method not in TOUCH_METHODS:
-                return _run(config, args.method, out, request, nominal)
+                return _run(config, args.method, out, request, nominal, station=record)
             from station.sim_operator import SimulatedOperator
 
             with sim.control() as control:
                 return _run(config, args.method, out, request, {**nominal, **measured},
-                            touch=SimulatedOperator(control), measured=measured)
+                            touch=SimulatedOperator(control), measured=measured,
+                            station=record)
     if args.method in TOUCH_METHODS:
         raise ConfigError(f"{args.method} is measured by guided touching, and a headless run "
                           "has no operator to bring the tool into contact: use --simulate "
@@ -103,6 +119,17 @@ def main(args: argparse.Namespace) -> int:
     if getattr(args, "endpoints", None):
         config = with_endpoints(config, load_endpoints(args.endpoints), source=args.endpoints)
     return _run(config, args.method, out, request, nominal)
+
+
+def simulator_seed(truth: str, given: int | None) -> int:
+    """The simulator's seed: ``--sim-seed``, else the truth file's, else 0 (a default
+    run is always seeded, so that it can be repeated)."""
+    if given is not None:
+        return int(given)
+    from drivers.sim.truth import load_truth
+
+    seed = load_truth(truth).seed
+    return int(seed) if seed is not None else 0
 
 
 def engineer_measurements(robot: str, method: str, truth: str | None, given: dict) -> dict:
@@ -124,13 +151,56 @@ def engineer_measurements(robot: str, method: str, truth: str | None, given: dic
 
 
 def _run(config, method: str, out: Path, request: PlanRequest, nominal: dict, *,
-         touch=None, measured: dict | None = None) -> int:
+         touch=None, measured: dict | None = None, station: dict | None = None) -> int:
+    from calibration.methods import METHODS
+    from station.units import from_config
+
+    units = from_config(config)
+    # the wrist's station may have a draw-wire: its distance means nothing to pm-*
+    hide = set() if "distance" in METHODS[method].channels else {"distance"}
+    progress = TerminalProgress(units=units, hidden=hide)
+    try:
+        return _session(config, method, out, request, nominal, touch, measured, station,
+                        progress, units)
+    except KeyboardInterrupt:
+        kept = _recorded_poses(out / "trace.jsonl")
+        print(file=sys.stderr)
+        raise KeyboardInterrupt(f"interrupted: {kept} poses recorded in {out / 'trace.jsonl'} "
+                                f"are kept; resume with: {resume_command()}") from None
+
+
+def resume_command() -> str:
+    """The command line that was run (the same command resumes the session)."""
+    argv = list(sys.argv)
+    if argv and argv[0].endswith("app.py"):
+        argv = ["python", argv[0]] + argv[1:]
+    return shlex.join(argv)
+
+
+def _recorded_poses(path: Path) -> int:
+    n = 0
+    try:
+        with open(path, encoding="utf-8") as f:
+            for line in f:
+                try:
+                    n += json.loads(line).get("record") == "pose"
+                except ValueError:
+                    continue
+    except OSError:
+        return 0
+    return n
+
+
+def _session(config, method, out, request, nominal, touch, measured, station, progress,
+             units) -> int:
     from station.batch import format_table
 
-    progress = TerminalProgress()
     with Session(config, method, out, request=request, observer=progress,
-                 nominal=nominal, touch=touch) as s:
-        if s.resumed:
+                 nominal=nominal, touch=touch, station=station) as s:
+        if s.finished:
+            print(f"the session in {out} is finished ({len(s.measured)} poses recorded and "
+                  "exported): its result again; the files are left as they are", flush=True)
+        elif s.resumed:
             print(f"resuming the session in {out} ({len(s.measured)} poses recorded)",
                   flush=True)
         elif measured:
@@ -146,9 +216,10 @@ def _run(config, method: str, out: Path, request: PlanRequest, nominal: dict, *,
         print(format_table(s.outcome))
         held = "pairs" if method == "sm-self-redundancy" else "poses"
         for v in s.validation or ():
-            before = "n/a" if v["rms_before"] is None else f"{v['rms_before']:.4g}"
-            print(f"validation {v['channel']}: RMS {before} -> {v['rms_after']:.4g} {v['unit']} "
-                  f"over {v['n']} held-out {held}")
+            before = ("n/a" + (f" ({v['note']})" if v.get("note") else "")
+                      if v["rms_before"] is None else units.text(v["rms_before"], v["unit"]))
+            print(f"validation {v['channel']}: RMS {before} -> "
+                  f"{units.text(v['rms_after'], v['unit'])} over {v['n']} held-out {held}")
         print(f"trace {files['trace']}\nparameter file {files['params']} ({files['checksum']})\n"
               f"report {files['report']}")
     return 0

@@ -38,6 +38,7 @@ called from that worker thread.
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import math
 import threading
@@ -57,7 +58,7 @@ from drivers.errors import DeviceError
 from station import planner, resume
 from station.batch import BatchOutcome, calibrate, frame_statement
 from station.lock import FolderLock
-from station.params_file import params_document, write_params
+from station.params_file import params_document, read_params, write_params
 from station.planner import PlannedPose, PlanRequest
 from station.trace import TraceWriter, read_trace, utc_now
 from station.units import from_config as units_from_config
@@ -81,13 +82,29 @@ class TouchFailed(StationError):
 @dataclass(frozen=True)
 class Progress:
     """What the session is doing: pose ``done`` of ``total`` (planned, incl. held-out),
-    the pose being measured and the latest readings (channel -> value)."""
+    the pose being measured and the latest readings (channel -> value). The wrist
+    measures in rounds (a scout round near home, then wider ones): ``stage`` is then
+    ``"scout"`` or ``"round N"`` and ``stage_done`` of ``stage_total`` count within
+    the round (:meth:`label`)."""
 
     done: int
     total: int
     pose: PlannedPose | None
     readings: dict = field(default_factory=dict)
     message: str = ""
+    stage: str = ""
+    stage_done: int = 0
+    stage_total: int = 0
+
+    def label(self, current: bool = False) -> str:
+        """``"pose 5 of 79"``, ``"scout pose 3 of 12"``, ``"round 2: pose 2 of 4"``;
+        ``current``: the pose being measured (one more than done)."""
+        done, total = ((self.stage_done, self.stage_total) if self.stage
+                       else (self.done, self.total))
+        text = f"pose {done + (1 if current else 0)} of {total}"
+        if self.stage == "scout":
+            return "scout " + text
+        return f"{self.stage}: {text}" if self.stage else text
 
 
 Observer = Callable[[str, object], None]           # (kind, payload): "progress", "event", "state"
@@ -135,12 +152,15 @@ class Session:
               measured); a resumed trace keeps its own. Written into the trace header.
     touch:    guided touching (sm-plane, sm-self-redundancy): ``touch(session, pose)``
               brings the tool into contact from the approach pose (module docstring).
+    station:  more for the trace header's ``station`` field (e.g. ``simulator``: its
+              truth file and seed).
     """
 
     def __init__(self, config: StationConfig, method: str, out_dir, *,
                  request: PlanRequest | None = None, observer: Observer | None = None,
                  fault_policy: FaultPolicy | None = None, rig=None,
-                 nominal: dict | None = None, touch: Touch | None = None):
+                 nominal: dict | None = None, touch: Touch | None = None,
+                 station: dict | None = None):
         planner.check_method(method)
         mi = METHODS[method]
         robot = get_robot(config.robot)
@@ -156,6 +176,7 @@ class Session:
         self.fault_policy = fault_policy or retry_then_skip()
         self.rig = rig
         self.touch = touch
+        self.station_record = dict(station or {})   # more for the header's station field
         given = dict(nominal or {})
         self.extra = {k: float(given.pop(k)) for k in mi.extra_params if k in given}
         self.nominal = self.robot.params(given, source="nominal")
@@ -180,6 +201,8 @@ class Session:
         # the wrist's growing box (station/wrist_plan.py)
         self.wrist = (WristPlanner(method, self.request, self.components, config.envelope.qm_range)
                       if self.robot.name == "agebot-pm" else None)
+        self.finished = False     # resumed a session that was measured and exported
+        self._quiet = False       # events shown, not appended (a finished session)
         self._lock = FolderLock(self.out).acquire()    # one session per folder
         try:
             resume.unstarted(self.trace_path)  # a header cut by a crash: nothing to resume
@@ -223,8 +246,28 @@ class Session:
             self.wrist.components = self.components or self.wrist.components
             self.wrist.restore(tr.events)
         self._next_index = (tr.poses[-1]["index"] + 1) if tr.poses else 0
+        self.finished = (not self.pending and self._reported_since_last_pose()
+                         and (self.out / PARAMS).is_file() and (self.out / REPORT).is_file())
+        if self.finished:      # nothing new: left as it is, no event appended
+            return
         self._event("resume", f"resumed: {len(self.measured)} poses recorded, "
                     f"{len(self.pending)} still to measure; to do: {self.redo().describe()}")
+
+    def _reported_since_last_pose(self) -> bool:
+        """The trace ends with its report written: a ``report`` event after its last
+        pose, skip or plan record."""
+        last_pose = last_report = -1
+        with open(self.trace_path, encoding="utf-8") as f:
+            for n, line in enumerate(f):
+                try:
+                    rec = json.loads(line)
+                except ValueError:
+                    continue
+                if rec.get("record") == "pose" or rec.get("kind") in ("skip", "plan"):
+                    last_pose = n
+                elif rec.get("kind") == "report":
+                    last_report = n
+        return last_report > last_pose
 
     def _ensure_trace(self) -> TraceWriter:
         if self._writer is None:
@@ -233,7 +276,7 @@ class Session:
                       "nominal": {**self.robot.as_dict(self.nominal), **self.extra},
                       "station": {"config": self.config.source, "software": "calstation",
                                   "devices": [d.name for d in self.rig.devices] if self.rig
-                                  else []}}
+                                  else [], **self.station_record}}
             if self.components:
                 header["components"] = list(self.components)
             self._writer = TraceWriter.create(self.trace_path, header)
@@ -241,7 +284,7 @@ class Session:
 
     def _event(self, kind: str, message: str, **extra) -> None:
         rec = {"record": "event", "t": utc_now(), "kind": kind, "message": message, **extra}
-        if self._writer is not None:
+        if self._writer is not None and not self._quiet:
             self._writer.append(rec)
         self.events.append(rec)
         log.info("%s: %s", kind, message)
@@ -485,9 +528,20 @@ class Session:
         self._ensure_trace()
         unit = "pairs" if self.method == "sm-self-redundancy" else "poses"
         how = (f"; each touched from its approach pose ({self.method})" if self.touching else "")
-        self._event("plan", f"planned {len(poses)} poses ({n_val} held out for validation; "
-                    f"eq. 60 minimum {self.minimum_count} {unit}{how})",
-                    poses=[p.record() for p in poses], replace=replace, **extra)
+        rnd = poses[0].round if poses else 0
+        if self.robot.name == "agebot-pm" and rnd == 0:
+            text = (f"scout round: planned {len(poses)} poses near home; the wrist's start "
+                    "model fitted to their readings plans the next rounds, each in a wider box "
+                    f"up to the report's (eq. 60 minimum {self.minimum_count} {unit} in all)")
+        elif self.robot.name == "agebot-pm":
+            before = len(self.plan_poses) - len(poses)
+            text = (f"round {rnd}: planned {len(poses)} poses ({n_val} held out for validation) "
+                    f"after the {before} of the earlier rounds, {len(self.plan_poses)} in all so "
+                    f"far (eq. 60 minimum {self.minimum_count} {unit})")
+        else:
+            text = (f"planned {len(poses)} poses ({n_val} held out for validation; "
+                    f"eq. 60 minimum {self.minimum_count} {unit}{how})")
+        self._event("plan", text, poses=[p.record() for p in poses], replace=replace, **extra)
         self._notify("state", "planned")
 
     @property
@@ -579,13 +633,22 @@ class Session:
         self._notify("state", "measured")
         return recorded
 
+    def _progress(self, pose: PlannedPose, readings=None, message: str = "") -> Progress:
+        """Progress at ``pose``; the wrist's counts are per round (scout, main)."""
+        p = Progress(self._done, len(self.plan_poses), pose, dict(readings or {}), message)
+        if self.robot.name == "agebot-pm":
+            same = [q.index for q in self.plan_poses if q.round == pose.round]
+            done = sum(i in self.measured or i in self.skipped for i in same)
+            stage = "scout" if pose.round == 0 else f"round {pose.round}"
+            p = dataclasses.replace(p, stage=stage,
+                                    stage_done=done, stage_total=len(same))
+        return p
+
     def _measure(self, pose: PlannedPose) -> bool:
         rig = self._rig()
         attempt = 0
         while True:
-            self._notify("progress", Progress(self._done,
-                                              len(self.plan_poses), pose,
-                                              message=f"moving to pose {pose.index}"))
+            self._notify("progress", self._progress(pose, message=f"moving to pose {pose.index}"))
             try:
                 rig.move_to(pose.qm)
                 if self.touching:
@@ -632,9 +695,8 @@ class Session:
             self.measured[pose.index] = rec
         shown = (dict(snap.mean) if not self.touching else   # touching records qm only
                  {k: v for k, v in snap.mean.items() if k.startswith("qm")})
-        self._notify("progress", Progress(self._done, len(self.plan_poses), pose, shown,
-                                          f"pose {pose.index} " + ("touched (written with its "
-                                          "pair)" if rest else "recorded")))
+        self._notify("progress", self._progress(pose, shown, f"pose {pose.index} " + (
+            "touched (written with its pair)" if rest else "recorded")))
         return True
 
     def _require_touch(self) -> None:
@@ -644,9 +706,7 @@ class Session:
                                "contact; app.py run --simulate has a simulated one)")
 
     def _touch(self, pose: PlannedPose) -> None:
-        self._notify("progress", Progress(self._done,
-                                          len(self.plan_poses), pose,
-                                          message=f"touching at pose {pose.index}"))
+        self._notify("progress", self._progress(pose, message=f"touching at pose {pose.index}"))
         self.touch(self, pose)
 
     def _skip(self, pose: PlannedPose, message: str, reason: str) -> None:
@@ -782,6 +842,7 @@ class Session:
         self._require_touch()
         if self.rig is None or not all(d.is_open for d in self.rig.devices):
             self.connect()
+        self._quiet = self.finished    # the result shown again, nothing appended
         todo = self.redo()
         if todo.capture_reference:
             qm, role, _ = self.reference_target()
@@ -795,6 +856,11 @@ class Session:
         self.execute()
         self.calibrate()
         self.validate()
+        if self.finished:      # measured and exported before: the files stay as they are
+            self.exported = {"params": str(self.out / PARAMS), "report": str(self.out / REPORT),
+                             "trace": str(self.trace_path),
+                             "checksum": read_params(self.out / PARAMS)["checksum"]}
+            return self.exported
         return self.export()
 
 

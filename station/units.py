@@ -28,6 +28,7 @@ LABEL = {"um": "\u00b5m"}
 # SI unit of a reading or residual channel (the trace's channels)
 CHANNEL_SI = {"distance": "m", "tilt": "rad", "x": "m", "y": "m", "z": "m", "phi": "rad",
               "alpha": "rad", "beta": "rad", "gamma": "rad", "roll": "rad", "pitch": "rad",
+              "yaw": "rad",
               "dx": "m", "dy": "m", "plane": "1", "q1": "u", "q2": "u", "q3": "u"}
 
 
