@@ -74,13 +74,24 @@ def _cmd_trace_generate(args) -> int:
         print(generate_command(args))
         return 0
     from station.tracegen import generate_from_truth
+    from station.units import MM_DEG, channel_si
 
-    generate_from_truth(args.out, args.method, truth=args.truth, noise=args.noise or (),
-                        seed=args.seed, count=args.count,
-                        components=tuple(args.components.split(",")) if args.components else None,
-                        known=tuple(k for k in (args.known or "").split(",") if k),
-                        design=args.design)
-    print(f"trace written to {args.out}")
+    noise = generate_from_truth(
+        args.out, args.method, truth=args.truth, noise=args.noise or (), seed=args.seed,
+        count=args.count, known=tuple(k for k in (args.known or "").split(",") if k),
+        components=tuple(args.components.split(",")) if args.components else None,
+        design=args.design)
+    shown = {k: v for k, v in noise.items() if any(x for x in (v if isinstance(v, list) else [v]))}
+    if not shown:
+        how = "no --noise given" + (" and the truth file has none" if args.truth else "")
+        print(f"trace written to {args.out}: noise-free readings ({how}; add e.g. "
+              "--noise distance=1e-5 --noise tilt=1e-4, in m and rad)")
+    else:
+        text = ", ".join(
+            f"{k} " + "/".join(MM_DEG.text(x, channel_si(k), ".3g")
+                               for x in (v if isinstance(v, list) else [v]))
+            for k, v in shown.items())
+        print(f"trace written to {args.out} (reading noise std: {text}; seed {args.seed})")
     return 0
 
 
@@ -99,6 +110,8 @@ def _delegate(module: str, func: str):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from calibration.methods import METHODS
+
     p = argparse.ArgumentParser(prog="app.py", description="Robot calibration station")
     p.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     sub = p.add_subparsers(dest="command")
@@ -128,12 +141,15 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("trace", help="traces")
     tsub = t.add_subparsers(dest="trace_command", required=True)
     g = tsub.add_parser("generate", help="simulate a trace from a truth file plus noise")
-    g.add_argument("--method", required=True)
+    g.add_argument("--method", required=True, choices=tuple(METHODS), metavar="METHOD",
+                   help="one of: " + ", ".join(METHODS))
     g.add_argument("--robot", help="a robot file (TOML); default: the method's built-in robot")
     g.add_argument("--out", required=True)
     g.add_argument("--truth", help="simulator truth file (default: the report's true values)")
     g.add_argument("--noise", action="append", metavar="CHANNEL=STD",
-                   help="reading noise, e.g. distance=1e-4 tilt=1e-3 (repeatable)")
+                   help="reading noise std in SI (m, rad), e.g. --noise distance=1e-4 --noise "
+                        "tilt=1e-3 (repeatable); without it (and without a truth file's "
+                        "noise) the readings are noise-free")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--count", type=int, help="number of poses (default: eq. 60)")
     g.add_argument("--design", choices=("random", "optimal"), default="random",

@@ -217,11 +217,11 @@ def reading_noise(method: str, noise: dict) -> dict:
 
 
 def generate_from_truth(path, method: str, *, truth: str | None = None, noise=(), seed=0,
-                        count=None, components=None, known=(), design="random") -> None:
+                        count=None, components=None, known=(), design="random") -> dict:
     """``app.py trace generate``: a trace of ``method`` simulated on the robot of
     a truth file (``truth``: its path; None: the report's true values), with the
     truth file's noise overridden by ``noise`` (``CHANNEL=STD`` strings), written
-    atomically to ``path``."""
+    atomically to ``path``. Returns the reading noise used (empty: noise-free)."""
     mi = METHODS.get(method)
     if mi is None:
         raise ConfigError(f"unknown method {method!r} (known: {', '.join(METHODS)})")
@@ -242,6 +242,7 @@ def generate_from_truth(path, method: str, *, truth: str | None = None, noise=()
     generate_trace(path, method, np.asarray(xi), noise=noise, seed=seed, count=count,
                    components=components, plane=plane, mount=mount, known=tuple(known),
                    design=design)
+    return noise
 
 
 def candidate_pool(method: str, x_plan, size: int, *, seed=0, components=None, plane=None):

@@ -111,3 +111,18 @@ def test_generate_then_batch(tmp_path):
     assert r.returncode == 0, r.stderr
     r = app("batch", str(t), "--out", str(tmp_path / "p.json"), "--residual", "squared")
     assert r.returncode == 0, r.stderr
+
+
+def test_trace_generate_says_whether_it_is_noise_free(tmp_path):
+    out = tmp_path / "t.jsonl"
+    r = app("trace", "generate", "--method", "sm-distance", "--out", str(out), "--count", "10")
+    assert r.returncode == 0, r.stderr
+    assert "noise-free readings" in r.stdout and "--noise" in r.stdout
+    r = app("trace", "generate", "--method", "sm-distance-tilt", "--out", str(out),
+            "--count", "10", "--noise", "distance=1e-5", "--noise", "tilt=2e-4")
+    assert r.returncode == 0, r.stderr
+    assert "reading noise std: distance 0.01 mm, tilt 0.0115\u00b0" in r.stdout
+    r = app("trace", "generate", "--help")
+    assert "sm-distance-tilt" in r.stdout and "pm-fk" in r.stdout   # the choices
+    r = app("trace", "generate", "--method", "sm-nope", "--out", str(out))
+    assert r.returncode != 0 and "invalid choice" in r.stderr
