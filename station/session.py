@@ -361,12 +361,15 @@ class Session:
         attached here), then measure the pose as any other (averaged, checked) and write
         the reference record. The zero is one reading with noise, so the record says
         ``zero = "reading"`` (the method calibrates ``distance_off``) and keeps the
-        averaged reading there as ``tare`` (checked again on resume)."""
+        averaged reading there as ``tare`` (checked again on resume). Before any
+        pose is measured the reference may be captured again: the new record (and its
+        zero) replaces the earlier one, in the trace as on resume."""
         if not self.needs_reference:
             raise StationError(f"method {self.method} has no reference step")
-        if self.reference_qm is not None:
-            raise StationError("the reference is already captured (start a new session to "
-                               "capture another)")
+        if self.reference_qm is not None and self.measured:
+            raise StationError("poses were measured from this reference: a new reference "
+                               "needs a new session folder")
+        again = self.reference_qm is not None
         rig = self._rig()
         if rig.drawwire is not None:
             rig.zero_drawwire()
@@ -382,9 +385,22 @@ class Session:
         self.reference_qm = qm
         self.reference_record = rec
         self.zeroed = rig.drawwire is not None
-        self._event("reference", f"{self.info.reference} captured at qm "
-                    f"{np.round(qm, 4).tolist()}")
+        how = "captured again" if again else "captured"
+        self._event("reference", f"{self.info.reference} {how} at qm {np.round(qm, 4).tolist()}"
+                    + (" (the draw-wire zeroed there; it replaces the earlier reference)"
+                       if again else ""))
         return qm
+
+    def reference_offset(self, qm=None) -> float | None:
+        """Distance (m, nominal model) from the reference ``qm`` (default: the captured
+        one) to the suggested point; None without a reference step."""
+        target, _, _ = self.reference_target()
+        qm = self.reference_qm if qm is None else qm
+        if target is None or qm is None:
+            return None
+        a = self.robot.fk(np.asarray(qm, dtype=float), self.nominal)[0, :3]
+        b = self.robot.fk(np.asarray(target, dtype=float), self.nominal)[0, :3]
+        return float(np.linalg.norm(a - b))
 
     def rezero_at_reference(self) -> None:
         """After a restart: drive back to the recorded reference and check the

@@ -163,7 +163,10 @@ def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -
                 if trace is not None:
                     trace.truncated_tail = True
                 break
-            fail(f"not valid JSON ({e.__class__.__name__}: {e})")
+            if isinstance(e, UnicodeDecodeError):
+                fail("not a text file (not UTF-8): is it a trace?")
+            fail(f"not valid JSON ({e.msg.lower()} at column {e.colno}): is it a trace "
+                 "(one JSON record a line)?")
         if not isinstance(rec, dict):
             fail("a record must be a JSON object")
         kind = rec.get("record")
@@ -187,8 +190,7 @@ def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -
             fail(f"{kind} record has no 'qm'")
         _check_vector(rec["qm"], n_act, "qm", fail)
         if kind == "reference":
-            if trace.reference is not None:
-                fail("a second reference record")
+            # a later reference before the poses replaces the earlier (a recapture)
             if trace.poses:
                 fail("the reference record must come before the poses")
             if rec.get("role") not in ROLES:

@@ -43,6 +43,6 @@ def main(args: argparse.Namespace) -> int:
     app.setApplicationName("Calibration station")
     app.setOrganizationName("calstation")
     window = create(bool(getattr(args, "simulate", False)), config)
-    window.show()
+    window.show_fitted()
     QTimer.singleShot(0, window.offer_resume)
     return int(app.exec())

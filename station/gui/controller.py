@@ -18,6 +18,7 @@ from pathlib import Path
 from PySide6.QtCore import QObject, QTimer, Signal
 
 from station.gui.worker import FaultQuestion, JobRunner, LockedRig, limited_jog, poll_devices
+from station.gui.widgets import set_units
 
 log = logging.getLogger("station.gui")
 
@@ -128,6 +129,13 @@ class Controller(QObject):
     def closed(self) -> bool:
         return self._closed
 
+    @property
+    def units(self):
+        """The display units (:mod:`station.units`) of the station config in use."""
+        from station.units import MM_DEG, from_config
+
+        return from_config(self.config) if self.config is not None else MM_DEG
+
     # -- session lifecycle -----------------------------------------------------------
     @property
     def connected(self) -> bool:
@@ -176,14 +184,22 @@ class Controller(QObject):
         from drivers.rig import Rig
         from station.session import Session
 
+        station = None
         if self.simulate:
             from drivers.sim.server import SimulatorProcess
 
             if self.sim is not None and self.sim_robot != robot:
                 self.sim.stop()
                 self.sim = None
+            from drivers.sim.server import default_truth_path
+            from station.headless import simulator_seed
+
+            truth = str(default_truth_path(robot))
+            seed = simulator_seed(truth, self.sim_seed)
+            station = {"simulator": {"truth": truth, "seed": seed, "repeatable": True}}
             if self.sim is None:
-                self.sim = SimulatorProcess(robot, config=self.config_path, seed=self.sim_seed)
+                self.sim = SimulatorProcess(robot, config=self.config_path, seed=seed,
+                                            repeatable=True)
                 self.sim_robot = robot
             config = self.sim.station_config()
         else:
@@ -202,9 +218,11 @@ class Controller(QObject):
             raise ConfigError(f"the station config is for {config.robot}, not {robot}",
                               source=config.source, key="robot")
         self.config = config
+        set_units(self.units)
         rig = LockedRig(Rig(config))
         session = Session(config, method, out, request=request, observer=self._observe,
-                          fault_policy=self._fault_policy, rig=rig, nominal=nominal)
+                          fault_policy=self._fault_policy, rig=rig, nominal=nominal,
+                          station=station)
         try:
             session.connect()
         except BaseException:

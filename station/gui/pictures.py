@@ -18,9 +18,12 @@ from PySide6.QtCore import QPointF, QRectF, Qt
 from PySide6.QtGui import QBrush, QColor, QFont, QPainter, QPainterPath, QPen
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
+from station.units import MM_DEG
+
 INK, ARM, TARGET, CABLE, OK, BAD = ("#202124", "#3c6e9f", "#d35400", "#6a1b9a", "#1b7a2f",
                                      "#b3261e")
 NEAR_M = 0.01            # end effector this close to the target counts as there (m, nominal)
+FAR_M = 0.05             # a reference captured farther from the mark is warned about (m)
 MOUNT_TOLERANCE = math.radians(2.0)
 
 
@@ -30,7 +33,9 @@ class _Picture(QWidget):
         self.setMinimumSize(380, 280)
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
         self.steps: list[str] = []
-        self.step = 0
+        self.step = 0                  # the current step (bold)
+        self.done: set[int] = set()    # the steps ticked
+        self.warned: set[int] = set()  # steps marked as not done as asked
 
     def _steps(self, p: QPainter, rect: QRectF) -> None:
         f = QFont(self.font())
@@ -38,8 +43,8 @@ class _Picture(QWidget):
         for i, text in enumerate(self.steps):
             f.setBold(i == self.step)
             p.setFont(f)
-            p.setPen(QColor(INK if i >= self.step else "#777"))
-            mark = "\u2713" if i < self.step else f"{i + 1}."
+            p.setPen(QColor(BAD if i in self.warned else "#777" if i in self.done else INK))
+            mark = "!" if i in self.warned else "\u2713" if i in self.done else f"{i + 1}."
             r = QRectF(rect.left(), y, rect.width(), 200)
             br = p.boundingRect(r, Qt.TextFlag.TextWordWrap, f"{mark} {text}")
             p.drawText(r, Qt.TextFlag.TextWordWrap, f"{mark} {text}")
@@ -49,13 +54,18 @@ class _Picture(QWidget):
 class ArmPicture(_Picture):
     """Side view of the serial arm; ``set_state`` with the readings."""
 
-    def __init__(self, robot, nominal, parent=None):
+    def __init__(self, robot, nominal, parent=None, target_label: str = "base origin",
+                 units=MM_DEG):
         super().__init__(parent)
         self.robot, self.xi = robot, np.asarray(nominal, dtype=float)
+        self.target_label = target_label
         self.qm = None
         self.target_qm = None
         self.captured = False
+        self.captured_qm = None
+        self.capture_offset = None
         self.distance_to_target = None
+        self.units = units
         self.steps = [("Jog the end effector to the orange mark (or use \u2018Go to the "
                        "suggested point\u2019)."),
                       "Attach the draw-wire cable's end to the end effector there.",
@@ -75,24 +85,35 @@ class ArmPicture(_Picture):
             pts.append((x + length * math.cos(a), y + length * math.sin(a)))
         return pts, float(q[0])
 
-    def set_state(self, qm=None, target_qm=None, captured=None) -> None:
+    def _distance(self, qm) -> float | None:
+        if qm is None or self.target_qm is None:
+            return None
+        a = self.robot.fk(qm, self.xi)[0, :3]
+        b = self.robot.fk(self.target_qm, self.xi)[0, :3]
+        return float(np.linalg.norm(a - b))
+
+    def set_state(self, qm=None, target_qm=None, captured=None, captured_qm=None) -> None:
+        """The arm now (``qm``), the suggested point (``target_qm``) and whether the
+        reference is captured (at ``captured_qm``): a capture farther than
+        :data:`FAR_M` from the mark leaves step 1 unticked, marked."""
         if qm is not None:
             self.qm = np.asarray(qm, dtype=float)
         if target_qm is not None:
             self.target_qm = np.asarray(target_qm, dtype=float)
         if captured is not None:
             self.captured = bool(captured)
-        self.distance_to_target = None
-        if self.qm is not None and self.target_qm is not None:
-            a = self.robot.fk(self.qm, self.xi)[0, :3]
-            b = self.robot.fk(self.target_qm, self.xi)[0, :3]
-            self.distance_to_target = float(np.linalg.norm(a - b))
+        if captured_qm is not None:
+            self.captured_qm = np.asarray(captured_qm, dtype=float)
+        self.distance_to_target = self._distance(self.qm)
+        self.capture_offset = self._distance(self.captured_qm) if self.captured else None
+        far = self.capture_offset is not None and self.capture_offset > FAR_M
+        self.warned = {0} if far else set()
         if self.captured:
-            self.step = 3
+            self.done, self.step = ({1, 2} if far else {0, 1, 2}), (0 if far else 3)
         elif self.distance_to_target is not None and self.distance_to_target < NEAR_M:
-            self.step = 1
+            self.done, self.step = {0}, 1
         else:
-            self.step = 0
+            self.done, self.step = set(), 0
         self.update()
 
     def paintEvent(self, _event) -> None:
@@ -125,7 +146,6 @@ class ArmPicture(_Picture):
             p.drawEllipse(target, 12, 12)
             p.drawLine(target + QPointF(-18, 0), target + QPointF(18, 0))
             p.drawLine(target + QPointF(0, -18), target + QPointF(0, 18))
-            p.drawText(target + QPointF(16, -14), "base origin")
         if self.qm is not None:
             pts, _ = self.points(self.qm)
             qp = [P(*pt) for pt in pts]
@@ -140,7 +160,6 @@ class ArmPicture(_Picture):
                 p.drawEllipse(pt, 5, 5)
             p.setBrush(QBrush(QColor(INK)))
             p.drawEllipse(qp[-1], 5, 5)
-            p.drawText(qp[-1] + QPointF(8, 16), "end effector")
             if target is not None:
                 if self.captured or self.step == 1:
                     sensor = target + QPointF(70, 56)
@@ -156,11 +175,30 @@ class ArmPicture(_Picture):
                     p.setPen(QPen(QColor(TARGET), 1.5, Qt.PenStyle.DashLine))
                     p.drawLine(qp[-1], target)
             self._rail(p, rail)
+            # labels last, on a light box, each away from the arm's last link
+            away = qp[-1] - qp[-2]
+            n = math.hypot(away.x(), away.y()) or 1.0
+            ee_dir = QPointF(away.x() / n, away.y() / n)
+            _label(p, qp[-1], "end effector", ee_dir, INK, view)
+            if target is not None:
+                d = target - qp[-1]
+                dn = math.hypot(d.x(), d.y())
+                t_dir = QPointF(d.x() / dn, d.y() / dn) if dn > 1 else QPointF(-ee_dir.x(),
+                                                                             -ee_dir.y())
+                _label(p, target, self.target_label, t_dir, TARGET, view, gap=22)
+        elif target is not None:
+            _label(p, target, self.target_label, QPointF(0.7, -0.7), TARGET, view, gap=22)
         p.setPen(QColor(INK))
+        u = self.units
         if self.distance_to_target is not None and not self.captured:
             p.drawText(QPointF(view.left(), view.top() + 14),
-                       f"end effector \u2248 {self.distance_to_target * 100:.1f} cm from the mark "
-                       "(nominal model)")
+                       f"end effector \u2248 {u.text(self.distance_to_target, 'm', '.4g')} from "
+                       "the mark (nominal model)")
+        elif self.captured and self.warned:
+            p.setPen(QColor(BAD))
+            p.drawText(QPointF(view.left(), view.top() + 14),
+                       f"\u26a0 reference captured {u.text(self.capture_offset, 'm', '.4g')} from "
+                       "the mark")
         elif self.captured:
             p.setPen(QColor(OK))
             p.drawText(QPointF(view.left(), view.top() + 14), "\u2713 reference captured")
@@ -187,7 +225,24 @@ class ArmPicture(_Picture):
         p.setPen(QPen(QColor(INK), 1))
         p.setBrush(QBrush(QColor(ARM)))
         p.drawRect(QRectF(x - 14, Y(z) - 8, 28, 16))
-        p.drawText(QPointF(x + 20, Y(z) + 4), f"z {z:.3f} m")
+        p.drawText(QPointF(x + 20, Y(z) + 4), f"z {self.units.text(z, 'm', '.4g')}")
+
+
+def _label(p: QPainter, anchor: QPointF, text: str, direction: QPointF, color: str,
+           bounds: QRectF, gap: float = 12) -> None:
+    """``text`` on a light box beside ``anchor``, ``gap`` pixels along ``direction``
+    (a unit vector) and extending away from it, kept inside ``bounds``."""
+    fm = p.fontMetrics()
+    w, h = fm.horizontalAdvance(text) + 8, fm.height() + 2
+    c = anchor + QPointF(direction.x() * (gap + w / 2), direction.y() * (gap + h / 2))
+    box = QRectF(c.x() - w / 2, c.y() - h / 2, w, h)
+    box.moveLeft(max(bounds.left(), min(box.left(), bounds.right() - w)))
+    box.moveTop(max(bounds.top() + 18, min(box.top(), bounds.bottom() - h)))
+    p.setPen(Qt.PenStyle.NoPen)
+    p.setBrush(QBrush(QColor(255, 255, 255, 215)))
+    p.drawRoundedRect(box, 3, 3)
+    p.setPen(QColor(color))
+    p.drawText(box, Qt.AlignmentFlag.AlignCenter, text)
 
 
 class LevelPicture(_Picture):
@@ -210,6 +265,7 @@ class LevelPicture(_Picture):
     def set_angles(self, roll, pitch) -> None:
         self.roll, self.pitch = roll, pitch
         self.step = 1 if self.level else 0
+        self.done = {0} if self.level else set()
         self.update()
 
     def paintEvent(self, _event) -> None:

@@ -9,7 +9,7 @@ from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from PySide6.QtCore import QTimer
-from PySide6.QtWidgets import QSizePolicy
+from PySide6.QtWidgets import QAbstractScrollArea, QApplication, QSizePolicy
 
 COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2",
           "#7f7f7f", "#bcbd22", "#17becf", "#393b79", "#637939", "#843c39", "#7b4173",
@@ -25,6 +25,17 @@ class Canvas(FigureCanvasQTAgg):
         self.setParent(parent)
         self.setMinimumHeight(min_height)
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+
+    def wheelEvent(self, event) -> None:
+        """The wheel scrolls the page the plot is on (the plots do not zoom): handed
+        to the nearest scroll area around the plot."""
+        w = self.parentWidget()
+        while w is not None and not isinstance(w, QAbstractScrollArea):
+            w = w.parentWidget()
+        if w is None:
+            event.ignore()
+            return
+        QApplication.sendEvent(w.viewport(), event)
 
 
 def _style(ax, title: str, ylabel: str = "") -> None:
@@ -54,6 +65,7 @@ class ConvergencePlots(Canvas):
 
     def reset(self, x0=None) -> None:
         self.history, self.names, self.x0 = [], (), None if x0 is None else np.asarray(x0)
+        self.final_condition = None     # the result's, at the solution (the page's text)
         self._draw()
 
     def add(self, iteration) -> None:
@@ -67,6 +79,7 @@ class ConvergencePlots(Canvas):
         """The final result: its whole history, with the parameter names."""
         self.history = list(result.history)
         self.names = tuple(result.names)
+        self.final_condition = result.condition_number
         self.x0 = np.asarray(x0 if x0 is not None else getattr(result, "x0", None), dtype=float)
         self._draw()
 
@@ -105,7 +118,14 @@ class ConvergencePlots(Canvas):
                 a3.plot(k[ok], cond[ok], color="#1f77b4", lw=1.2, marker=".", ms=4)
                 if cond[ok].max() / cond[ok].min() > 10:
                     a3.set_yscale("log")
-                a3.set_title(f"condition number ({cond[ok][-1]:.4g})", fontsize=9)
+                final = self.final_condition
+                if final is not None and math.isfinite(final) and final > 0:
+                    # the one value the page states: at the solution (after the last step)
+                    a3.axhline(final, color="#d62728", lw=0.8, ls="--")
+                    a3.set_title(f"condition number (at the solution {final:.4g})", fontsize=9)
+                else:
+                    a3.set_title(f"condition number (iteration {int(k[ok][-1])}: "
+                                 f"{cond[ok][-1]:.4g})", fontsize=9)
             if self.names and lines:
                 fig.legend([ln for ln, _ in lines], [n for _, n in lines], loc="outside right",
                            fontsize=7, frameon=False, ncol=1 if len(lines) <= 14 else 2)

@@ -101,7 +101,7 @@ class CalibrationView(QWidget):
         self.summary.setText(
             f"<b>{html.escape(res.message)}</b> \u2014 {res.n_identifiable} of "
             f"{len(res.names)} parameters identifiable, {model.n_poses} poses, condition "
-            f"number {res.condition_number:.4g}; sigma "
+            f"number at the solution {res.condition_number:.4g}; sigma "
             f"({'from the trace' if res.sigma_known else 'estimated, eq. 51'}): "
             f"{html.escape(sig)}")
         self.summary.setTextFormat(Qt.TextFormat.RichText)

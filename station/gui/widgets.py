@@ -8,19 +8,35 @@ from PySide6.QtGui import QColor, QFont
 from PySide6.QtWidgets import (QFrame, QGridLayout, QHeaderView, QLabel, QScrollArea,
                                QSizePolicy, QTableWidget, QTableWidgetItem, QWidget)
 
+from station.units import MM_DEG, channel_si
+
 OK_COLOR, BAD_COLOR, WARN_COLOR = "#1b7a2f", "#b3261e", "#8a5a00"
 
 
-def channel_text(channel: str, value: float) -> tuple[str, str]:
-    """A reading as the operator reads it: ``(value, unit)``; distance in mm,
-    angles in degrees, actuator values in actuator units (u)."""
+# decimals of a live reading per display unit
+DECIMALS = {"mm": 3, "cm": 4, "m": 6, "\u00b5m": 1, "\u00b0": 3, "rad": 5, "mrad": 2, "u": 3}
+
+
+_UNITS = [MM_DEG]      # the wizard's display units (the station config's [display])
+
+
+def set_units(units) -> None:
+    """The display units of every reading shown from now on."""
+    _UNITS[0] = units
+
+
+def display_units():
+    return _UNITS[0]
+
+
+def channel_text(channel: str, value: float, units=None) -> tuple[str, str]:
+    """A reading as the operator reads it: ``(value, unit)`` in the display units
+    (:mod:`station.units`: distance in mm, angles in degrees by default; actuator
+    values in actuator units, u)."""
     if value is None or not isinstance(value, (int, float)) or not math.isfinite(value):
         return "\u2013", ""
-    if channel == "distance":
-        return f"{value * 1e3:.3f}", "mm"
-    if channel in ("tilt", "roll", "pitch", "yaw"):
-        return f"{math.degrees(value):.3f}", "\u00b0"
-    return f"{value:.3f}", "u"
+    label, factor = (units or _UNITS[0]).unit(channel_si(channel) or "u")
+    return f"{value * factor:.{DECIMALS.get(label, 4)}f}", label
 
 
 def channel_label(channel: str) -> str:

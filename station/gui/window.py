@@ -7,8 +7,8 @@ stops the simulator; the next start offers to resume an unfinished session.
 """
 from __future__ import annotations
 
-from PySide6.QtCore import QSize, Qt
-from PySide6.QtGui import QAction, QFont, QKeySequence
+from PySide6.QtCore import QSize, Qt, QTimer
+from PySide6.QtGui import QAction, QFont, QGuiApplication, QKeySequence
 from PySide6.QtWidgets import (QHBoxLayout, QLabel, QListWidget, QListWidgetItem, QMainWindow,
                                QMessageBox, QPushButton, QStackedWidget, QVBoxLayout, QWidget)
 
@@ -22,6 +22,7 @@ from station.gui.pages.plan import PlanPage
 from station.gui.pages.reference import ReferencePage
 from station.gui.pages.setup import SetupPage
 
+PREFERRED = (1440, 900)        # the window's size where the screen has room for it
 PAGES = {PageId.SETUP: SetupPage, PageId.REFERENCE: ReferencePage, PageId.PLAN: PlanPage,
          PageId.EXECUTE: ExecutePage, PageId.CALIBRATE: CalibratePage,
          PageId.EXPORT: ExportPage, PageId.OFFLINE: OfflinePage}
@@ -76,8 +77,30 @@ class MainWindow(QMainWindow):
         controller.sessionChanged.connect(self._update_nav)
         controller.iterated_offline.connect(self.pages[PageId.OFFLINE].add_iteration)
         self.current = PageId.SETUP
-        self.resize(1280, 720)
+        self.resize(*PREFERRED)
         self._update_nav()
+
+    def show_fitted(self) -> None:
+        """Show the window sized to its screen; fitted again once the window manager
+        has framed it (the frame's size is known only then)."""
+        self.fit_to_screen()
+        self.show()
+        QTimer.singleShot(200, self.fit_to_screen)
+
+    def fit_to_screen(self) -> None:
+        """Size the window to the screen it opens on: the available geometry (without
+        panels and docks) less the window manager's frame, at most :data:`PREFERRED`."""
+        screen = self.screen() or QGuiApplication.primaryScreen()
+        if screen is None or self.isMaximized() or self.isFullScreen():
+            return
+        avail = screen.availableGeometry()
+        fw = max(0, self.frameGeometry().width() - self.geometry().width())
+        fh = max(0, self.frameGeometry().height() - self.geometry().height())
+        w = min(PREFERRED[0], avail.width() - fw)
+        h = min(PREFERRED[1], avail.height() - fh)
+        self.resize(max(w, 640), max(h, 480))
+        self.move(avail.left() + max(0, (avail.width() - w - fw) // 2),
+                  avail.top() + max(0, (avail.height() - h - fh) // 2))
 
     def _menus(self) -> None:
         m = self.menuBar().addMenu("&File")

@@ -12,6 +12,12 @@ from station.gui.results import CalibrationView, validation_rows
 from station.gui.widgets import BAD_COLOR, OK_COLOR, note
 
 
+def one_line(text: str, limit: int = 200) -> str:
+    """The first line of ``text``, at most ``limit`` characters."""
+    first = text.strip().splitlines()[0] if text.strip() else ""
+    return first if len(first) <= limit else first[: limit - 1] + "\u2026"
+
+
 class OfflinePage(Page):
     title = "Offline: calibrate a recorded trace"
     subtitle = ("Open a trace recorded earlier (here or at another station), calibrate it and "
@@ -67,20 +73,26 @@ class OfflinePage(Page):
     def open_trace(self, path) -> bool:
         from station.trace import read_trace
 
+        # whatever happens, nothing of the previous trace stays on the page
+        self.path, self.outcome, self.validation, self.saved = None, None, None, {}
+        self.view.clear()
+        self._say("")
         try:
             tr = read_trace(path)
-        except Exception as e:  # noqa: BLE001 - said to the operator
-            self.summary.setText(f"{path} cannot be read: {error_text(e)}")
+        except Exception as e:  # noqa: BLE001 - said to the operator, in one line
+            self.summary.setText(f"{Path(path).name} cannot be opened: "
+                                 + one_line(error_text(e)).replace(f"{path}:", "line ", 1))
+            self.summary.setToolTip(str(path))
             self.summary.setStyleSheet(f"color: {BAD_COLOR};")
+            self._buttons()
             return False
-        self.path, self.outcome, self.validation, self.saved = Path(path), None, None, {}
+        self.path = Path(path)
         ref = " with a reference" if tr.reference is not None else ""
         self.summary.setText(f"{path}: {tr.robot}, method {tr.method}, "
                              f"{len(tr.fit_poses)} poses to fit and {len(tr.validation_poses)} "
                              f"held out{ref}.")
         self.summary.setStyleSheet("")
-        self.view.clear()
-        self._say("")
+        self.summary.setToolTip("")
         self._buttons()
         return True
 

@@ -3,15 +3,14 @@ limit), watch distance and tilt live, see what to do, capture the reference;
 for the wrist, the inclinometer mounting check."""
 from __future__ import annotations
 
-import numpy as np
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import (QButtonGroup, QCheckBox, QDoubleSpinBox, QFormLayout,
                                QGridLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton,
                                QRadioButton, QVBoxLayout, QWidget)
 
 from station.gui.pages.base import Page
-from station.gui.pictures import ArmPicture, LevelPicture
-from station.gui.widgets import OK_COLOR, ReadingsPanel, channel_text, note
+from station.gui.pictures import FAR_M, ArmPicture, LevelPicture
+from station.gui.widgets import OK_COLOR, WARN_COLOR, ReadingsPanel, channel_text, note
 
 
 class JogPanel(QGroupBox):
@@ -109,6 +108,7 @@ class ReferencePage(Page):
         self._built_for = None
         self.jog = self.picture = self.readings = None
         self.capture_button = self.goto_button = self.rezero_button = self.confirm = None
+        self.recapture_button = None
         self.status = note("")
         self.layout_.addWidget(self.status)
         controller.valuesChanged.connect(self._values)
@@ -142,7 +142,10 @@ class ReferencePage(Page):
         right = QVBoxLayout()
         _, _, text = session.reference_target()
         if sm:
-            self.picture = ArmPicture(session.robot, session.nominal)
+            _, role, _ = session.reference_target()
+            self.picture = ArmPicture(session.robot, session.nominal,
+                                      target_label=(role or "reference").replace("-", " "),
+                                      units=self.controller.units)
         else:
             self.picture = LevelPicture()
         right.addWidget(self.picture, 1)
@@ -153,9 +156,14 @@ class ReferencePage(Page):
             self.goto_button.clicked.connect(self.go_to_target)
             self.capture_button = QPushButton("C&apture reference")
             self.capture_button.clicked.connect(self.capture)
+            self.recapture_button = QPushButton("Capture a&gain here")
+            self.recapture_button.setToolTip("zero the draw-wire here and record this pose as "
+                                             "the reference instead (before any pose only)")
+            self.recapture_button.clicked.connect(self.capture)
             self.rezero_button = QPushButton("Return to the reference and &re-zero")
             self.rezero_button.clicked.connect(self.rezero)
-            for b in (self.goto_button, self.capture_button, self.rezero_button):
+            for b in (self.goto_button, self.capture_button, self.recapture_button,
+                      self.rezero_button):
                 b.setAutoDefault(False)
                 buttons.addWidget(b)
         else:
@@ -175,8 +183,8 @@ class ReferencePage(Page):
             self._build(s)
         if isinstance(self.picture, ArmPicture):
             qm, _, _ = s.reference_target()
-            self.picture.set_state(target_qm=s.reference_qm if s.reference_qm is not None
-                                   else qm, captured=s.reference_qm is not None)
+            self.picture.set_state(target_qm=qm, captured=s.reference_qm is not None,
+                                   captured_qm=s.reference_qm)
         self._values(self.controller.last_readings)
         self._refresh()
 
@@ -187,18 +195,33 @@ class ReferencePage(Page):
         busy = c.jobs.busy
         if s.needs_reference:
             captured = s.reference_qm is not None
+            again = captured and not s.measured          # no pose depends on it yet
+            self.capture_button.setVisible(not captured)
             self.capture_button.setEnabled(not captured and not busy)
-            self.goto_button.setEnabled(not captured and not busy)
+            self.recapture_button.setVisible(captured)
+            self.recapture_button.setEnabled(again and not busy)
+            self.goto_button.setEnabled((not captured or again) and not busy)
             self.rezero_button.setVisible(c.needs_rezero or (s.resumed and c.rezeroed))
             self.rezero_button.setEnabled(c.needs_rezero and not busy)
             if captured:
-                qm = np.round(s.reference_qm, 3).tolist()
-                text = f"\u2713 Reference captured at qm {qm}."
+                units = c.units
+                qm = units.vector(s.reference_qm, "u", ".6g")
+                off = s.reference_offset()
+                far = off is not None and off > FAR_M
+                if far:
+                    text = (f"\u26a0 Reference captured at qm {qm}, {units.text(off, 'm', '.4g')} "
+                            f"from the suggested mark (nominal model). {self.role_note} If that "
+                            "was not meant, jog to the mark (or \u2018Go to the suggested "
+                            "point\u2019) and press \u2018Capture again here\u2019.")
+                else:
+                    text = f"\u2713 Reference captured at qm {qm}."
+                    if again:
+                        text += " Jog and \u2018Capture again here\u2019 to replace it."
                 if c.needs_rezero:
                     text += (" The session was resumed: the draw-wire may have lost its zero. "
                              "Leave the cable attached and press \u2018Return to the reference "
                              "and re-zero\u2019 (Execute also does it before the first pose).")
-                self._say(text, OK_COLOR)
+                self._say(text, WARN_COLOR if far else OK_COLOR)
             else:
                 self._say("Reference not captured yet.", None)
         else:
@@ -239,8 +262,15 @@ class ReferencePage(Page):
 
     def _captured(self, qm) -> None:
         if isinstance(self.picture, ArmPicture):
-            self.picture.set_state(target_qm=qm, captured=True)
+            self.picture.set_state(captured=True, captured_qm=qm)
         self._refresh()
+
+    @property
+    def role_note(self) -> str:
+        s = self.session
+        if s is not None and s.method == "sm-distance-tilt":
+            return "theta0, a0 and q1_off will refer to this point."
+        return "Distances will be measured from this point."
 
     def rezero(self) -> None:
         self.controller.rezero(lambda _: self._refresh(),
