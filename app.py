@@ -8,6 +8,7 @@
     python app.py simulate --robot R [--truth FILE] [--endpoints FILE]
     python app.py devices check [--config FILE]
     python app.py run --simulate --robot R --method M [--truth FILE] --out DIR
+    python app.py doctor               what this machine lacks, and how to install it
 
 Every command exits 0 on success and non-zero with a one-line reason on stderr
 otherwise; no command leaves a partial output file behind.
@@ -239,6 +240,13 @@ def build_parser() -> argparse.ArgumentParser:
     gui = sub.add_parser("gui", help="the operator's Qt wizard")
     gui.add_argument("--simulate", action="store_true")
     gui.add_argument("--config")
+    gui.add_argument("--check", action="store_true",
+                     help="only check that the wizard can run here (system libraries, "
+                          "display) and say what to install")
+
+    doc = sub.add_parser("doctor", help="check this machine: Python packages, the wizard's "
+                                        "system libraries (with the apt-get command), display")
+    doc.set_defaults(func=_delegate("station.doctor", "main"))
     gui.set_defaults(func=_delegate("station.gui.app", "main"))
     return p
 

@@ -96,7 +96,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"starting the simulated {args.robot} (truth: {truth}; seed {seed}, readings "
               "repeatable: the same command gives the same values; --sim-seed N for other "
               "noise) ...", flush=True)
-        record = {"simulator": {"truth": truth, "seed": seed, "repeatable": True}}
+        record = {"simulator": {"truth": truth, "seed": seed, "pose_noise": True}}
         with SimulatorProcess(args.robot, truth=args.truth, config=args.config,
                               seed=seed, pose_noise=True) as sim:
             config = with_endpoints(config, sim.endpoints, source="simulator")

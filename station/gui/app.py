@@ -22,6 +22,12 @@ def create(simulate: bool = False, config: str | None = None, settings=None):
 
 
 def main(args: argparse.Namespace) -> int:
+    from station.doctor import gui_problem
+
+    check = getattr(args, "check", False)
+    problem = gui_problem() if sys.platform.startswith("linux") else None
+    if problem and check:
+        raise SystemExit(problem)
     try:
         from PySide6.QtCore import QTimer
         from PySide6.QtWidgets import QApplication
@@ -33,6 +39,12 @@ def main(args: argparse.Namespace) -> int:
         raise SystemExit("no display for the wizard (DISPLAY and WAYLAND_DISPLAY are unset): "
                          "run it in a desktop session, or headless use "
                          "'python app.py run --simulate --robot R --method M --out DIR'")
+    if problem:             # Qt would abort the process (rc 134) naming another library
+        raise SystemExit(problem)
+    if check:
+        print("the wizard can run here (a display, and Qt's platform plugin finds its "
+              "libraries)")
+        return 0
     config = getattr(args, "config", None)
     if config:
         from pathlib import Path

@@ -196,10 +196,10 @@ class Controller(QObject):
 
             truth = str(default_truth_path(robot))
             seed = simulator_seed(truth, self.sim_seed)
-            station = {"simulator": {"truth": truth, "seed": seed, "repeatable": True}}
+            station = {"simulator": {"truth": truth, "seed": seed, "pose_noise": True}}
             if self.sim is None:
                 self.sim = SimulatorProcess(robot, config=self.config_path, seed=seed,
-                                            repeatable=True)
+                                            pose_noise=True)
                 self.sim_robot = robot
             config = self.sim.station_config()
         else:
