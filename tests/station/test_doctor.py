@@ -54,3 +54,12 @@ def test_doctor_command(tmp_path):
     assert any("Python package Jinja2" in ln for ln in lines)
     assert any("system libraries of the wizard" in ln for ln in lines)
     assert (r.returncode == 0) == lines[-1].startswith("everything")
+
+
+def test_readme_lists_the_wizards_system_packages():
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    for pkg in doctor.GUI_PACKAGES:
+        assert pkg in readme, pkg
+        assert pkg in doctor.DEBIAN_PACKAGES.values()
