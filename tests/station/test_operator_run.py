@@ -42,7 +42,7 @@ def test_default_runs_are_reproducible_and_a_finished_folder_stays(tmp_path):
     fit = [r for r in poses[0] if r["use"] == "fit"]
     assert len(fit) == 8 and len(poses[0]) > 8     # and the held-out ones
     sim = ta[0]["station"]["simulator"]
-    assert sim["seed"] == 20240501 and sim["repeatable"] is True   # the truth file's
+    assert sim["seed"] == 20240501 and sim["pose_noise"] is True   # the truth file's
     assert "seed 20240501" in ra.stdout
     # pose lines carry their units (mm, degrees, actuator units)
     line = next(ln for ln in ra.stdout.splitlines() if ln.startswith("pose 1 of "))
