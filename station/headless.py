@@ -215,9 +215,14 @@ def _session(config, method, out, request, nominal, touch, measured, station, pr
         print()
         print(format_table(s.outcome))
         held = "pairs" if method == "sm-self-redundancy" else "poses"
+        said = set()
         for v in s.validation or ():
-            before = ("n/a" + (f" ({v['note']})" if v.get("note") else "")
-                      if v["rms_before"] is None else units.text(v["rms_before"], v["unit"]))
+            note = v.get("note")
+            if v["rms_before"] is None and note and note not in said:
+                print(f"validation: no RMS before calibration: {note}")
+                said.add(note)
+            before = ("n/a" if v["rms_before"] is None
+                      else units.text(v["rms_before"], v["unit"]))
             print(f"validation {v['channel']}: RMS {before} -> "
                   f"{units.text(v['rms_after'], v['unit'])} over {v['n']} held-out {held}")
         print(f"trace {files['trace']}\nparameter file {files['params']} ({files['checksum']})\n"

@@ -375,8 +375,19 @@ def _summary_view(ctx: _Context, validation: list) -> list[dict]:
 def validation_headline(validation, units=MM_DEG) -> str:
     """One line: per channel the held-out RMS before -> after with its unit and count
     (the reason where there is no "before")."""
+    rows = list(validation or ())
+    notes = {v.get("note") for v in rows}
+    if rows and not any(_finite(v.get("rms_before")) for v in rows) and len(notes) == 1:
+        # no "before" anywhere, for one reason: said once
+        after = "; ".join(f"{v.get('channel')} "
+                          f"{units.text(v.get('rms_after'), str(v.get('unit') or ''))}"
+                          for v in rows)
+        n = rows[0].get("n")
+        reason = f" ({notes.pop()})" if None not in notes else ""
+        return (f"RMS before calibration n/a{reason}; after: {after} over {n} held-out "
+                "poses")
     parts = []
-    for v in validation or ():
+    for v in rows:
         si = str(v.get("unit") or "")
         after = units.text(v.get("rms_after"), si)
         if _finite(v.get("rms_before")):

@@ -191,9 +191,9 @@ class ArmPicture(_Picture):
         p.setPen(QColor(INK))
         u = self.units
         if self.distance_to_target is not None and not self.captured:
+            d = round(self.distance_to_target, 6)
             p.drawText(QPointF(view.left(), view.top() + 14),
-                       f"end effector \u2248 {u.text(self.distance_to_target, 'm', '.4g')} from "
-                       "the mark (nominal model)")
+                       f"end effector \u2248 {u.text(d, 'm', '.4g')} from the mark (nominal model)")
         elif self.captured and self.warned:
             p.setPen(QColor(BAD))
             p.drawText(QPointF(view.left(), view.top() + 14),

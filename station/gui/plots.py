@@ -137,8 +137,9 @@ class ConvergencePlots(Canvas):
 
 
 class WorkspacePlot(Canvas):
-    """The planned poses in the workspace: SM end-effector positions (m), PM wrist
-    orientations (deg); fit and held-out poses, measured filled."""
+    """The planned poses in the workspace: SM end-effector positions, PM wrist
+    orientations, in the display units (mm, degrees); fit and held-out poses,
+    measured filled."""
 
     def __init__(self, parent=None):
         super().__init__(260, parent)
@@ -149,10 +150,15 @@ class WorkspacePlot(Canvas):
         fig.clear()
         ax = fig.add_subplot(projection="3d")
         self.count = len(poses)
+        from station.gui.widgets import display_units
+
+        u = display_units()
         if robot == "agebot-sm":
-            labels, scale = ("x [m]", "y [m]", "z (rail) [m]"), 1.0
+            unit, scale = u.unit("m")
+            labels = (f"x [{unit}]", f"y [{unit}]", f"z (rail) [{unit}]")
         else:
-            labels, scale = ("alpha [\u00b0]", "beta [\u00b0]", "gamma [\u00b0]"), 180 / math.pi
+            unit, scale = u.unit("rad")
+            labels = (f"alpha [{unit}]", f"beta [{unit}]", f"gamma [{unit}]")
         measured = set(measured)
         for use, color, name in (("fit", "#1f77b4", "fit"), ("validation", "#ff7f0e", "held out")):
             for done in (False, True):

@@ -14,7 +14,7 @@ from PySide6.QtWidgets import (QHeaderView, QTableWidget, QTableWidgetItem, QVBo
 from station.gui.plots import ConvergencePlots
 from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, heading, note
 from station.report import IDENT_GROUPS, IDENT_SYMBOL, param_units
-from station.units import MM_DEG
+from station.units import MM_DEG, channel_si
 
 GROUP_COLOR = {"identifiable": OK_COLOR, "no-influence": "#555555", "influence": BAD_COLOR}
 
@@ -94,10 +94,14 @@ class CalibrationView(QWidget):
         self.plots.add(iteration)
 
     def show_outcome(self, outcome, validation=None) -> None:
+        from station.gui.widgets import display_units
+
+        self.units = display_units()
         self.outcome = outcome
         res, model = outcome.result, outcome.model
         self.plots.finish(res, outcome.nominal)
-        sig = ", ".join(f"{k} {v:.3g}" for k, v in res.sigma.items())
+        sig = ", ".join(f"{k} {self.units.text(v, channel_si(k), '.3g')}"
+                        for k, v in res.sigma.items())
         self.summary.setText(
             f"<b>{html.escape(res.message)}</b> \u2014 {res.n_identifiable} of "
             f"{len(res.names)} parameters identifiable, {model.n_poses} poses, condition "
@@ -128,7 +132,9 @@ class CalibrationView(QWidget):
             item.setFont(big)
             item.setToolTip(f"{res.names[j]}: {st.label}")
             t.setItem(0, j, item)
-        t.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
+        # as wide as the names (a long one is not cut); the table scrolls if they do not fit
+        t.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        t.horizontalHeader().setStretchLastSection(False)
         _fit_height(t)
 
     def _show_params(self, outcome) -> None:
@@ -176,7 +182,7 @@ class CalibrationView(QWidget):
                 return "n/a" if x is None else self.units.text(x, si)
 
             rb, ra = v.get("rms_before"), v.get("rms_after")
-            change = (f"{(ra / rb - 1) * 100:+.1f} %" if rb not in (None, 0) and ra is not None
+            change = (f"{(ra / rb - 1) * 100:+.4g} %" if rb not in (None, 0) and ra is not None
                       else "\u2013")
             cells = (v["channel"], str(v.get("n", "")), f(rb), f(ra), change,
                      f(v.get("max_before")), f(v.get("max_after")))

@@ -150,6 +150,13 @@ class DeviceTable(QTableWidget):
                 item.setToolTip(text)
                 self.setItem(r, c, item)
         self.resizeRowsToContents()
+        self._fit()
+
+    def _fit(self) -> None:
+        """As tall as its rows (at least 120 px): no empty area pushing the page down."""
+        h = self.horizontalHeader().height() + sum(self.rowHeight(r)
+                                                   for r in range(self.rowCount()))
+        self.setMaximumHeight(max(120, h + 2 * self.frameWidth() + 4))
 
     def clear_devices(self) -> None:
         self.setRowCount(0)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 from PySide6.QtCore import Qt
 from PySide6.QtGui import QColor
 from PySide6.QtWidgets import (QGroupBox, QHBoxLayout, QListWidget, QListWidgetItem,
@@ -205,10 +204,21 @@ class ExecutePage(Page):
 
     # -- what the session reports ----------------------------------------------------------------
     def _progress(self, p) -> None:
-        self.progress.setMaximum(max(1, p.total))
-        self.progress.setValue(p.done)
+        if p.stage:               # the wrist: counted per round (scout, then main)
+            self.progress.setMaximum(max(1, p.stage_total))
+            self.progress.setValue(p.stage_done)
+            self.progress.setFormat(("scout round: " if p.stage == "scout" else "main round: ")
+                                    + "%v of %m poses")
+        else:
+            self.progress.setMaximum(max(1, p.total))
+            self.progress.setValue(p.done)
+            self.progress.setFormat("%v of %m poses")
         if p.pose is not None:
-            target = np.round(np.asarray(p.pose.target, dtype=float), 3).tolist()
+            s = self.session
+            sm = s is not None and s.robot.name == "agebot-sm"
+            sis = ("m", "m", "m", "rad") if sm else ("rad",) * 3
+            u = self.controller.units
+            target = ", ".join(u.text(v, si, ".4g") for v, si in zip(p.pose.target, sis))
             use = "held out" if p.pose.use == "validation" else "fit"
             self.current.setText(f"Pose {p.pose.index} ({use}): {p.message}; target {target}")
 

@@ -132,8 +132,11 @@ class PlanPage(Page):
             return
         poses = s.plan_poses
         n = s.robot.n_actuators
-        coords = ("x [m]", "y [m]", "z [m]", "phi [\u00b0]") if s.robot.name == "agebot-sm" \
-            else ("alpha [\u00b0]", "beta [\u00b0]", "gamma [\u00b0]")
+        u = self.controller.units
+        sis = ("m", "m", "m", "rad") if s.robot.name == "agebot-sm" else ("rad",) * 3
+        names = ("x", "y", "z", "phi") if s.robot.name == "agebot-sm" \
+            else ("alpha", "beta", "gamma")
+        coords = tuple(f"{k} [{u.label(si)}]" for k, si in zip(names, sis))
         heads = ["#", "use", "round", "state"] + [f"qm{i + 1}" for i in range(n)] + list(coords)
         t = self.table
         t.setColumnCount(len(heads))
@@ -142,8 +145,7 @@ class PlanPage(Page):
         for r, p in enumerate(poses):
             state = ("measured" if p.index in s.measured else
                      "skipped" if p.index in s.skipped else "to measure")
-            tgt = [v if k < 3 and s.robot.name == "agebot-sm" else math.degrees(v)
-                   for k, v in enumerate(p.target)]
+            tgt = [u.value(v, si) for v, si in zip(p.target, sis)]
             cells = [str(p.index), "held out" if p.use == "validation" else "fit",
                      "scout" if (s.robot.name == "agebot-pm" and p.round == 0) else str(p.round),
                      state] + [f"{v:.3f}" for v in p.qm] + [f"{v:.3f}" for v in tgt]

@@ -41,8 +41,8 @@ def _row(*widgets) -> QWidget:
 class SetupPage(Page):
     title = "Setup"
     subtitle = ("Choose the robot and the calibration method, the station and a folder for "
-                "this session, then connect the devices. The list below says what is still "
-                "missing and how to fix it.")
+                "this session, then connect the devices. The list above the Connect button says "
+                "what is still missing and how to fix it.")
 
     def __init__(self, controller, parent=None):
         super().__init__(controller, parent)
@@ -98,6 +98,10 @@ class SetupPage(Page):
         self.connect_button.clicked.connect(self.connect_session)
         self.disconnect_button = QPushButton("Disconnec&t")
         self.disconnect_button.clicked.connect(self.disconnect_session)
+        # what is missing next to the Connect button: in sight without scrolling
+        self.missing = note("")
+        self.missing.setObjectName("missing")
+        self.layout_.addWidget(self.missing)
         self.layout_.addWidget(_row(self.connect_button, self.disconnect_button))
 
         box = QGroupBox("Devices (live)")
@@ -105,9 +109,6 @@ class SetupPage(Page):
         self.devices = DeviceTable()
         lay.addWidget(self.devices)
         self.layout_.addWidget(box)
-        self.missing = note("")
-        self.missing.setObjectName("missing")
-        self.layout_.addWidget(self.missing)
         self.layout_.addStretch(1)
 
         self.robot.currentIndexChanged.connect(self._robot_changed)
