@@ -1,7 +1,9 @@
 """pytest-qt fixtures for the wizard (offscreen: tests/conftest.py sets QT_QPA_PLATFORM).
 
 ``CALSTATION_SCREENSHOTS=1`` saves a screenshot of every page, taken from the
-real widgets at 1366x768, into docs/screenshots/.
+real widgets at 1366x768, into docs/screenshots/; ``CALSTATION_SCREENSHOTS=root``
+takes the whole X screen (run under Xvfb at 1366x768 with a window manager and
+``QT_QPA_PLATFORM=xcb``; see tests/gui/helpers.py).
 """
 from __future__ import annotations
 
