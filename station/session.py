@@ -61,7 +61,7 @@ from station.lock import FolderLock
 from station.params_file import params_document, read_params, write_params
 from station.planner import PlannedPose, PlanRequest
 from station.trace import TraceWriter, read_trace, utc_now
-from station.units import from_config as units_from_config
+from station.units import describe_error, from_config as units_from_config
 from station.validation import validation_errors
 from station.wrist_plan import WristPlanner
 
@@ -682,7 +682,8 @@ class Session:
                 self._event("abort", f"aborted at pose {pose.index} while touching")
                 raise
             except DeviceError as e:
-                self._event("fault", f"pose {pose.index}, attempt {attempt + 1}: {e}",
+                self._event("fault", f"pose {pose.index}, attempt {attempt + 1}: "
+                            f"{describe_error(e, self.units)}",
                             plan_index=pose.index, device=e.device)
                 action = self.fault_policy(pose, e, attempt)
                 if action == "abort":

@@ -124,7 +124,8 @@ def from_config(config) -> Units:
 
 def describe_error(error, units: Units = MM_DEG) -> str:
     """The text of a device error for people: a snapshot's stability violations get
-    their units (``drift 2.28 mm exceeds the limit 2.00 mm``); anything else is
+    their units (``draw-wire: unstable reading: draw-wire channel 'distance': drift
+    2.28 mm exceeds the limit 2.00 mm``); anything else is
     ``str(error)``."""
     violations = getattr(error, "violations", None)
     if not violations:
@@ -134,4 +135,5 @@ def describe_error(error, units: Units = MM_DEG) -> str:
         si = channel_si(v.channel)
         parts.append(f"{v.device} channel {v.channel!r}: {v.kind} {units.text(v.value, si, '#.3g')} "
                      f"exceeds the limit {units.text(v.limit, si, '#.3g')}")
-    return "unstable reading: " + "; ".join(parts)
+    device = getattr(error, "device", None)
+    return (f"{device}: " if device else "") + "unstable reading: " + "; ".join(parts)

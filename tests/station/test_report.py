@@ -308,7 +308,7 @@ def test_units_policy():
     assert MM_DEG.text(1e-4, "rad/u", ".3g") == "0.00573\u00b0/u"
     assert MM_DEG.text(3.0, "u") == "3 u"
     e = UnstableReading([Violation("draw-wire", "distance", "drift", 0.00228, 0.002)])
-    assert describe_error(e) == ("unstable reading: draw-wire channel 'distance': drift "
+    assert describe_error(e) == ("draw-wire: unstable reading: draw-wire channel 'distance': drift "
                                  "2.28 mm exceeds the limit 2.00 mm")
     base = {"robot": "agebot-sm", "canopen": {"interface": "virtual", "nodes": [1, 2, 3, 4],
                                               "increments_per_unit": [1, 1, 1, 1]}}

@@ -13,7 +13,10 @@ def error_text(e: BaseException) -> str:
     from calibration.errors import StationError
 
     if isinstance(e, StationError):
-        return str(e)
+        from station.gui.widgets import display_units
+        from station.units import describe_error
+
+        return describe_error(e, display_units())   # a snapshot's limits with units
     return f"{type(e).__name__}: {e}"
 
 
