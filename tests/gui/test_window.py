@@ -59,7 +59,7 @@ def test_offline_page_reports_an_unreadable_trace(window, tmp_path):
     bad.write_text("not json\n")
     off = window.page(PageId.OFFLINE)
     assert not off.open_trace(bad)
-    assert "cannot be read" in off.summary.text()
+    assert "cannot be opened" in off.summary.text()
     assert not off.calibrate_button.isEnabled()
     assert off.open_trace(ROOT / "fixtures/traces/pm-fk.jsonl")
     assert "pm-fk" in off.summary.text() and off.calibrate_button.isEnabled()
