@@ -513,6 +513,7 @@ class Session:
         else:
             home_qm = np.array(self._rig().qm())
             home_X = self._orientation_now()
+            self.wrist.request = self.request    # the operator may have changed count, seed
             poses, wrist = self.wrist.scout(home_qm, home_X)
             self._set_plan(poses, replace=True, wrist=wrist)
             return poses
