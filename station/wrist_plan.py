@@ -19,7 +19,9 @@ Before each round the start model must explain the recorded readings (RMS at mos
 3. **Widen**: the next round's box is the region measured so far (largest fitted
    angle) times :data:`GROW`, at most the report's +-20 deg box; growing rounds
    have :data:`ROUND_COUNT` poses; the round that reaches +-20 deg is the final
-   one and holds the remaining fit poses and the held-out ones.
+   one and holds the remaining fit poses (at least :data:`ROUND_COUNT`: where the
+   growing rounds used up the requested count, the session measures more) and the
+   held-out ones.
 
 Every planned pose is checked against the current model before it is sent: the
 IK reaches it, the sliders stay within their stroke (station config
@@ -190,7 +192,7 @@ class WristPlanner:
         count = req.count or int(np.ceil(req.margin * minimum_count(
             self.method, self.components if self.method == "pm-fk" else None)))
         if final:
-            n_fit = max(count - fit_done, 1)
+            n_fit = max(count - fit_done, ROUND_COUNT)   # the outer box gets poses of its own
             n_val = max((req.validation if req.validation is not None
                          else max(3, count // 5)) - val_done, 0)
         else:

@@ -41,3 +41,46 @@ def test_a_wrist_with_its_sensor_mapped_wrong_stops_after_the_scout(tmp_path):
     assert len(trace.poses) <= SCOUT_COUNT                     # nothing beyond the scout
     assert [e["kind"] for e in trace.events][-1] == "stop"
     assert not (tmp_path / "run" / "params.json").exists()
+
+
+def test_a_wrist_session_aborted_mid_growth_resumes_its_rounds(tmp_path):
+    """Aborted in a growing round, a new Session on the folder takes the model, round
+    and home of the trace's plan events and grows on to the +-20 deg round."""
+    from drivers.config import load_station_config
+    from drivers.endpoints import with_endpoints
+    from station.planner import PlanRequest
+    from station.session import Session, SessionAborted
+    from station.sim_wrist import ik_error
+
+    truth = wrist_truth(9401)
+    save_truth(truth, tmp_path / "truth.json")
+    cfg = fast_config(tmp_path)
+    req = dict(count=20, validation=4, seed=2)
+    with SimulatorProcess("agebot-pm", truth=str(tmp_path / "truth.json"), config=str(cfg),
+                          seed=2) as sim:
+        config = with_endpoints(load_station_config(cfg), sim.endpoints, source="simulator")
+        first = None
+
+        def stop_in_round_one(kind, payload):
+            if kind == "progress" and payload.readings and payload.pose.round == 1:
+                first.abort()
+
+        first = Session(config, "pm-fk", tmp_path / "run", request=PlanRequest(**req),
+                        observer=stop_in_round_one)
+        try:
+            first.run()
+            raise AssertionError("not aborted")
+        except SessionAborted:
+            pass
+        finally:
+            first.close()
+        with Session(config, "pm-fk", tmp_path / "run", request=PlanRequest(**req)) as again:
+            assert again.resumed and again.wrist.rounds == 2 and again.wrist.xi is not None
+            again.run()
+    trace = read_trace(tmp_path / "run" / "trace.jsonl")
+    idx = [p["plan_index"] for p in trace.poses]
+    assert len(idx) == len(set(idx))                                 # nothing measured twice
+    plans = [e["wrist"] for e in trace.events if e["kind"] == "plan"]
+    assert [p["round"] for p in plans] == list(range(len(plans))) and plans[-1]["final"]
+    assert len(trace.fit_poses) >= 20 and len(trace.validation_poses) == 4
+    assert ik_error(again.outcome.result.x, truth.xi()) < 1.0
