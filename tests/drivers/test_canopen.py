@@ -197,8 +197,10 @@ def test_lost_tpdos_cost_a_sync_not_the_reading(drives, sim):
 def test_late_answers_within_timeout_are_fine(drives, sim):
     expected = drives.read().values
     sim.call("faults", {"late_s": 0.15})
-    assert drives.read(timeout=1.0).values == expected
-    assert drives.read_sdo(timeout=1.0).values == expected
+    # a timeout 20x the lateness: the test is about late answers, not about how busy
+    # the machine running it is
+    assert drives.read(timeout=3.0).values == expected
+    assert drives.read_sdo(timeout=3.0).values == expected
 
 
 def test_late_answers_beyond_timeout_are_timeouts(drives, sim):
