@@ -175,7 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
     im.set_defaults(func=_cmd_trace_import)
 
     s = sub.add_parser("simulate", help="run the simulated devices until stopped")
-    s.add_argument("--robot", required=True, choices=("agebot-sm", "agebot-pm"))
+    s.add_argument("--robot", required=True, metavar="ROBOT",
+                   help="agebot-sm, agebot-pm or a robot file (TOML)")
     s.add_argument("--truth")
     s.add_argument("--config")
     s.add_argument("--endpoints", help="write the devices' endpoints (JSON) here")
@@ -200,7 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("run", help="a whole station session, headless")
     r.add_argument("--simulate", action="store_true")
-    r.add_argument("--robot", required=True, choices=("agebot-sm", "agebot-pm"))
+    r.add_argument("--robot", required=True, metavar="ROBOT",
+                   help="agebot-sm, agebot-pm or a robot file (TOML)")
     r.add_argument("--method", required=True)
     r.add_argument("--truth")
     r.add_argument("--config")

@@ -31,7 +31,12 @@ def measure(method: str, robot, xi_true, qm, *, reference_qm=None, noise=None,
         X = robot.fk(qm, xi_true)
         ref = robot.fk(np.atleast_2d(reference_qm), xi_true)[0, :3]
         out = {"distance": np.linalg.norm(X[:, :3] - ref, axis=1) + n("distance", m)}
-        if method == "sm-distance-tilt":
+        if method == "sm-distance-tilt" and getattr(robot, "spec", None) is not None:
+            from calibration.robots.agebot_pm import gravity_tilt   # a robot file's tool inclinometer
+
+            roll, pitch = gravity_tilt(robot.frames(qm, xi_true)[:, :3, :3], mount)
+            out["tilt"] = np.column_stack([roll, pitch]) + n("tilt", (m, 2))
+        elif method == "sm-distance-tilt":
             out["tilt"] = X[:, 3] + n("tilt", m)
         return out
     if method in ("sm-self-redundancy", "sm-plane"):

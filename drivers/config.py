@@ -6,7 +6,8 @@ House style 6: raw dicts never leave this module (and its two helpers below). Ev
 errors, missing required keys are named. Layout (see
 ``fixtures/stations/example-real.toml`` for every key, annotated)::
 
-    robot = "agebot-sm"
+    robot = "agebot-sm"              # or robot_file = "arm.toml" (any serial robot; relative
+                                     # to this file; robot, if given, must be its name)
     [canopen]        interface, channel, host, port, nodes, increments_per_unit, ...
     [canopen.bus]    further python-can keyword arguments (bitrate, ...)
     [inclinometer]   port (device or pyserial URL), baudrate, timeout
@@ -211,6 +212,13 @@ class StationConfig:
     unresolved: tuple[str, ...] = ()
     display: DisplayConfig = DisplayConfig()
     envelope: EnvelopeConfig = dataclasses.field(default_factory=EnvelopeConfig)
+    spec: Any = None    # the robot file's SerialSpec (``robot_file``), or None for a built-in
+
+    @property
+    def robot_model(self):
+        """What :func:`calibration.robots.get_robot` takes: the robot file's spec or the
+        built-in robot's name."""
+        return self.spec if self.spec is not None else self.robot
 
     def require_resolved(self) -> "StationConfig":
         """Self, or ConfigError naming the first endpoint placeholder not yet filled."""
@@ -234,11 +242,25 @@ def load_station_config(path: str | Path) -> StationConfig:
     return parse_station_config(data, str(path))
 
 
-def parse_station_config(data: Mapping[str, Any], source: str | None = None) -> StationConfig:
-    """Parse a TOML document (already a dict) into a :class:`StationConfig`."""
+def parse_station_config(data: Mapping[str, Any], source: str | None = None, *,
+                         spec=None) -> StationConfig:
+    """Parse a TOML document (already a dict) into a :class:`StationConfig`. ``spec``: the
+    robot file's :class:`~calibration.robots.serial.SerialSpec` when the caller read it
+    already (the document then has no ``robot_file``)."""
     top = KeyReader(data, "", source)
-    robot = top.choice("robot", tuple(ROBOT_AXES))
-    n = ROBOT_AXES[robot]
+    if "robot_file" in top.data:
+        from drivers.robot_file import load_robot_file
+
+        base = Path(source).parent if source else Path(".")
+        spec = load_robot_file(base / top.str("robot_file"))
+    if spec is not None:
+        robot = top.str("robot", default=spec.name)
+        if robot != spec.name:
+            top.fail("robot", f"{robot!r} is not the robot file's name {spec.name!r}")
+        n = len(spec.joints)
+    else:
+        robot = top.choice("robot", tuple(ROBOT_AXES))
+        n = ROBOT_AXES[robot]
     unresolved: list[str] = []
     canopen = _canopen(top.table("canopen"), n, unresolved)
     incl = top.table("inclinometer", required=False)
@@ -252,7 +274,8 @@ def parse_station_config(data: Mapping[str, Any], source: str | None = None) -> 
         drawwire=_drawwire(dw, unresolved) if dw else None,
         snapshot=_snapshot(snap) if snap else SnapshotConfig(),
         source=source, unresolved=tuple(unresolved),
-        display=_display(disp) if disp else DisplayConfig(), envelope=_envelope(env, n) if env else EnvelopeConfig())
+        display=_display(disp) if disp else DisplayConfig(), envelope=_envelope(env, n) if env else EnvelopeConfig(),
+        spec=spec)
     top.finish()
     return config
 

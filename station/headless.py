@@ -80,17 +80,19 @@ def main(args: argparse.Namespace) -> int:
         except ValueError:
             raise ConfigError(f"--nominal {item!r}: expected NAME=VALUE with a number") from None
     if args.simulate:
-        from drivers.sim.server import (SimulatorProcess, default_config_path,
-                                        default_truth_path)
+        from drivers.sim.serial_robot import is_robot_file
+        from drivers.sim.server import SimulatorProcess, default_truth_path, load_sim_config
 
-        cfg_path = args.config or default_config_path(args.robot)
-        config = load_station_config(cfg_path)
-        if config.robot != args.robot:
+        config = load_sim_config(args.robot, args.config)
+        if not is_robot_file(args.robot) and config.robot != args.robot:
             raise ConfigError(f"the station config is for {config.robot}, not {args.robot}",
-                              source=str(cfg_path), key="robot")
+                              source=config.source, key="robot")
         measured = {}
         if args.method in TOUCH_METHODS:
             measured = engineer_measurements(args.robot, args.method, args.truth, nominal)
+        if is_robot_file(args.robot) and not args.truth:
+            raise ConfigError(f"a simulated {args.robot} needs --truth: a truth file of the "
+                              "robot file (what the simulated arm really is)")
         truth = args.truth or str(default_truth_path(args.robot))
         seed = simulator_seed(truth, getattr(args, "sim_seed", None))
         print(f"starting the simulated {args.robot} (truth: {truth}; seed {seed}, readings "
@@ -227,4 +229,6 @@ def _session(config, method, out, request, nominal, touch, measured, station, pr
                   f"{units.text(v['rms_after'], v['unit'])} over {v['n']} held-out {held}")
         print(f"trace {files['trace']}\nparameter file {files['params']} ({files['checksum']})\n"
               f"report {files['report']}")
+        if files.get("urdf"):
+            print(f"URDF {files['urdf']}")
     return 0

@@ -50,12 +50,12 @@ from typing import Callable
 import numpy as np
 
 from calibration.errors import ConfigError, StationError
-from calibration.methods import METHODS
+from calibration.methods import METHODS, extra_params
 from calibration.robots import get_robot
 from calibration.robots.agebot_pm import euler_from_ypr
 from drivers.config import StationConfig
 from drivers.errors import DeviceError
-from station import planner, resume
+from station import planner, resume, serial_plan
 from station.batch import BatchOutcome, calibrate, frame_statement
 from station.lock import FolderLock
 from station.params_file import params_document, read_params, write_params
@@ -68,6 +68,7 @@ from station.wrist_plan import WristPlanner
 log = logging.getLogger("station.session")
 
 TRACE, PARAMS, REPORT = "trace.jsonl", "params.json", "report.html"
+URDF = "calibrated.urdf"     # a robot file's session
 COMPONENTS = ("alpha", "beta", "gamma")
 
 
@@ -163,7 +164,7 @@ class Session:
                  station: dict | None = None):
         planner.check_method(method)
         mi = METHODS[method]
-        robot = get_robot(config.robot)
+        robot = get_robot(config.robot_model)     # a built-in or the config's robot file
         if robot.kind != mi.kind:
             raise ConfigError(f"the station is for {config.robot} (a {robot.kind} robot), method "
                               f"{method} needs a {mi.kind} one", source=config.source, key="robot")
@@ -178,7 +179,7 @@ class Session:
         self.touch = touch
         self.station_record = dict(station or {})   # more for the header's station field
         given = dict(nominal or {})
-        self.extra = {k: float(given.pop(k)) for k in mi.extra_params if k in given}
+        self.extra = {k: float(given.pop(k)) for k in extra_params(method, robot) if k in given}
         self.nominal = self.robot.params(given, source="nominal")
         self.known = set(given) | set(self.extra)    # start values the engineer gave
         self.components = tuple(self.request.components) if method == "pm-fk" else None
@@ -231,7 +232,8 @@ class Session:
                               source=str(self.trace_path))
         self.nominal = tr.nominal_vector(self.robot, self.info.extra_params)[:self.robot.n_params]
         nom = tr.header.get("nominal") or {}
-        self.extra = {k: float(nom[k]) for k in self.info.extra_params if k in nom}
+        self.extra = {k: float(nom[k]) for k in extra_params(self.method, self.robot)
+                      if k in nom}
         self.known = set(nom)
         if tr.header.get("components"):
             self.components = tuple(tr.header["components"])
@@ -273,6 +275,7 @@ class Session:
         if self._writer is None:
             self.out.mkdir(parents=True, exist_ok=True)
             header = {"robot": self.robot.name, "method": self.method,
+                      **({"robot_file": dict(self.config.spec.source)} if self.serial else {}),
                       "nominal": {**self.robot.as_dict(self.nominal), **self.extra},
                       "station": {"config": self.config.source, "software": "calstation",
                                   "devices": [d.name for d in self.rig.devices] if self.rig
@@ -354,6 +357,9 @@ class Session:
 
     def reference_target(self):
         """``(qm, role, instructions)`` for the reference step (qm None: no reference)."""
+        if self.serial:
+            return (serial_plan.reference_pose(self.robot, self.nominal, self.config.envelope.qm_range),
+                    self.info.reference, serial_plan.REFERENCE_TEXT)
         return planner.reference_pose(self.method, self.nominal)
 
     def capture_reference(self) -> np.ndarray:
@@ -480,7 +486,19 @@ class Session:
         return len(self.measured) + len(self.skipped) + len(self._held)
 
     @property
+    def serial(self) -> bool:
+        """True for a robot file's arm (station/serial_plan.py plans it)."""
+        return self.config.spec is not None
+
+    @property
     def minimum_count(self) -> int:
+        if self.serial:     # eq. 60 over what the method identifies on this robot
+            if getattr(self, "_min_count", None) is None:
+                ref = self.reference_qm if self.reference_qm is not None else \
+                    self.reference_target()[0]
+                self._min_count = serial_plan.minimum_count(self.method, self.robot,
+                                                            self.nominal, ref)
+            return self._min_count
         return planner.minimum_count(self.method, self.components)
 
     def plan(self) -> list[PlannedPose]:
@@ -504,7 +522,13 @@ class Session:
                         f"{self.method} and they influence the result; their start values "
                         "(the robot's nominal) must be right, or the other parameters come "
                         "out biased. Give the measured values as start values.")
-        if self.robot.name == "agebot-sm":
+        if self.serial:
+            targets, qm, use = serial_plan.plan(self.method, self.robot, self.nominal,
+                                                self.reference_qm, self.request,
+                                                qm_range=self.config.envelope.qm_range)
+            poses = [PlannedPose(i, tuple(map(float, q)), tuple(map(float, X)), u)
+                     for i, (q, X, u) in enumerate(zip(qm, targets, use))]
+        elif self.robot.name == "agebot-sm":
             start = self.reference_qm
             if start is None and self.rig is not None and all(d.is_open for d in self.rig.devices):
                 start = self.qm()
@@ -759,8 +783,8 @@ class Session:
             rec["group"] = int(pose.group)
         if self.method in ("sm-distance", "sm-distance-tilt"):
             rec["distance"] = m["distance"]
-        if self.method == "sm-distance-tilt":
-            rec["tilt"] = m["tilt"]
+        if self.method == "sm-distance-tilt":     # a robot file's: the tool inclinometer's two axes
+            rec["tilt"] = [m["roll"], m["pitch"]] if self.serial else m["tilt"]
         if self.method == "pm-tilt":
             rec["tilt"] = [m["roll"], m["pitch"]]
         if self.method in ("pm-ik", "pm-fk"):
@@ -834,9 +858,11 @@ class Session:
         doc = params_document(o.result, robot=self.robot.name, nominal=o.model.x0,
                               poses=o.model.n_poses,
                               trace_path=str(self.trace_path), frame=frame_statement(o.trace),
-                              notes=notes)
+                              notes=notes, extra={"robot_file": dict(self.config.spec.source)}
+                              if self.serial else None)
         doc = write_params(self.out / PARAMS, doc)
         self._event("export", f"parameter file {self.out / PARAMS} ({doc['checksum']})")
+        urdf = self._export_urdf(doc) if self.serial else None
         from station.report import write_report
 
         o = self.outcome = dataclasses.replace(o, document=doc)
@@ -850,8 +876,26 @@ class Session:
         self._event("report", f"report {self.out / REPORT}")
         self.exported = {"params": str(self.out / PARAMS), "report": str(self.out / REPORT),
                          "trace": str(self.trace_path), "checksum": doc["checksum"]}
+        if urdf:
+            self.exported["urdf"] = urdf
         self._notify("state", "exported")
         return self.exported
+
+    def _export_urdf(self, doc: dict) -> str | None:
+        """A robot file's calibration as URDF (``calibrated.urdf``, station/export.py);
+        None, said in an event, where a calibrated ratio k is not 1."""
+        from drivers.atomic import write_atomic
+        from station.export import calibrated_model, urdf_text
+
+        path = self.out / URDF
+        try:
+            text = urdf_text(*calibrated_model(doc, str(self.out / PARAMS)))
+        except ConfigError as e:
+            self._event("warning", f"no URDF: {e}")
+            return None
+        write_atomic(path, text.encode("utf-8"))
+        self._event("export", f"URDF {path}")
+        return str(path)
 
     # -- everything, as an operator would do it --------------------------------------------------------
     def run(self) -> dict:

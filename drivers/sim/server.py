@@ -60,6 +60,8 @@ from drivers.sim.drawwire_sim import SimDrawWire
 from drivers.sim.faults import FaultPlan
 from drivers.sim.inclinometer_sim import SimInclinometer
 from drivers.sim.robot import LIMIT_NAMES, SimulatedAgebot
+from drivers.sim.serial_robot import LIMIT_NAMES as SERIAL_LIMITS
+from drivers.sim.serial_robot import SimulatedSerial, is_robot_file, nominal_truth, sim_config
 from drivers.sim.truth import SimTruth, load_truth, report_truth
 
 log = logging.getLogger("drivers.sim")
@@ -94,7 +96,12 @@ class SimStation:
         self.truth, self.config = truth, config
         self.plan = FaultPlan(seed=seed)
         cc = config.canopen
-        self.robot = SimulatedAgebot(truth, faults=self.plan, seed=seed,
+        if truth.spec is not None and (config.spec is None or
+                                       config.spec.source["sha256"] != truth.spec.source["sha256"]):
+            raise ConfigError(f"the truth file's robot file is not the station config's",
+                              source=config.source, key="robot_file")
+        sim = SimulatedSerial if truth.spec is not None else SimulatedAgebot
+        self.robot = sim(truth, faults=self.plan, seed=seed,
                                      velocity=cc.profile_velocity or None,
                                      acceleration=cc.profile_acceleration or None,
                                      pose_noise=pose_noise, qm_range=config.envelope.qm_range)
@@ -110,7 +117,8 @@ class SimStation:
             self.canopen = start_canopen_sim(
                 self.robot.axes, cc.nodes, list(cc.increments_per_unit), self.plan,
                 channel=cc.channel, profile=cc.mode, increments=self.robot.encoder_increments,
-                supervise=self._limit if self.truth.robot == "agebot-pm" else None)
+                supervise=self._limit if (self.truth.robot == "agebot-pm" or
+                                          self.truth.spec is not None) else None)
             if self.config.inclinometer is not None:
                 self.inclinometer = SimInclinometer(
                     self.robot.inclinometer_angles_deg, rate_hz=self._inclinometer_hz,
@@ -136,7 +144,8 @@ class SimStation:
         """The simulated PM's physical limit hit since the last check, as ``(axis, EMCY
         manufacturer bytes)`` for the drives (:meth:`SimulatedAgebot.supervise`)."""
         hit = self.robot.supervise()
-        return None if hit is None else (hit[0], LIMIT_NAMES[hit[1]])
+        names = SERIAL_LIMITS if self.truth.spec is not None else LIMIT_NAMES
+        return None if hit is None else (hit[0], names[hit[1]])
 
     def stop(self) -> None:
         """Stop every simulated device (idempotent)."""
@@ -290,12 +299,28 @@ def write_endpoints(path: str | Path, endpoints: dict) -> None:
 def build(robot: str, truth: str | None = None, config: str | None = None, *,
           seed: int | None = None, pose_noise: bool = False) -> SimStation:
     """A :class:`SimStation` from file names (defaults: the fixtures), not started."""
+    c = load_sim_config(robot, config)
+    if is_robot_file(robot):     # a robot file: the truth is of it (default: its nominal)
+        t = load_truth(truth) if truth else nominal_truth(robot)
+        if t.spec is None or t.spec.source["sha256"] != c.spec.source["sha256"]:
+            raise ConfigError(f"the truth file is not of the robot file {robot}",
+                              source=t.source, key="robot_file")
+        return SimStation(t, c, seed=seed, pose_noise=pose_noise)
     t = load_truth(truth) if truth else load_truth(default_truth_path(robot))
     if t.robot != robot:
         raise ConfigError(f"the truth file is for {t.robot}, not {robot}", source=t.source,
                           key="robot")
-    c = load_station_config(config or default_config_path(robot))
     return SimStation(t, c, seed=seed, pose_noise=pose_noise)
+
+
+def load_sim_config(robot: str, config: str | None = None) -> StationConfig:
+    """The simulated station's config: ``config``, else the fixture of a built-in robot
+    or the default station of a robot file (:func:`drivers.sim.serial_robot.sim_config`)."""
+    if config:
+        return load_station_config(config)
+    if is_robot_file(robot):
+        return sim_config(robot)
+    return load_station_config(default_config_path(robot))
 
 
 def main(args: argparse.Namespace) -> int:
@@ -343,7 +368,7 @@ class SimulatorProcess:
                  seed: int | None = None, timeout: float = 20.0, pose_noise: bool = False):
         import subprocess
 
-        self.config_path = Path(config) if config else default_config_path(robot)
+        self.robot, self.config_path = robot, (Path(config) if config else None)
         cmd = [sys.executable, str(ROOT / "app.py"), "simulate", "--robot", robot,
                "--exit-with-parent"]
         if truth:
@@ -390,7 +415,7 @@ class SimulatorProcess:
 
     def station_config(self) -> StationConfig:
         """The station config it was started with, its endpoints filled from this simulator."""
-        return with_endpoints(load_station_config(self.config_path), self.endpoints,
+        return with_endpoints(load_sim_config(self.robot, self.config_path), self.endpoints,
                               source="simulator")
 
     def stop(self) -> None:

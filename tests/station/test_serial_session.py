@@ -1,0 +1,173 @@
+"""Any serial arm at the station: the simulated station of a robot file, its
+planning and a whole sm-distance-tilt session, judged by held-out point-to-point
+distances (pairs of random poses in the limits) against the simulator's truth."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibration.errors import ConfigError
+from drivers.config import parse_station_config
+from drivers.endpoints import with_endpoints
+from drivers.robot_file import load_robot_file
+from drivers.sim.serial_robot import (SimulatedSerial, draw_serial_truth, sim_config,
+                                      sim_config_data)
+from drivers.sim.server import SimulatorProcess
+from drivers.sim.truth import save_truth
+from station import serial_plan
+from station.export import calibrated_model
+from station.params_file import read_params
+from station.planner import PlanRequest
+from station.session import Session
+from station.trace import read_trace
+
+ROOT = Path(__file__).resolve().parents[2]
+HAYATI = ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml"
+DH = ROOT / "fixtures" / "robots" / "ur5-like-dh.toml"
+NOISE = {"distance": 1e-5, "tilt": 1e-4, "qm": 1e-6}
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def _truth_file(tmp_path, robot_file, seed) -> Path:
+    t = draw_serial_truth(robot_file, np.random.default_rng(seed), noise=NOISE, seed=seed,
+                          inclinometer_mount=(0.012, -0.008))
+    path = tmp_path / "truth.json"
+    save_truth(t, path)
+    return path
+
+
+def _fast_config(tmp_path, robot_file) -> Path:
+    """A station config naming the robot file (``robot_file``), moves 3x faster."""
+    import tomllib  # noqa: F401  (the text below is TOML)
+
+    data = sim_config_data(load_robot_file(robot_file), velocity=6.0, acceleration=60.0)
+    lines = [f'robot_file = "{robot_file}"']
+
+    def emit(prefix, table):
+        lines.append(f"[{prefix}]")
+        sub = []
+        for k, v in table.items():
+            if isinstance(v, dict) and all(isinstance(x, dict) for x in v.values()):
+                sub.append((f"{prefix}.{k}", v))
+            elif isinstance(v, dict):
+                sub.append((f"{prefix}.{k}", v))
+            else:
+                lines.append(f"{k} = {json.dumps(v)}")
+        for p, t in sub:
+            emit(p, t)
+
+    for key in ("canopen", "inclinometer", "drawwire", "snapshot"):
+        emit(key, data[key])
+    path = tmp_path / "station.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_station_config_names_a_robot_file(tmp_path):
+    spec = load_robot_file(HAYATI)
+    c = sim_config(HAYATI)
+    assert c.robot == spec.name and len(c.canopen.nodes) == 6 and c.spec == spec
+    data = sim_config_data(spec)
+    data["robot"] = "other"
+    with pytest.raises(ConfigError, match="not the robot file's name"):
+        parse_station_config(data, "x.toml", spec=spec)
+    data = sim_config_data(spec)
+    data["canopen"]["nodes"] = [1, 2, 3, 4]
+    with pytest.raises(ConfigError, match="canopen.nodes"):
+        parse_station_config(data, "x.toml", spec=spec)
+
+
+def test_simulated_arm_stops_at_a_joint_limit_and_at_the_floor():
+    t = draw_serial_truth(HAYATI, np.random.default_rng(3))
+    clock = FakeClock()
+    sim = SimulatedSerial(t, clock=clock)
+    model, xi = t.model(), t.xi()
+    assert sim.frame()[2, 3] > 0.1                       # starts above the floor
+    q = sim.qm()
+    q[5] = 3.3                                           # beyond joint 6's limit 3.1
+    sim.move_to(q)
+    clock.t += 100.0
+    assert sim.supervise() == (5, "joint limit")
+    assert 3.05 < sim.qm()[5] <= 3.1 + 1e-9
+    assert sim.supervise() is None                       # stopped inside
+    # the floor: drive towards the lowest pose of a sweep of joint 2
+    q0 = sim.qm()
+    sweep = np.array([q0 + np.r_[0, d, 0, 0, 0, 0] for d in np.linspace(-3, 3, 61)])
+    sweep = sweep[np.all(np.abs(sweep) <= 3.1, axis=1)]
+    low = sweep[np.argmin(model.frames(sweep, xi)[:, 2, 3])]
+    assert model.frames(low, xi)[0, 2, 3] < 0
+    sim.move_to(low)
+    clock.t += 100.0
+    axis, kind = sim.supervise()
+    assert kind == "floor" and axis == 1
+    assert 0.0 <= sim.frame()[2, 3] < 0.01               # stopped at the floor
+
+
+def test_plan_is_safe_and_counted_from_the_identifiable_set():
+    robot = load_robot_file(HAYATI)
+    from calibration.robots import get_robot
+
+    robot = get_robot(robot)
+    xi = robot.nominal
+    ref = serial_plan.reference_pose(robot, xi)
+    n_min = serial_plan.minimum_count("sm-distance-tilt", robot, xi, ref)
+    ident = serial_plan.identifiable("sm-distance-tilt", robot, xi,
+                                     serial_plan.safe_pool(robot, xi, np.random.default_rng(1)),
+                                     ref)
+    assert not {"base_d", "base_theta", "base_a"} & set(ident)  # no base position, no heading
+    assert not {f"k{i}" for i in range(1, 7)} & set(ident)     # held by the robot file
+    assert {"beta2", "beta3", "a2", "a3", "distance_off"} <= set(ident)
+    from calibration.identifiability import minimum_poses
+
+    assert n_min == minimum_poses(len(ident), 3)
+    targets, qm, use = serial_plan.plan("sm-distance-tilt", robot, xi, ref,
+                                        PlanRequest(seed=4))
+    box = serial_plan.joint_box(robot)
+    assert np.all((qm >= box[:, 0]) & (qm <= box[:, 1]))
+    assert np.all(targets[:, 2] >= serial_plan.FLOOR_MARGIN)
+    assert sum(u == "fit" for u in use) >= n_min and sum(u == "validation" for u in use) >= 3
+    here = ref
+    for q in qm:
+        assert serial_plan.path_clear(robot, xi, here, q)
+        here = q
+    steps = np.abs(np.diff(np.vstack([ref, qm]), axis=0)).sum()
+    shuffled = np.abs(np.diff(np.vstack([ref, qm[np.random.default_rng(0).permutation(len(qm))]]),
+                              axis=0)).sum()
+    assert steps < 0.7 * shuffled                               # the travel order is short
+
+
+def _session(tmp_path, robot_file, seed, count=None):
+    truth_path = _truth_file(tmp_path, robot_file, seed)
+    cfg = _fast_config(tmp_path, robot_file)
+    from drivers.sim.truth import load_truth
+
+    truth = load_truth(truth_path)
+    with SimulatorProcess(str(robot_file), truth=str(truth_path), config=str(cfg)) as sim:
+        config = sim.station_config()
+        with Session(config, "sm-distance-tilt", tmp_path / "out",
+                     request=PlanRequest(count=count, seed=seed)) as s:
+            files = s.run()
+    return truth, files
+
+
+def test_ur5_hayati_session_matches_the_truth_point_to_point(tmp_path):
+    truth, files = _session(tmp_path, HAYATI, seed=8101, count=40)
+    doc = read_params(files["params"])
+    robot, xi = calibrated_model(doc)
+    tr = read_trace(files["trace"])
+    assert tr.header["robot_file"]["sha256"] == robot.spec.source["sha256"]
+    nominal = serial_plan.point_to_point_rms(robot, robot.nominal, truth.xi(), seed=1)
+    calibrated = serial_plan.point_to_point_rms(robot, xi, truth.xi(), seed=1)
+    assert nominal > 1e-3
+    assert calibrated < 3e-5
+    assert Path(files["urdf"]).exists() and Path(files["report"]).exists()
