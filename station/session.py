@@ -358,7 +358,8 @@ class Session:
     def reference_target(self):
         """``(qm, role, instructions)`` for the reference step (qm None: no reference)."""
         if self.serial:
-            return (serial_plan.reference_pose(self.robot, self.nominal, self.config.envelope.qm_range),
+            return (serial_plan.reference_pose(self.robot, self.nominal,
+                                               self.config.envelope.qm_range),
                     self.info.reference, serial_plan.REFERENCE_TEXT)
         return planner.reference_pose(self.method, self.nominal)
 
