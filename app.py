@@ -210,6 +210,13 @@ def build_parser() -> argparse.ArgumentParser:
                    "report.html (an existing trace there is resumed)")
     r.add_argument("--count", type=int, help="poses to fit (default: twice eq. 60's minimum)")
     r.add_argument("--seed", type=int, default=0, help="seed of the pose planner")
+    r.add_argument("--design", choices=("optimal", "random"), default="optimal",
+                   help="optimal (default): each round's poses the D-optimal choice of a pool "
+                        "of candidates given those measured; random: drawn in the box "
+                        "(docs/design.md)")
+    r.add_argument("--target-std", metavar="[NAME=]STD",
+                   help="add poses until the predicted std meets this: STD alone is the "
+                        "tool's held-out error (m; rad for a wrist), NAME=STD a parameter's")
     r.add_argument("--sim-seed", type=int, help="seed of the simulated noise and faults "
                    "(default: the truth file's; printed and recorded in the trace)")
     r.add_argument("--endpoints", help="without --simulate: fill --config's \"@endpoints\" "

@@ -251,8 +251,8 @@ def grow_until(info: PoseInformation, met, *, start=(), limit: int | None = None
         if chosen and met(covariance(info, chosen)):
             return np.array(chosen, dtype=int)
         if len(chosen) >= limit:
-            raise CalibrationError(f"{len(chosen)} poses do not reach the asked accuracy "
-                                   f"(predicted); widen the workspace or relax the target")
+            raise CalibrationError(f"even {len(chosen)} poses are not predicted to reach the "
+                                   f"asked accuracy; widen the workspace or relax the target")
         gains = _gains(B, np.linalg.inv(M))
         gains[~free] = -np.inf
         j = int(np.argmax(gains))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shlex
 import sys
 from pathlib import Path
@@ -71,7 +72,9 @@ class TerminalProgress:
 
 def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
-    request = PlanRequest(count=getattr(args, "count", None), seed=getattr(args, "seed", 0) or 0)
+    request = PlanRequest(count=getattr(args, "count", None), seed=getattr(args, "seed", 0) or 0,
+                          design=getattr(args, "design", None) or "optimal",
+                          target=parse_target(getattr(args, "target_std", None)))
     nominal = {}
     for item in getattr(args, "nominal", None) or ():
         name, eq, value = item.partition("=")
@@ -132,6 +135,21 @@ def simulator_seed(truth: str, given: int | None) -> int:
 
     seed = load_truth(truth).seed
     return int(seed) if seed is not None else 0
+
+
+def parse_target(text: str | None) -> tuple[str, float] | None:
+    """``--target-std``: ``STD`` (the tool's held-out error) or ``NAME=STD``."""
+    if not text:
+        return None
+    name, eq, value = text.rpartition("=")
+    try:
+        std = float(value)
+    except ValueError:
+        std = math.nan
+    if not (math.isfinite(std) and std > 0) or (eq and not name.strip()):
+        raise ConfigError(f"--target-std {text!r}: expected STD or NAME=STD with a number > 0, "
+                          f"e.g. 5e-5 (m) or k1=1e-6")
+    return (name.strip() if eq else "heldout", std)
 
 
 def engineer_measurements(robot: str, method: str, truth: str | None, given: dict) -> dict:

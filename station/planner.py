@@ -84,7 +84,12 @@ class PlannedPose:
 
 @dataclass
 class PlanRequest:
-    """How many poses (None: eq. 60 times ``margin``) and held-out poses, and the seed."""
+    """How many poses (None: eq. 60 times ``margin``) and held-out poses, and the seed.
+
+    design: ``"optimal"`` (each round's fit poses the D-optimal choice from a pool the
+    planner draws, given the poses already measured; :mod:`station.pose_design`) or
+    ``"random"``. target: None or ``(name, std)``: poses are added until the predicted
+    std of parameter ``name`` (``"heldout"``: the tool's held-out error) meets it."""
 
     count: int | None = None
     validation: int | None = None
@@ -92,6 +97,8 @@ class PlanRequest:
     margin: float = 2.0
     components: tuple[str, ...] = ("alpha", "beta", "gamma")
     notes: list[str] = field(default_factory=list)
+    design: str = "optimal"
+    target: tuple[str, float] | None = None
 
 
 def check_method(method: str) -> None:
@@ -243,11 +250,15 @@ def _pair_poses(robot, nominal, count, n_val, rng, start_qm) -> list[PlannedPose
     return out
 
 
-def _finish(robot, targets, qm, n_val, rng, start_qm, first_index, rnd) -> list[PlannedPose]:
-    """Pick held-out poses at random and order for short travel (the IK already
-    refused poses outside the joint limits: ``AgebotSM.ik`` checks them)."""
+def _finish(robot, targets, qm, n_val, rng, start_qm, first_index, rnd, *,
+            validation=None) -> list[PlannedPose]:
+    """Pick held-out poses at random (or those at the indices ``validation``) and order
+    for short travel (the IK already refused poses outside the joint limits:
+    ``AgebotSM.ik`` checks them)."""
     use = np.array(["fit"] * len(qm), dtype=object)
-    if n_val:
+    if validation is not None:
+        use[np.asarray(validation, dtype=int)] = "validation"
+    elif n_val:
         use[rng.choice(len(qm), size=n_val, replace=False)] = "validation"
     order = planning.order_for_travel(qm, start=start_qm)
     return [PlannedPose(first_index + k, tuple(float(v) for v in qm[i]),

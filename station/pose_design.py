@@ -164,13 +164,76 @@ def design_poses(model, count: int, *, design: str = "optimal", rng=None, noise=
 
 
 def _target(target, info: dz.PoseInformation, hm):
+    """``met(cov)`` for a ``(name, std)`` target; a target the whole pool cannot meet is
+    refused at once, naming the best the pool predicts."""
     name, limit = target
     if name == "heldout":
         if hm is None:
             raise CalibrationError("a held-out accuracy target needs held-out poses")
+        best = heldout_rms(hm[0], dz.covariance(info, np.arange(info.size)))
+        if best > limit:
+            raise CalibrationError(
+                f"--target-std {limit:g}: even all {info.size} candidate poses predict a "
+                f"held-out {hm[1]} error of {best:.3g} {hm[2]}; widen the workspace or relax "
+                f"the target")
         return lambda cov: heldout_rms(hm[0], cov) <= limit
     if name not in info.names:
         raise CalibrationError(f"--target-std {name}: not an identifiable parameter here "
                                f"(identifiable: {', '.join(info.names)})")
     j = info.names.index(name)
+    best = float(np.sqrt(dz.covariance(info, np.arange(info.size))[j, j]))
+    if best > limit:
+        raise CalibrationError(f"--target-std {name}={limit:g}: even all {info.size} candidate "
+                               f"poses predict a std of {best:.3g}; widen the workspace or "
+                               f"relax the target")
     return lambda cov: np.sqrt(cov[j, j]) <= limit
+
+
+def choose(method: str, robot, x_plan, candidates, n_fit: int, *, measured=(), design="optimal",
+           rng=None, noise=None, reference_qm=None, components=None, mount=(0.0, 0.0),
+           plane=None, target=None, heldout_qm=None) -> tuple[np.ndarray, Design]:
+    """A session's next poses: ``n_fit`` of the ``candidates`` (actuator values the planner
+    drew, reachable and inside the envelope), chosen at the current model ``x_plan`` given
+    the poses already ``measured`` (sequential design: each new pose is worth most where
+    the measured ones say least). Returns the chosen candidates' indices and the
+    prediction for the measured and chosen poses together."""
+    candidates = np.atleast_2d(np.asarray(candidates, dtype=float))
+    measured = np.asarray(measured, dtype=float).reshape(-1, candidates.shape[1])
+    pool = np.vstack([measured, candidates])
+    model = pool_model(method, robot, x_plan, pool, reference_qm=reference_qm,
+                       components=components, mount=mount, plane=plane)
+    info = dz.pose_information(model, model.x0, noise or DEFAULT_NOISE)
+    k = len(measured)
+    want = k + n_fit
+    if want > info.size:
+        raise CalibrationError(f"{n_fit} poses asked, only {len(candidates)} candidates")
+    if design == "optimal":
+        chosen = dz.d_optimal(info, want, fixed=range(k))
+    else:
+        rng = rng or np.random.default_rng(0)
+        chosen = np.r_[np.arange(k), k + rng.choice(len(candidates), n_fit, replace=False)]
+    hm = heldout_map(robot, model, info, heldout_qm) if heldout_qm is not None else None
+    if target is not None:
+        chosen = dz.grow_until(info, _target(target, info, hm), start=chosen)
+    held = {}
+    if hm is not None:
+        J, what, unit = hm
+        held = {"what": what, "unit": unit, "rms": heldout_rms(J, dz.covariance(info, chosen))}
+    new = np.array([c - k for c in chosen if c >= k], dtype=int)
+    return new, Design(info.poses(chosen), design, info.names, dz.cramer_rao(info, chosen),
+                       dz.observability(info, chosen), held)
+
+
+def design_text(record: dict, units=None) -> str:
+    """One line for people about a plan's design (:meth:`Design.as_record`)."""
+    from station.units import MM_DEG
+
+    units = units or MM_DEG
+    o = record.get("observability", {})
+    text = (f"{'D-optimal' if record.get('design') == 'optimal' else 'random'} poses "
+            f"(observability O1 {o.get('O1', float('nan')):.3g}, O3 {o.get('O3', float('nan')):.3g})")
+    held = record.get("predicted_heldout") or {}
+    if "rms" in held:
+        text += (f"; predicted held-out {held['what']} error "
+                 f"{units.text(held['rms'], held['unit'], '.3g')} RMS")
+    return text

@@ -159,6 +159,7 @@ def render_report(outcome, *, validation=None, events=(), title=None, session=No
         "figures": figs.figures(ctx),
         "history": bool(list(outcome.result.history)),
         "validation": _validation_view(val_rows, units) if val_rows else None,
+        "design": _design_view(ctx, evs, val_rows, units),
         "events": _events_view(evs, units) if evs else None,
         "session": ([(str(k), short(v)) for k, v in session.items()]
                     if isinstance(session, dict) else [("session", short(session))])
@@ -491,6 +492,46 @@ def _validation_view(rows: list, units) -> dict:
                     "note": short(v.get("note") or v.get("error") or "")})
     return {"rows": out, "figure": figs.fig_validation(rows, units),
             "headline": validation_headline(rows, units)}
+
+
+def _design_view(ctx: _Context, evs, val_rows, units) -> dict | None:
+    """Predicted (the last plan's pose design, before measuring) and achieved (the
+    calibration's std; the held-out validation) side by side, or None without a design."""
+    design = None
+    for ev in evs:
+        if isinstance(ev, dict) and ev.get("kind") == "plan":
+            rec = ev.get("design") or (ev.get("wrist") or {}).get("design")
+            if isinstance(rec, dict):
+                design = rec
+    if design is None:
+        return None
+    res = ctx.outcome.result
+    pred = design.get("predicted_std") or {}
+    pu = param_units(ctx.outcome.trace)
+    rows = []
+    for j, (name, st) in enumerate(zip(res.names, res.status)):
+        p = pred.get(name)
+        if p is None or not st.identifiable:
+            continue
+        a = float(res.std[j])
+        si = pu.get(name, "")
+        rows.append({"name": name, "unit": si or "1", "predicted": _num(p, ".3g"),
+                     "achieved": _num(a, ".3g"),
+                     "ratio": f"{a / p:.2f}" if _finite(p) and float(p) > 0 else "\u2013"})
+    held = design.get("predicted_heldout") or {}
+    line = ""
+    if "rms" in held:
+        line = (f"predicted held-out {held.get('what')} error of the tool: "
+                f"{units.text(held['rms'], held.get('unit', ''), '.3g')} RMS")
+        ach = [v for v in val_rows if _finite(v.get("rms_after"))]
+        if ach:
+            line += "; achieved on the held-out poses: " + ", ".join(
+                f"{v.get('channel')} {units.text(v['rms_after'], str(v.get('unit') or ''), '.3g')}"
+                for v in ach)
+    return {"rows": rows, "heldout": line, "design": short(design.get("design")),
+            "poses": short(design.get("poses")),
+            "observability": ", ".join(f"{k} {float(v):.3g}" for k, v in
+                                       (design.get("observability") or {}).items())}
 
 
 def _merge_events(recorded, given) -> list:

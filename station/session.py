@@ -60,6 +60,7 @@ from station.batch import BatchOutcome, calibrate, frame_statement
 from station.lock import FolderLock
 from station.params_file import params_document, read_params, write_params
 from station.planner import PlannedPose, PlanRequest
+from station.pose_design import design_text
 from station.trace import TraceWriter, read_trace, utc_now
 from station.units import describe_error, from_config as units_from_config
 from station.validation import validation_errors
@@ -170,6 +171,7 @@ class Session:
                               f"{method} needs a {mi.kind} one", source=config.source, key="robot")
         self.config, self.method, self.info = config, method, mi
         self.units = units_from_config(config)         # numbers for people
+        self.last_design: dict | None = None               # the last plan's pose design
         self.robot = robot
         self.out = Path(out_dir)
         self.request = request or PlanRequest()
@@ -241,6 +243,10 @@ class Session:
             self.reference_qm = np.array(tr.reference["qm"], dtype=float)
             self.reference_record = tr.reference
         self.events.extend(tr.events)
+        for ev in tr.events:
+            if ev.get("kind") == "plan":
+                rec = ev.get("design") or (ev.get("wrist") or {}).get("design")
+                self.last_design = rec if isinstance(rec, dict) else self.last_design
         self.plan_poses, self.skipped, self.measured = recorded_plan(tr)
         self.remeasure = resume.remeasurable(tr.events, self.measured)
         self.skipped -= self.remeasure
@@ -583,6 +589,10 @@ class Session:
         else:
             text = (f"planned {len(poses)} poses ({n_val} held out for validation; "
                     f"eq. 60 minimum {self.minimum_count} {unit}{how})")
+        design = extra.get("design") or (extra.get("wrist") or {}).get("design")
+        if design:
+            text += "; " + design_text(design, self.units)
+            self.last_design = design
         self._event("plan", text, poses=[p.record() for p in poses], replace=replace, **extra)
         self._notify("state", "planned")
 

@@ -46,6 +46,7 @@ from calibration.methods import MethodData
 from calibration.pm_start import feasible_start, robust_start_detail
 from calibration.robots import get_robot
 from calibration.robots.agebot_pm import envelope_violation, gravity_tilt, rot_xyz
+from station.pose_design import POOL_FACTOR, choose
 from station.planner import PM_SCOUT_COUNT, PlannedPose, PlanRequest, _finish, minimum_count
 
 SCOUT_COUNT = PM_SCOUT_COUNT
@@ -198,17 +199,32 @@ class WristPlanner:
         else:
             n_fit, n_val = ROUND_COUNT, 0
         bounds = np.radians(box) * np.array([[-1.0, 1.0]] * 3)
+        pool = n_fit + n_val if req.design == "random" else POOL_FACTOR * (n_fit + n_val)
         try:
-            plan = planning.sample_poses(self.robot, self.xi, bounds, n_fit + n_val, rng,
+            plan = planning.sample_poses(self.robot, self.xi, bounds, pool, rng,
                                          accept=self._accept(self.xi))
         except CalibrationError as e:
             raise WristStopped(f"the wrist's current model cannot plan the +-{box:.1f} deg box "
                                f"inside its envelope ({e}): " + ADVICE) from e
-        poses = _finish(self.robot, plan.targets, plan.qm, n_val, rng, last_qm, first_index,
-                        self.rounds)
+        targets, qm, design = plan.targets, plan.qm, None
+        if req.design != "random":
+            measured = [r["qm"] for r in fits]
+            fit_idx, design = choose(
+                self.method, self.robot, self.xi, qm, n_fit, measured=measured,
+                design=req.design, rng=rng, mount=self.mount,
+                components=self.components if self.method == "pm-fk" else None,
+                target=req.target if final else None, heldout_qm=qm[:50])
+            rest = np.setdiff1d(np.arange(len(qm)), fit_idx)
+            keep = np.r_[fit_idx, rng.choice(rest, size=n_val, replace=False)].astype(int)
+            targets, qm = targets[keep], qm[keep]
+            n_val_idx = np.arange(len(fit_idx), len(keep))
+        poses = _finish(self.robot, targets, qm, n_val, rng, last_qm, first_index,
+                        self.rounds, validation=None if design is None else n_val_idx)
         rec = {"round": self.rounds, "box_deg": round(box, 3), "final": final,
                "model": self.xi.tolist(), "mount": self.mount.tolist(),
                "reach_deg": round(reach_deg(X), 3)}
+        if design is not None:
+            rec["design"] = design.as_record()
         self.rounds += 1
         self.final, self.replan = final, False
         return poses, rec

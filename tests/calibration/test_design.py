@@ -115,7 +115,7 @@ def test_target_adds_poses_until_met():
     assert more_k1.std[k] <= base.std[k] * 0.8
     with pytest.raises(CalibrationError, match="not an identifiable parameter"):
         pd.design_poses(model, 20, noise=NOISE, target=("nonsense", 1.0))
-    with pytest.raises(CalibrationError, match="do not reach"):
+    with pytest.raises(CalibrationError, match="even all"):
         pd.design_poses(model, 20, noise=NOISE, target=("k1", 1e-15))
 
 

@@ -8,11 +8,12 @@ import math
 
 from PySide6.QtCore import Qt
 from PySide6.QtGui import QColor
-from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLabel,
-                               QPushButton, QSpinBox, QSplitter, QTableWidget,
+from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QHBoxLayout, QHeaderView,
+                               QLabel, QPushButton, QSpinBox, QSplitter, QTableWidget,
                                QTableWidgetItem)
 
 from station.gui.pages.base import Page
+from station.pose_design import design_text
 from station.gui.plots import WorkspacePlot
 from station.gui.widgets import BAD_COLOR, OK_COLOR, note
 from station.planner import PM_SCOUT_COUNT
@@ -35,8 +36,14 @@ class PlanPage(Page):
         self.validation.setSpecialValueText("auto")
         self.seed = QSpinBox()
         self.seed.setRange(0, 1_000_000)
+        self.design = QComboBox()
+        self.design.addItem("optimal (D-optimal)", "optimal")
+        self.design.addItem("random", "random")
+        self.design.setToolTip("optimal: each round's poses chosen from ten times as many "
+                               "candidates to tell the most about the parameters, given those "
+                               "measured (docs/design.md); random: drawn in the box")
         for text, w in (("&Poses to fit:", self.count), ("Hel&d out:", self.validation),
-                        ("S&eed:", self.seed)):
+                        ("S&eed:", self.seed), ("Desi&gn:", self.design)):
             lab = QLabel(text)
             lab.setBuddy(w)
             bar.addWidget(lab)
@@ -78,6 +85,7 @@ class PlanPage(Page):
         self.count.setValue(req.count or 0)
         self.validation.setValue(-1 if req.validation is None else req.validation)
         self.seed.setValue(req.seed)
+        self.design.setCurrentIndex(max(0, self.design.findData(req.design)))
         if not s.plan_poses:
             self.regenerate()
         else:
@@ -99,7 +107,7 @@ class PlanPage(Page):
         s.request = dataclasses.replace(
             s.request, count=self.count.value() or None,
             validation=None if self.validation.value() < 0 else self.validation.value(),
-            seed=self.seed.value())
+            seed=self.seed.value(), design=self.design.currentData())
         self.status.setText("Planning\u2026")
         self.controller.run(lambda s: s.plan(), lambda _: self.show_plan(),
                             lambda e: self.show_error("Planning failed", e))
@@ -178,6 +186,8 @@ class PlanPage(Page):
             ok = n_fit >= need
         if not ok:
             text += " Fewer than the minimum: the result will be less certain (add poses)."
+        if getattr(s, "last_design", None):
+            text += " " + design_text(s.last_design, s.units).capitalize() + "."
         self.counts.setText(text)
         self.counts.setStyleSheet(f"color: {OK_COLOR if ok else BAD_COLOR};")
         locked = self._locked()
