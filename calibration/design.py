@@ -92,13 +92,15 @@ def pose_information(model, x, sigma: dict | None = None, *, group=None,
     group: ``(n_poses,)`` candidates of poses that are measured together, or None
            (each pose its own candidate).
     names: the parameters to design for; default the identifiable ones of the pool
-           (the report's QR analysis with the noise weights)."""
+           (the report's QR analysis with the noise weights), less the robot's ``fixed``."""
     x = np.asarray(x, dtype=float)
     twin = model.consistent_twin(x)
     _, W = twin.evaluate(x)
     g = 1.0 / row_sigma(twin, sigma)
     if names is None:
-        status = ident.analyze(W, model.names, weights=g)
+        fixed = set(getattr(getattr(model, "robot", None), "fixed", ()) or ())
+        cand = np.array([n not in fixed for n in model.names]) if fixed else None
+        status = ident.analyze(W, model.names, weights=g, candidates=cand)
         cols = np.array([j for j, s in enumerate(status) if s.identifiable], dtype=int)
     else:
         cols = np.array([list(model.names).index(n) for n in names], dtype=int)

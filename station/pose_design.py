@@ -83,8 +83,13 @@ def pool_model(method: str, robot, x_plan, qm, *, reference_qm=None, group=None,
     mi = METHODS[method]
     x_plan = np.asarray(x_plan, dtype=float)[:robot.n_params]
     qm = np.atleast_2d(np.asarray(qm, dtype=float))
-    channels = simulate.measure(method, robot, x_plan, qm, reference_qm=reference_qm,
-                                mount=mount)
+    if getattr(robot, "spec", None) is not None:     # a robot file's serial arm
+        from station.tracegen_serial import readings
+
+        channels = readings(robot, method, x_plan, qm, reference_qm=reference_qm, mount=mount)
+    else:
+        channels = simulate.measure(method, robot, x_plan, qm, reference_qm=reference_qm,
+                                    mount=mount)
     if method == "pm-fk" and components:
         idx = [("alpha", "beta", "gamma").index(c) for c in components]
         channels = {"orientation": channels["orientation"][:, idx]}

@@ -83,23 +83,15 @@ def generate(robot, method: str, truth_xi, *, nominal=None, noise=None, seed=0, 
                     break
                 qm[bad] = _draw(robot, rng, int(bad.sum()))
     m = len(qm)
-    if method in ("sm-full-pose", "sm-position"):
-        X = robot.fk(qm, xi)
-        if method == "sm-position":
-            channels["position"] = X[:, :3] + _noise(noise, "position", (m, 3), rng)
-        else:
-            X = X + _noise(noise, "pose", (m, 6), rng)
-            X[:, 3:] = (X[:, 3:] + np.pi) % (2 * np.pi) - np.pi
-            channels["pose"] = X
-    elif method in ("sm-distance", "sm-distance-tilt"):
-        T = robot.frames(qm, xi)
-        p_ref = robot.frames(qref, xi)[0, :3, 3]
-        channels["distance"] = (np.linalg.norm(T[:, :3, 3] - p_ref, axis=1)
-                                + _noise(noise, "distance", m, rng))
-        if method == "sm-distance-tilt":
-            roll, pitch = gravity_tilt(T[:, :3, :3], mount)
-            channels["tilt"] = np.column_stack([roll, pitch]) + _noise(noise, "tilt", (m, 2), rng)
-            header["nominal"].update(mount_x=0.0, mount_y=0.0)
+    channels = readings(robot, method, xi, qm, reference_qm=None if reference is None else qref,
+                        mount=mount)
+    for ch, shape in (("position", (m, 3)), ("pose", (m, 6)), ("distance", m), ("tilt", (m, 2))):
+        if ch in channels:
+            channels[ch] = channels[ch] + _noise(noise, ch, shape, rng)
+    if "pose" in channels:
+        channels["pose"][:, 3:] = (channels["pose"][:, 3:] + np.pi) % (2 * np.pi) - np.pi
+    if method == "sm-distance-tilt":
+        header["nominal"].update(mount_x=0.0, mount_y=0.0)
     for name in known:
         if name not in PLANE:
             header["nominal"][name] = float(xi[robot.index(name)])
@@ -158,6 +150,26 @@ def _contacts(robot, xi, plane, count, rng):
         except UnreachablePose:
             continue
     return a, np.array(qm)
+
+
+def readings(robot, method: str, xi, qm, *, reference_qm=None, mount=(0.0, 0.0)) -> dict:
+    """The noise-free readings of ``method``'s channels of the robot file's ``robot``
+    with parameters ``xi`` at actuator values ``qm (m, n)`` (none for the touching
+    methods: their constraint is the measurement)."""
+    qm = np.atleast_2d(np.asarray(qm, dtype=float))
+    if method in ("sm-full-pose", "sm-position"):
+        X = robot.fk(qm, xi)
+        return {"position": X[:, :3]} if method == "sm-position" else {"pose": X}
+    if method in ("sm-distance", "sm-distance-tilt"):
+        if reference_qm is None:
+            raise CalibrationError(f"{method} needs the reference actuator values")
+        T = robot.frames(qm, xi)
+        p_ref = robot.frames(np.atleast_2d(reference_qm), xi)[0, :3, 3]
+        out = {"distance": np.linalg.norm(T[:, :3, 3] - p_ref, axis=1)}
+        if method == "sm-distance-tilt":
+            out["tilt"] = np.column_stack(gravity_tilt(T[:, :3, :3], mount))
+        return out
+    return {}
 
 
 def generate_trace(path, robot, method: str, truth_xi, **kw) -> None:

@@ -144,3 +144,26 @@ def test_prediction_matches_monte_carlo_scatter():
     for name, s in zip(pred.names, pred.std):
         ratio = scatter[list(m.names).index(name)] / s
         assert 0.9 <= ratio <= 1.1, (name, ratio)
+
+
+def test_design_on_a_robot_file_arm_keeps_its_fixed_parameters():
+    """A robot file's arm: the pool's readings come from its own model, the design is
+    for the identifiable set without the file's ``fixed`` (27 for the UR5-like arm's
+    tracker positions, Hayati form), and designed poses beat as many random ones."""
+    from pathlib import Path
+
+    from drivers.robot_file import load_robot_file
+    from station import tracegen_serial as ts
+
+    root = Path(__file__).resolve().parents[2]
+    robot = get_robot(load_robot_file(root / "fixtures/robots/ur5-like-hayati.toml"))
+    _, _, poses = ts.generate(robot, "sm-position", robot.nominal, count=300, seed=3)
+    qm = np.array([p["qm"] for p in poses])
+    model = pd.pool_model("sm-position", robot, robot.nominal, qm)
+    info = dz.pose_information(model, model.x0, pd.DEFAULT_NOISE)
+    assert len(info.names) == 27 and not set(info.names) & set(robot.fixed)
+    s_opt = dz.cramer_rao(info, dz.d_optimal(info, 45))
+    rng = np.random.default_rng(2)
+    ratio = np.median([dz.geometric_mean_std(s_opt) / dz.geometric_mean_std(
+        dz.cramer_rao(info, rng.choice(info.size, 45, replace=False))) for _ in range(15)])
+    assert ratio < 0.95
