@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.stats import chi2
 
 # Below this (in the residual's SI units) a sigma estimate is round-off, not noise.
 SIGMA_FLOOR = 1e-14
@@ -32,17 +33,51 @@ class Weighting:
         if memo[0] is r and memo[1] == n_active:
             return dict(memo[2])
         rss = np.bincount(self.row_channel, weights=r * r, minlength=len(self.channels)).tolist()
+        used = self._channel_leverage(n_active)
         out = {}
         known = self.known
-        for ch, nc, rc in zip(self.channels, self.channel_count.tolist(), rss):
+        est = {}  # channel -> (rss, dof) of the channels estimated here
+        for ch, nc, rc, hc in zip(self.channels, self.channel_count.tolist(), rss, used):
             if ch in known:
                 out[ch] = float(known[ch])
                 continue
-            dof = nc - n_active * nc / n
+            dof = nc - (n_active * nc / n if hc is None else hc)
             out[ch] = max(math.sqrt(rc / dof) if dof > 0 else math.sqrt(rc / max(nc, 1)),
                           SIGMA_FLOOR)
+            est[ch] = (rc, dof)
+        if len(est) > 1 and _homogeneous(est.values()):
+            # one noise level explains every channel: its estimate from all
+            # their rows is far surer than each channel's own, and weights
+            # that only follow the scatter of those would cost more than they win
+            rss_all = sum(rc for rc, _ in est.values())
+            dof_all = sum(d for _, d in est.values())
+            s = max(math.sqrt(rss_all / dof_all), SIGMA_FLOOR)
+            out.update(dict.fromkeys(est, s))
         self._sigma_memo = (r, n_active, out)
         return dict(out)
+
+    def _channel_leverage(self, n_active):
+        """Degrees of freedom each channel spends on the fit: the sum of the
+        leverages (diagonal of the weighted hat matrix ``A (A^T A)^-1 A^T``,
+        ``A = G W_R``) over its rows, at the current weights. They add up to the
+        number of calibrated parameters, but not in proportion to the rows: a
+        precise channel fixes most parameters and spends most of them, and
+        dividing its residual by its share of the rows instead would make its
+        sigma, and with it the reported std, optimistic. ``[None, ...]`` for
+        one channel (where the share is exact) or a matrix that is not tall."""
+        nch = len(self.channels)
+        W = self.W
+        if nch < 2 or not n_active or W.shape[0] <= n_active:
+            return [None] * nch
+        A = W if self.all_active else W.take(self.active_idx, axis=1)
+        g = self.g
+        A = A * g if isinstance(g, float) else A * g[:, None]
+        norms = np.sqrt(np.einsum("ij,ij->j", A, A))
+        if not np.all(norms > 0):
+            return [None] * nch
+        Q = np.linalg.qr(A / norms)[0]
+        h = np.einsum("ij,ij->i", Q, Q)
+        return np.bincount(self.row_channel, weights=h, minlength=nch).tolist()
 
     def _pooled_sigma(self, rss, n, n_active):
         dof = n - n_active
@@ -86,3 +121,23 @@ class Weighting:
         self.sigma, self.mode = sigma, "channel"
         self._set_weights()
         return self._sigma_changed(sigma, old)
+
+
+# Significance of Bartlett's test below which the channels' noise levels are
+# taken to differ (and each channel gets its own weight).
+HOMOGENEITY_ALPHA = 0.01
+
+
+def _homogeneous(rss_dof) -> bool:
+    """Bartlett's test of equal variances from each channel's residual sum of
+    squares and degrees of freedom: True where equal noise is not rejected at
+    :data:`HOMOGENEITY_ALPHA`."""
+    rd = [(rc, d) for rc, d in rss_dof if d > 0.5 and rc > 0]
+    k = len(rd)
+    if k < 2:
+        return False
+    nu = sum(d for _, d in rd)
+    sp = sum(rc for rc, _ in rd) / nu
+    t = nu * math.log(sp) - sum(d * math.log(rc / d) for rc, d in rd)
+    t /= 1 + (sum(1 / d for _, d in rd) - 1 / nu) / (3 * (k - 1))
+    return float(chi2.sf(t, k - 1)) > HOMOGENEITY_ALPHA
