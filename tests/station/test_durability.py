@@ -150,3 +150,40 @@ def test_reader_checks_against_the_canonical_form(tmp_path):
     assert read_params(ok)["robot"] == "agebot-sm"
     with pytest.raises(TraceFormatError, match="checksum does not match"):
         read_params(bad)
+
+
+def test_checksum_refuses_what_json_cannot_hold():
+    """NaN and infinity are not JSON: no checksum, so no file, can be made over them."""
+    for bad in (float("nan"), float("inf")):
+        with pytest.raises(ValueError):
+            params_file.checksum(dict(DOC, fit={"sigma": {"distance": bad}}))
+
+
+def test_source_trace_hash_covers_the_whole_file(tmp_path):
+    """The parameter file names its trace by the SHA-256 of every byte (read in chunks)."""
+    data = os.urandom(200_000)
+    p = tmp_path / "big.jsonl"
+    p.write_bytes(data)
+    assert params_file.file_sha256(p) == hashlib.sha256(data).hexdigest()
+
+
+def test_trace_lines_are_compact_json_and_refuse_nan(tmp_path):
+    path = tmp_path / "trace.jsonl"
+    with TraceWriter.create(path, HEADER) as w:
+        assert w.path == str(path)
+        w.append({"record": "reference", "role": "reference-point", "qm": [0.0, 0.5, 0.0, 0.0]})
+        before = path.read_bytes()
+        with pytest.raises(ValueError):
+            w.append({"record": "pose", "index": 0, "qm": [0.0, 0.0, 0.0, 0.0],
+                      "distance": float("nan")})
+        assert path.read_bytes() == before  # nothing of the refused record reached the file
+    assert before.splitlines()[-1] == b'{"record":"reference","role":"reference-point","qm":[0.0,0.5,0.0,0.0]}'
+    with pytest.raises(ValueError):  # closed on leaving the block
+        w.append(_pose(0))
+    resumed = TraceWriter.resume(path)
+    try:
+        assert resumed.path == str(path) and len(resumed.trace.poses) == 0
+        resumed.append(_pose(0))
+    finally:
+        resumed.close()
+    assert read_trace(path).poses[0]["index"] == 0
