@@ -36,6 +36,9 @@ class MeasurementModel:
     row_channel: np.ndarray
     n_poses: int
     default_damping: float = 1e-4
+    # groups of channels that are components of one sensor's reading (the solver
+    # gives them one sigma where the data cannot tell their noise levels apart)
+    noise_groups: tuple[tuple[str, ...], ...] = ()
     notes: tuple[str, ...] = ()
 
     @property

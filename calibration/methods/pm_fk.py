@@ -45,6 +45,7 @@ class ForwardKinematics(PMMethod):
             guess = guess_orientations(self.X_m, self.components)
         self.fk = ModeKeepingFK(robot, self.qm, guess)
         self._channels(self.components, list(range(len(self.components))))
+        self.noise_groups = (self.channels,)  # one inclinometer's angles
 
     def evaluate(self, x):
         X = self.fk(x)

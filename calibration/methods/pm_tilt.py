@@ -43,6 +43,7 @@ class Tilt(PMMethod):
             guess = guess_orientations(self.T_m, None)
         self.fk = ModeKeepingFK(robot, self.qm, guess)
         self._channels(("roll", "pitch"), [0, 1])
+        self.noise_groups = (self.channels,)  # one inclinometer's two axes
 
     def evaluate(self, x):
         xi, mount = x[:self.nr], x[self.nr:]

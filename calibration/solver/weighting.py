@@ -45,14 +45,17 @@ class Weighting:
             out[ch] = max(math.sqrt(rc / dof) if dof > 0 else math.sqrt(rc / max(nc, 1)),
                           SIGMA_FLOOR)
             est[ch] = (rc, dof)
-        if len(est) > 1 and _homogeneous(est.values()):
-            # one noise level explains every channel: its estimate from all
-            # their rows is far surer than each channel's own, and weights
-            # that only follow the scatter of those would cost more than they win
-            rss_all = sum(rc for rc, _ in est.values())
-            dof_all = sum(d for _, d in est.values())
-            s = max(math.sqrt(rss_all / dof_all), SIGMA_FLOOR)
-            out.update(dict.fromkeys(est, s))
+        for group in getattr(self.model, "noise_groups", ()):
+            sub = {ch: est[ch] for ch in group if ch in est}
+            if len(sub) > 1 and _homogeneous(sub.values()):
+                # components of one sensor's reading whose noise levels the data
+                # cannot tell apart: one sigma from all their rows is far surer
+                # than each component's own, and weights that follow the scatter
+                # of those would cost more than they win
+                rss_all = sum(rc for rc, _ in sub.values())
+                dof_all = sum(d for _, d in sub.values())
+                s = max(math.sqrt(rss_all / dof_all), SIGMA_FLOOR)
+                out.update(dict.fromkeys(sub, s))
         self._sigma_memo = (r, n_active, out)
         return dict(out)
 

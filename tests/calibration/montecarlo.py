@@ -21,7 +21,7 @@ import numpy as np
 from calibration.errors import CalibrationError
 from calibration.methods import METHODS, MethodData, build
 from calibration.methods.sm_distance_tilt import reframe_nominal
-from calibration.robots import get_robot
+from calibration.robots import BUILTIN, get_robot
 from calibration.solver import solve
 from drivers.sim.truth import draw_truth
 from station.tracegen import generate
@@ -113,11 +113,12 @@ def one_run(method: str, seed: int, noise: dict | None = None):
     """(names, identifiable mask, x, std, truth vector, CRB) of one drawn robot,
     or None where the calibration did not converge."""
     mi = METHODS[method]
-    robot = get_robot(mi.robot)
+    name = BUILTIN[mi.kind]
+    robot = get_robot(name)
     rng = np.random.default_rng(seed)
     noise = NOISE[method] if noise is None else noise
     for _ in range(20):  # a drawn wrist may not reach the whole +-20 deg box: draw again
-        truth = draw_truth(mi.robot, rng).xi()
+        truth = draw_truth(name, rng).xi()
         mount = (tuple(rng.uniform(-MOUNT_SPREAD, MOUNT_SPREAD, 2)) if method == "pm-tilt"
                  else (0.0, 0.0))
         try:
@@ -126,7 +127,7 @@ def one_run(method: str, seed: int, noise: dict | None = None):
         except CalibrationError:
             continue
     else:
-        raise CalibrationError(f"no drawn {mi.robot} reaches the workspace (seed {seed})")
+        raise CalibrationError(f"no drawn {name} reaches the workspace (seed {seed})")
     channels = {ch: np.array([p[ch] for p in poses]) for ch in mi.channels}
     zero = "exact"
     distance_off = 0.0
@@ -150,7 +151,7 @@ def one_run(method: str, seed: int, noise: dict | None = None):
         return None
     if method == "sm-distance-tilt":
         tv = reframe_nominal(robot, truth, data.reference_qm)
-    elif mi.robot == "agebot-pm":
+    elif name == "agebot-pm":
         names = list(res.names)
         tv = pm_equivalent(truth, res.x[names.index("q3_off")], res.x[names.index("k3")])
         if method == "pm-tilt":
@@ -161,7 +162,7 @@ def one_run(method: str, seed: int, noise: dict | None = None):
     if zero == "reading":
         tv = np.r_[tv, distance_off]
     ok = np.array([s.identifiable for s in res.status])
-    if mi.robot == "agebot-sm":
+    if name == "agebot-sm":
         tv = _nearest_equivalent(robot, model, x, res.std, ok, tv)
     # Cramer-Rao bound at the truth for the noise applied (rows weighted 1/sigma^2)
     _, W = model.evaluate(tv)
