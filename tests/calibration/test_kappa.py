@@ -65,7 +65,8 @@ def test_solver_default_kappa_is_three(ratio, identifiable):
     np.testing.assert_allclose(res.x[:2], [0.3, -0.2], atol=1e-9)
 
 
-@pytest.mark.parametrize("ratio,identifiable", [(1.5, False), (10.0, True)])
+@pytest.mark.parametrize("ratio,identifiable", [(1.5, False), (2.8, False), (3.3, True),
+                                                (10.0, True)])
 def test_classify_default_kappa_is_three(ratio, identifiable):
     A, e, _ = _problem(ratio)
     ok, dep, rdiag, norms = ident.classify(A, residual=e)
@@ -100,3 +101,59 @@ def test_noisy_constraint_dependencies_stay_dependent(method):
     res = solve(model)
     assert res.converged, res.message
     assert not res.status[model.names.index("L4")].identifiable
+
+
+# -- the numerical part of "zero" and the sequential dependency test ----------------
+def _unit_qr_diag(cols):
+    M = cols / np.linalg.norm(cols, axis=0)
+    return np.abs(np.diag(np.linalg.qr(M)[1]))
+
+
+def test_rank_tol_is_relative_to_the_largest_column():
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(30, 3))
+    for scale, identifiable in ((1e-10, False), (1e-6, True)):
+        B = A.copy()
+        B[:, 1] *= scale / np.linalg.norm(B[:, 1]) * np.linalg.norm(B[:, 0])
+        ok, dep, _, norms = ident.classify(B * 7.0)  # any overall scale
+        assert ok.tolist() == [True, identifiable, True] and not dep.any(), scale
+        np.testing.assert_allclose(norms, np.linalg.norm(B * 7.0, axis=0))
+
+
+def test_candidates_are_respected():
+    A = np.random.default_rng(4).normal(size=(20, 4))
+    ok, dep, rdiag, _ = ident.classify(A, candidates=np.array([True, False, True, True]))
+    assert ok.tolist() == [True, False, True, True] and not dep.any()
+    np.testing.assert_allclose(rdiag[[0, 2, 3]], _unit_qr_diag(A[:, [0, 2, 3]]), rtol=1e-12)
+    assert rdiag[1] == 0.0
+
+
+def test_two_dependencies_in_sequence():
+    """c2 = c0 + c1 and c4 = c3 - c1: each dependent column is left out and the
+    later ones are judged against the kept ones only."""
+    rng = np.random.default_rng(5)
+    c0, c1, c3, c5 = rng.normal(size=(4, 25))
+    A = np.column_stack([c0, c1, c0 + c1, c3, c3 - c1, c5])
+    ok, dep, rdiag, _, R = ident.classify(A, return_r=True)
+    assert ok.tolist() == [True, True, False, True, False, True]
+    assert dep.tolist() == [False, False, True, False, True, False]
+    assert R is None  # no single QR covers columns with a dependent one between them
+    np.testing.assert_allclose(rdiag[ok], _unit_qr_diag(A[:, ok]), rtol=1e-10)
+    assert rdiag[2] < 1e-8 and rdiag[4] < 1e-8
+    labels = [s.label for s in ident.analyze(A, list("abcdef"))]
+    assert labels[2] == labels[4] == ident.INFLUENCES and labels[5] == ident.IDENTIFIABLE
+
+
+def test_triangle_of_the_identifiable_columns():
+    A = np.random.default_rng(6).normal(size=(15, 4)) * [1.0, 10.0, 0.1, 3.0]
+    ok, dep, rdiag, norms, R = ident.classify(A, weights=np.full(15, 4.0), return_r=True)
+    assert ok.all() and R is not None and R.shape == (4, 4)
+    U = A * 2.0 / (norms)  # weighted (sqrt 4 = 2) unit columns
+    np.testing.assert_allclose(R.T @ R, U.T @ U, atol=1e-12)
+    assert np.allclose(np.tril(R, -1), 0) and np.allclose(np.abs(np.diag(R)), rdiag)
+    np.testing.assert_allclose(norms, 2.0 * np.linalg.norm(A, axis=0))
+
+
+def test_minimum_poses_is_eq_60():
+    assert ident.minimum_poses(13, 2) == 33 and ident.minimum_poses(9, 1) == 45
+    assert ident.minimum_poses(7, 0) == 35  # p = 0 counts as one row per pose
