@@ -55,7 +55,8 @@ from calibration.robots import get_robot
 from calibration.robots.agebot_pm import euler_from_ypr
 from drivers.config import StationConfig
 from drivers.errors import DeviceError
-from station import planner, resume, serial_plan
+from drivers.check import hint_for
+from station import device_loss, planner, resume, serial_plan
 from station.batch import BatchOutcome, calibrate, frame_statement
 from station.lock import FolderLock
 from station.params_file import params_document, read_params, write_params
@@ -114,8 +115,10 @@ FaultPolicy = Callable[[PlannedPose, DeviceError, int], str]   # -> "retry" | "s
 Touch = Callable[["Session", PlannedPose], None]   # brings the tool into contact, then returns
 
 
-def retry_then_skip(retries: int = 2) -> FaultPolicy:
-    """The headless policy: retry a faulty pose ``retries`` times, then skip it."""
+def retry_then_skip(retries: int = 3) -> FaultPolicy:
+    """The headless policy: retry a faulty pose ``retries`` times (after pauses of
+    0.25, 0.5, 1 s: :func:`station.device_loss.backoff`), then skip it, unless the
+    device itself is gone (:func:`station.device_loss.probe`: the session stops)."""
     def policy(pose, error, attempt):
         return "retry" if attempt < retries else "skip"
     return policy
@@ -352,8 +355,11 @@ class Session:
             raise SessionAborted("aborted by the operator while touching")
 
     def _rig(self):
-        if self.rig is None or not all(d.is_open for d in self.rig.devices):
+        if self.rig is None:
             raise StationError("the devices are not connected: connect first")
+        closed = device_loss.not_connected(self.rig)
+        if closed is not None:
+            raise StationError(f"{closed}: {hint_for(closed.device)}, then connect again")
         return self.rig
 
     # -- reference ------------------------------------------------------------------------------
@@ -702,6 +708,9 @@ class Session:
         while True:
             self._notify("progress", self._progress(pose, message=f"moving to pose {pose.index}"))
             try:
+                closed = device_loss.not_connected(rig)     # a reconnection that failed
+                if closed is not None:
+                    raise closed
                 rig.move_to(pose.qm)
                 if self.touching:
                     self._touch(pose)
@@ -726,12 +735,17 @@ class Session:
                     self._event("abort", f"aborted at pose {pose.index} after a fault")
                     raise SessionAborted(f"aborted after a fault: {e}") from e
                 if action == "skip":
+                    lost = device_loss.probe(rig, e)     # the device, or only this pose?
+                    if lost is not None:
+                        self._event("lost", str(lost), device=lost.device)
+                        raise lost from e
                     self._skip(pose, f"pose {pose.index} skipped", resume.FAULT)
-                    self._recover()      # the next pose must not meet the same fault
                     return False
                 attempt += 1
-                self._event("retry", f"pose {pose.index}: retry {attempt}",
+                pause = device_loss.backoff(attempt)
+                self._event("retry", f"pose {pose.index}: retry {attempt} in {pause:g} s",
                             plan_index=pose.index)
+                time.sleep(pause)                        # a short outage passes
                 self._recover()
         self._next_index += 1
         rest = [p for p in self.group_of(pose) if p.index != pose.index
