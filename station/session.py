@@ -56,7 +56,7 @@ from calibration.robots.agebot_pm import euler_from_ypr
 from drivers.config import StationConfig
 from drivers.errors import DeviceError
 from drivers.check import hint_for
-from station import device_loss, planner, resume, serial_plan
+from station import device_loss, planner, plausibility, resume, serial_plan
 from station.batch import BatchOutcome, calibrate, frame_statement
 from station.lock import FolderLock
 from station.params_file import params_document, read_params, write_params
@@ -172,6 +172,7 @@ class Session:
         if robot.kind != mi.kind:
             raise ConfigError(f"the station is for {config.robot} (a {robot.kind} robot), method "
                               f"{method} needs a {mi.kind} one", source=config.source, key="robot")
+        plausibility.check_config(config, method)     # before any motion
         self.config, self.method, self.info = config, method, mi
         self.units = units_from_config(config)         # numbers for people
         self.last_design: dict | None = None               # the last plan's pose design
@@ -390,6 +391,7 @@ class Session:
                                "needs a new session folder")
         again = self.reference_qm is not None
         rig = self._rig()
+        found = plausibility.check_reference(self)     # a mis-configured device stops here
         if rig.drawwire is not None:
             rig.zero_drawwire()
         snap = rig.snapshot()
@@ -404,6 +406,8 @@ class Session:
         self.reference_qm = qm
         self.reference_record = rec
         self.zeroed = rig.drawwire is not None
+        if found:
+            self._event("info", found)
         how = "captured again" if again else "captured"
         self._event("reference", f"{self.info.reference} {how} at qm {np.round(qm, 4).tolist()}"
                     + (" (the draw-wire zeroed there; it replaces the earlier reference)"

@@ -1,0 +1,133 @@
+"""Checks that catch a mis-configured station before any pose is recorded.
+
+:func:`check_config` (before any motion): the devices the method reads are in
+the station config (a missing ``[drawwire]`` with sm-distance-tilt, an
+inclinometer without the axes the method needs).
+
+:func:`check_reference` (at the reference, before its record): the draw-wire
+reads about zero right after it was zeroed, and a small test move (about 3 cm and
+3 degrees of the last link, by the nominal model) changes the draw-wire's reading
+by about the distance moved and the inclinometer's tilt by about the angle turned,
+with the same sign. A swapped Modbus word order (readings of -1329 m), a wrong
+``metres_per_count`` or a flipped inclinometer sign fail here, with the config key
+to check, instead of producing a confident wrong calibration. "About" is wide on
+purpose: the true robot may differ from the nominal by +-40 % in its gear ratios.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from calibration.errors import ConfigError
+
+# inclinometer channels each session method reads (station config [inclinometer.axes])
+INCLINOMETER_AXES = {"sm-distance-tilt": ("tilt",), "pm-tilt": ("roll", "pitch"),
+                     "pm-ik": ("roll", "pitch", "yaw"), "pm-fk": ("roll", "pitch", "yaw")}
+ZERO_TOL_M = 1e-3           # |reading| right after zeroing
+RATIO = (0.4, 2.5)          # measured / nominal change of a test move
+MOVE_M, TURN_RAD = 0.03, math.radians(3.0)
+SLACK_M, SLACK_RAD = 2e-3, math.radians(0.3)
+
+
+def check_config(config, method: str) -> None:
+    """Refuse a station config that lacks a device or an axis ``method`` reads."""
+    from calibration.methods import METHODS
+
+    if "distance" in METHODS[method].channels and config.drawwire is None:
+        raise ConfigError(f"{method} measures distances, and the station config has no "
+                          "[drawwire] section (the draw-wire's link, scale and word order)",
+                          source=config.source, key="drawwire")
+    axes = INCLINOMETER_AXES.get(method, ())
+    if axes and config.inclinometer is None:
+        raise ConfigError(f"{method} reads the inclinometer ({', '.join(axes)}), and the "
+                          "station config has no [inclinometer] section",
+                          source=config.source, key="inclinometer")
+    missing = [a for a in axes if config.inclinometer is not None
+               and a not in config.inclinometer.axes]
+    if missing:
+        raise ConfigError(f"{method} reads the inclinometer's {', '.join(missing)}: map "
+                          f"{' and '.join(missing)} in [inclinometer.axes]",
+                          source=config.source, key="inclinometer.axes")
+
+
+def _test_move(robot, xi, q0, distance: bool, tilt: bool) -> np.ndarray:
+    """Actuator step of about MOVE_M (distance) and TURN_RAD of phi (tilt), nominal model."""
+    n = robot.n_actuators
+    h = 1e-4
+    X0 = robot.fk(np.atleast_2d(q0), xi)[0]
+    J = np.array([(robot.fk(np.atleast_2d(q0 + h * np.eye(n)[i]), xi)[0] - X0) / h
+                  for i in range(n)])                      # row i: d(x, y, z, phi)/dq_i
+    dq = np.zeros(n)
+    used = set()
+    if tilt:
+        i = int(np.argmax(np.abs(J[:, 3])))
+        dq[i] = TURN_RAD / J[i, 3]
+        used.add(i)
+    if distance:
+        speed = np.linalg.norm(J[:, :3], axis=1)
+        speed[list(used)] = 0.0
+        i = int(np.argmax(speed))
+        dq[i] = MOVE_M / speed[i]
+    return dq
+
+
+def _read(rig) -> dict:
+    """Averaged readings without the std/drift limits: a mis-configured draw-wire
+    reads wildly, and that is what the checks below are to say in words."""
+    return rig.snapshot(std_limits={}, drift_limits={}).mean
+
+
+def check_reference(session) -> str | None:
+    """At the reference, before its record: zero the draw-wire, read, make a small
+    test move, read, move back. Raises ConfigError naming what to check; returns the
+    findings in words (None when the method reads neither distance nor tilt)."""
+    rig, robot, cfg = session.rig, session.robot, session.config
+    distance = "distance" in session.info.channels and rig.drawwire is not None
+    tilt = session.method == "sm-distance-tilt"
+    if not (distance or tilt) or robot.name != "agebot-sm" or not rig.can_move:
+        return None
+    q0 = np.array(rig.qm(), dtype=float)
+    if distance:
+        rig.zero_drawwire()
+    r0 = _read(rig)
+    problems = []
+    if distance and abs(r0["distance"]) > ZERO_TOL_M:
+        problems.append(f"the draw-wire reads {r0['distance']:.6g} m right after it was zeroed "
+                        f"at the reference (expected about 0): check drawwire.offset_m "
+                        f"({cfg.drawwire.offset_m:g}) and drawwire.word_order "
+                        f"({cfg.drawwire.word_order})")
+    dq = _test_move(robot, session.nominal, q0, distance, tilt)
+    rig.move_to(q0 + dq)
+    try:
+        r1 = _read(rig)
+    finally:
+        rig.move_to(q0)
+    X0, X1 = robot.fk(np.vstack([q0, q0 + dq]), session.nominal)
+    said = []
+    if distance:
+        want = float(np.linalg.norm(X1[:3] - X0[:3]))
+        got = r1["distance"] - r0["distance"]
+        said.append(f"draw-wire {got * 100:.2f} cm for {want * 100:.2f} cm")
+        if not RATIO[0] * want - SLACK_M <= got <= RATIO[1] * want + SLACK_M:
+            problems.append(f"a test move of {want * 100:.1f} cm (nominal model) changed the "
+                            f"draw-wire's reading by {got:.6g} m: check drawwire.word_order "
+                            f"({cfg.drawwire.word_order}) and drawwire.metres_per_count "
+                            f"({cfg.drawwire.metres_per_count:g})")
+    if tilt:
+        want = float(X1[3] - X0[3])
+        got = r1["tilt"] - r0["tilt"]
+        said.append(f"tilt {math.degrees(got):.2f} deg for {math.degrees(want):.2f} deg")
+        if got * want < 0 and abs(got) > SLACK_RAD:
+            problems.append(f"a test move turning the last link by {math.degrees(want):+.2f} "
+                            f"deg (nominal model) changed the inclinometer's tilt by "
+                            f"{math.degrees(got):+.2f} deg, the opposite sign: check "
+                            "inclinometer.axes.tilt (sign, raw axis)")
+        elif not RATIO[0] * abs(want) - SLACK_RAD <= abs(got) <= RATIO[1] * abs(want) + SLACK_RAD:
+            problems.append(f"a test move turning the last link by {math.degrees(want):+.2f} "
+                            f"deg (nominal model) changed the inclinometer's tilt by "
+                            f"{math.degrees(got):+.2f} deg: check inclinometer.axes.tilt "
+                            "(raw axis, sign)")
+    if problems:
+        raise ConfigError("; ".join(problems) + " (nothing was recorded)", source=cfg.source)
+    return "plausible at the reference: a test move read " + ", ".join(said)
