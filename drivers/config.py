@@ -230,11 +230,24 @@ class StationConfig:
 
 
 # -- parsing --------------------------------------------------------------------------
+def decode_text(raw: bytes, source: str) -> str:
+    """A config file's text: UTF-8 (with or without a BOM), else a one-line ConfigError
+    that says which encoding it looks like (an editor that saved UTF-16)."""
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in raw[:200]:
+        raise ConfigError("UTF-16 text (or not text at all): save the file as UTF-8",
+                          source=source)
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start}): "
+                          "save the file as UTF-8", source=source) from None
+
+
 def load_station_config(path: str | Path) -> StationConfig:
     """Read and parse a station TOML file; errors name ``path`` and the key."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(decode_text(path.read_bytes(), str(path)))
     except OSError as e:
         raise ConfigError(f"cannot read: {e.strerror or e}", source=str(path)) from e
     except tomllib.TOMLDecodeError as e:

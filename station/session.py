@@ -889,19 +889,19 @@ class Session:
                               trace_path=str(self.trace_path), frame=frame_statement(o.trace),
                               notes=notes, extra={"robot_file": dict(self.config.spec.source)}
                               if self.serial else None)
-        doc = write_params(self.out / PARAMS, doc)
+        doc = _writing(self.out / PARAMS, write_params, self.out / PARAMS, doc)
         self._event("export", f"parameter file {self.out / PARAMS} ({doc['checksum']})")
         urdf = self._export_urdf(doc) if self.serial else None
         from station.report import write_report
 
         o = self.outcome = dataclasses.replace(o, document=doc)
         events = list(self.events)
-        write_report(self.out / REPORT, o, validation=self.validation, events=events,
-                     units=self.units,
-                     session={"robot": self.robot.name, "method": self.method,
-                              "station config": self.config.source or "",
-                              "poses measured": len(self.measured),
-                              "poses skipped": len(self.skipped)})
+        _writing(self.out / REPORT, write_report, self.out / REPORT, o,
+                 validation=self.validation, events=events, units=self.units,
+                 session={"robot": self.robot.name, "method": self.method,
+                          "station config": self.config.source or "",
+                          "poses measured": len(self.measured),
+                          "poses skipped": len(self.skipped)})
         self._event("report", f"report {self.out / REPORT}")
         self.exported = {"params": str(self.out / PARAMS), "report": str(self.out / REPORT),
                          "trace": str(self.trace_path), "checksum": doc["checksum"]}
@@ -953,6 +953,15 @@ class Session:
                              "checksum": read_params(self.out / PARAMS)["checksum"]}
             return self.exported
         return self.export()
+
+
+def _writing(path, write, *args, **kwargs):
+    """``write(*args, **kwargs)`` with an OSError (a full disk) as one line naming ``path``."""
+    try:
+        return write(*args, **kwargs)
+    except OSError as e:
+        raise StationError(f"{path}: cannot write: {e.strerror or e}; the trace is intact: "
+                           "free space, then run the session again to export") from None
 
 
 def _tare(snap) -> dict:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.errors import CalibrationError, ConfigError, TraceFormatError
+from calibration.errors import CalibrationError, ConfigError, StationError, TraceFormatError
 from calibration.methods import METHODS, MethodData, extra_params
 from calibration.methods.sm_distance import ZEROS   # the reference's ``zero`` (added field)
 from calibration.robots import ROBOTS, get_robot
@@ -321,6 +321,7 @@ class TraceWriter:
         self.path = path
         self._fh = fh
         self.trace = trace
+        self._failed: StationError | None = None
 
     @classmethod
     def create(cls, path, header: dict) -> "TraceWriter":
@@ -349,16 +350,30 @@ class TraceWriter:
         return cls(path, open(path, "ab"), trace)
 
     def append(self, rec: dict) -> None:
-        self._fh.write(_line(rec))
-        self._fh.flush()
-        os.fsync(self._fh.fileno())
+        """Append one record; a failed write (a full disk, a lost folder) is one line,
+        and the writer refuses further records (the line may be cut; a resume cuts it)."""
+        if self._failed is not None:
+            raise self._failed
+        try:
+            self._fh.write(_line(rec))
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+        except OSError as e:
+            self._failed = StationError(
+                f"{self.path}: cannot append to the trace: {e.strerror or e}; it is intact up "
+                "to its last complete line: free space (or fix the folder), then run the "
+                "session again to resume")
+            raise self._failed from None
 
     def event(self, kind: str, message: str, **extra) -> None:
         self.append({"record": "event", "t": utc_now(), "kind": kind, "message": message, **extra})
 
     def close(self) -> None:
         if not self._fh.closed:
-            self._fh.close()
+            try:
+                self._fh.close()
+            except OSError:        # a write that failed already said so (append)
+                pass
 
     def __enter__(self):
         return self

@@ -325,6 +325,9 @@ def load_sim_config(robot: str, config: str | None = None) -> StationConfig:
 
 def main(args: argparse.Namespace) -> int:
     """``app.py simulate``: start, print endpoints, run until SIGINT/SIGTERM."""
+    if args.endpoints and not Path(args.endpoints).parent.is_dir():
+        raise ConfigError(f"--endpoints {args.endpoints}: the folder "
+                          f"{Path(args.endpoints).parent} does not exist")
     station = build(args.robot, args.truth, args.config, seed=getattr(args, "seed", None),
                     pose_noise=getattr(args, "pose_noise", False))
     stop = threading.Event()
@@ -338,7 +341,11 @@ def main(args: argparse.Namespace) -> int:
         with station:
             ep = station.endpoints
             if args.endpoints:
-                write_endpoints(args.endpoints, ep)
+                try:
+                    write_endpoints(args.endpoints, ep)
+                except OSError as e:
+                    raise ConfigError(f"--endpoints {args.endpoints}: cannot write: "
+                                      f"{e.strerror or e}") from None
             print(json.dumps(ep), flush=True)
             print(f"simulated {args.robot} running (truth: {station.truth.source or 'report'}); "
                   f"CANopen socketcand {ep['canopen']['host']}:{ep['canopen']['port']}, "

@@ -105,3 +105,13 @@ def test_simulate_stops_cleanly_on_sigterm(simulator):
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(10) == 0
     assert not ep_path.exists()        # no stale endpoints left behind
+
+
+def test_simulate_endpoints_into_a_missing_folder_is_one_line(tmp_path):
+    r = subprocess.run([sys.executable, str(ROOT / "app.py"), "simulate", "--robot", "agebot-sm",
+                        "--endpoints", str(tmp_path / "missing" / "ep.json")],
+                       capture_output=True, text=True, timeout=60)
+    err = r.stderr.strip().splitlines()
+    assert r.returncode != 0 and len(err) == 1, r.stderr
+    assert "--endpoints" in err[0] and "does not exist" in err[0] and "missing" in err[0]
+    assert not (tmp_path / "missing").exists()
