@@ -12,6 +12,10 @@ with the same sign. A swapped Modbus word order (readings of -1329 m), a wrong
 ``metres_per_count`` or a flipped inclinometer sign fail here, with the config key
 to check, instead of producing a confident wrong calibration. "About" is wide on
 purpose: the true robot may differ from the nominal by +-40 % in its gear ratios.
+
+:func:`check_wrist` (the wrist, before its scout round is planned): a test move of
++3 degrees in roll and -2 in pitch (nominal model) must turn the inclinometer's roll
+and pitch each the same way, by about as much (a flipped sign, swapped axes).
 """
 from __future__ import annotations
 
@@ -19,7 +23,7 @@ import math
 
 import numpy as np
 
-from calibration.errors import ConfigError
+from calibration.errors import CalibrationError, ConfigError
 
 # inclinometer channels each session method reads (station config [inclinometer.axes])
 INCLINOMETER_AXES = {"sm-distance-tilt": ("tilt",), "pm-tilt": ("roll", "pitch"),
@@ -131,3 +135,63 @@ def check_reference(session) -> str | None:
     if problems:
         raise ConfigError("; ".join(problems) + " (nothing was recorded)", source=cfg.source)
     return "plausible at the reference: a test move read " + ", ".join(said)
+
+
+def _wrist_tilt(robot, xi, qm, guess) -> np.ndarray:
+    from calibration.robots.agebot_pm import gravity_tilt, rot_xyz
+
+    X = robot.fk(np.atleast_2d(qm), xi, guess=guess)
+    roll, pitch = gravity_tilt(rot_xyz(X), (0.0, 0.0))
+    return np.column_stack([roll, pitch])
+
+
+def check_wrist(session) -> str | None:
+    """At the wrist's start pose, before planning: a test move of TURN_RAD in roll and
+    -2/3 of it in pitch (nominal model; unequal, so swapped axes show), read, move back. Raises ConfigError naming the
+    inclinometer axis to check; returns the findings in words."""
+    rig, robot, cfg = session.rig, session.robot, session.config
+    if robot.name != "agebot-pm" or rig.inclinometer is None or not rig.can_move:
+        return None
+    from calibration.pm_start import feasible_start
+
+    q0 = np.array(rig.qm(), dtype=float)
+    X_now = session._orientation_now()
+    try:
+        # the nominal corrected to reach this pose, as the scout round's planning model
+        xi = feasible_start(robot, np.atleast_2d(q0), np.atleast_2d(X_now),
+                            np.asarray(session.nominal, dtype=float))
+        base = _wrist_tilt(robot, xi, q0, X_now)[0]
+        h = 1e-2
+        steps = q0 + h * np.eye(robot.n_actuators)
+        J = (_wrist_tilt(robot, xi, steps, X_now) - base).T / h   # d(roll, pitch)/dq
+        dq = np.linalg.lstsq(J, np.array([TURN_RAD, -TURN_RAD * 2 / 3]), rcond=None)[0]
+        want = _wrist_tilt(robot, xi, q0 + dq, X_now)[0] - base
+    except CalibrationError as e:
+        raise ConfigError(f"the inclinometer's reading at the wrist's start (orientation "
+                          f"{np.round(np.degrees(X_now), 2).tolist()} deg) does not fit the "
+                          f"wrist's model ({e}): check [inclinometer.axes] (raw axes, signs, "
+                          "offsets; nothing was recorded)", source=cfg.source) from None
+    r0 = _read(rig)
+    rig.move_to(q0 + dq)
+    try:
+        r1 = _read(rig)
+    finally:
+        rig.move_to(q0)
+    problems, said = [], []
+    for k, axis in enumerate(("roll", "pitch")):
+        got = r1[axis] - r0[axis]
+        said.append(f"{axis} {math.degrees(got):+.2f} deg for {math.degrees(want[k]):+.2f} deg")
+        if got * want[k] < 0 and abs(got) > SLACK_RAD:
+            problems.append(f"a test move turning the platform's {axis} by "
+                            f"{math.degrees(want[k]):+.2f} deg (nominal model) changed the "
+                            f"inclinometer's {axis} by {math.degrees(got):+.2f} deg, the "
+                            f"opposite sign: check inclinometer.axes.{axis} (sign, raw axis)")
+        elif not (RATIO[0] * abs(want[k]) - SLACK_RAD <= abs(got)
+                  <= RATIO[1] * abs(want[k]) + SLACK_RAD):
+            problems.append(f"a test move turning the platform's {axis} by "
+                            f"{math.degrees(want[k]):+.2f} deg (nominal model) changed the "
+                            f"inclinometer's {axis} by {math.degrees(got):+.2f} deg: check "
+                            f"inclinometer.axes.{axis} (raw axis, sign)")
+    if problems:
+        raise ConfigError("; ".join(problems) + " (nothing was recorded)", source=cfg.source)
+    return "plausible at the wrist's start: a test move read " + ", ".join(said)

@@ -552,6 +552,10 @@ class Session:
             poses = planner.plan_sm(self.method, self.nominal, start, self.request,
                                     plane=self.plane)
         else:
+            found = plausibility.check_wrist(self)      # a flipped sign stops here
+            if found:
+                self._ensure_trace()
+                self._event("info", found)
             home_qm = np.array(self._rig().qm())
             home_X = self._orientation_now()
             self.wrist.request = self.request    # the operator may have changed count, seed

@@ -74,3 +74,26 @@ def test_a_missing_drawwire_section_is_refused_before_any_motion(tmp_path):
     err = r.stderr.strip().splitlines()
     assert len(err) == 1 and "no [drawwire] section" in err[0], r.stderr
     assert not (tmp_path / "cli" / "trace.jsonl").exists()
+
+
+@pytest.mark.parametrize("old, new, expected", [
+    ('roll = { raw = "roll", sign = 1,', 'roll = { raw = "roll", sign = -1,',
+     "changed the inclinometer's roll by"),
+    ('roll = { raw = "roll",', 'roll = { raw = "pitch",', "check inclinometer.axes."),
+])
+def test_a_misconfigured_wrist_inclinometer_is_caught_before_planning(tmp_path, old, new,
+                                                                      expected):
+    cfg = fast_config(tmp_path, "agebot-pm")
+    wrong = _variant(tmp_path, cfg, old, new, "wrong.toml")
+    with SimulatorProcess("agebot-pm", config=str(cfg), seed=4) as sim:
+        with Session(_session_config(sim, wrong), "pm-fk", tmp_path / "run") as s:
+            with pytest.raises(ConfigError) as err:
+                s.run()
+        with Session(_session_config(sim, cfg), "pm-fk", tmp_path / "right") as right:
+            right.connect()
+            right.plan()
+    msg = str(err.value)
+    print(msg)
+    assert expected in msg and "\n" not in msg and not s.measured and not s.plan_poses
+    said = [e["message"] for e in right.events if e["kind"] == "info"]
+    assert any(m.startswith("plausible at the wrist's start") for m in said), said
