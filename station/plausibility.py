@@ -15,7 +15,9 @@ purpose: the true robot may differ from the nominal by +-40 % in its gear ratios
 
 :func:`check_wrist` (the wrist, before its scout round is planned): a test move of
 +3 degrees in roll and -2 in pitch (nominal model) must turn the inclinometer's roll
-and pitch each the same way, by about as much (a flipped sign, swapped axes).
+and pitch each the same way (a flipped sign, swapped axes) and not by a wildly other
+amount (a unit: within a factor of 10; a far-off wrist's nominal predicts its
+turns within a factor of 3).
 """
 from __future__ import annotations
 
@@ -30,6 +32,7 @@ INCLINOMETER_AXES = {"sm-distance-tilt": ("tilt",), "pm-tilt": ("roll", "pitch")
                      "pm-ik": ("roll", "pitch", "yaw"), "pm-fk": ("roll", "pitch", "yaw")}
 ZERO_TOL_M = 1e-3           # |reading| right after zeroing
 RATIO = (0.4, 2.5)          # measured / nominal change of a test move
+WRIST_RATIO = (0.1, 10.0)   # the wrist's nominal can be far off (its sign is the check)
 MOVE_M, TURN_RAD = 0.03, math.radians(3.0)
 SLACK_M, SLACK_RAD = 2e-3, math.radians(0.3)
 
@@ -177,6 +180,15 @@ def check_wrist(session) -> str | None:
         r1 = _read(rig)
     finally:
         rig.move_to(q0)
+    back = _read(rig)             # settled: the next reading is of the start pose at rest
+    if np.max(np.abs(np.array([back["roll"], back["pitch"]]) - [r0["roll"], r0["pitch"]])) \
+            > SLACK_RAD:
+        raise ConfigError(f"the inclinometer did not read the start pose again after the test "
+                          f"move (roll {math.degrees(r0['roll']):+.2f} -> "
+                          f"{math.degrees(back['roll']):+.2f} deg, pitch "
+                          f"{math.degrees(r0['pitch']):+.2f} -> {math.degrees(back['pitch']):+.2f}"
+                          " deg): check the sensor's mounting and [inclinometer]",
+                          source=cfg.source)
     problems, said = [], []
     for k, axis in enumerate(("roll", "pitch")):
         got = r1[axis] - r0[axis]
@@ -186,8 +198,8 @@ def check_wrist(session) -> str | None:
                             f"{math.degrees(want[k]):+.2f} deg (nominal model) changed the "
                             f"inclinometer's {axis} by {math.degrees(got):+.2f} deg, the "
                             f"opposite sign: check inclinometer.axes.{axis} (sign, raw axis)")
-        elif not (RATIO[0] * abs(want[k]) - SLACK_RAD <= abs(got)
-                  <= RATIO[1] * abs(want[k]) + SLACK_RAD):
+        elif not (WRIST_RATIO[0] * abs(want[k]) - SLACK_RAD <= abs(got)
+                  <= WRIST_RATIO[1] * abs(want[k]) + SLACK_RAD):
             problems.append(f"a test move turning the platform's {axis} by "
                             f"{math.degrees(want[k]):+.2f} deg (nominal model) changed the "
                             f"inclinometer's {axis} by {math.degrees(got):+.2f} deg: check "
