@@ -180,3 +180,35 @@ def test_kill_after_every_line_and_mid_line(tmp_path, robot, method, request_, n
                                 _pm_known() if nominal is None else nominal)
     print(f"{method}: {n} kill points, largest parameter difference {worst:.3g} std")
     assert n >= 40 and worst < 1e-6
+
+
+def test_poses_skipped_for_a_fault_are_measured_again_on_resume(tmp_path):
+    """Offline (no devices): a plan with one pose skipped for a fault and one for lack
+    of contact; the resumed session measures the first again, not the second, and
+    says what it will redo."""
+    import numpy as np
+
+    from drivers.config import load_station_config
+    from station import resume
+    from station.trace import TraceWriter
+
+    robot = get_robot("agebot-sm")
+    config = load_station_config(FIX / "stations" / "sim-sm.toml")
+    out = tmp_path / "run"
+    out.mkdir()
+    qref = robot.ik(np.array([0.5, 1.0, 0.8, 0.0]), robot.nominal, elbow=-1)
+    with TraceWriter.create(out / "trace.jsonl", {"robot": "agebot-sm",
+                                                  "method": "sm-distance-tilt"}) as w:
+        w.append({"record": "reference", "role": "base-origin", "qm": qref.tolist()})
+    with Session(config, "sm-distance-tilt", out, request=PlanRequest(count=6, validation=2)) as s:
+        plan = s.plan()
+        s._skip(plan[1], "pose 1 skipped", resume.FAULT)
+        s._skip(plan[2], "pose 2 skipped: no contact", resume.NO_CONTACT)
+        assert [p.index for p in s.pending] == [0, 3, 4, 5, 6, 7]
+    with Session(config, "sm-distance-tilt", out) as again:
+        todo = again.redo()
+        assert [p.index for p in again.pending] == [0, 1, 3, 4, 5, 6, 7]
+        assert todo.remeasure == (1,) and todo.rezero and not todo.plan
+        assert "measure the skipped poses 1 again" in todo.describe()
+        assert any("measure the skipped poses 1 again" in e["message"]
+                   for e in again.events if e["kind"] == "resume")
