@@ -8,14 +8,12 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 
 from drivers.config import load_station_config
 from drivers.sim.server import SimulatorProcess
 from station.lock import FolderLock, FolderLocked, holder
-from station.planner import PlanRequest
 from station.session import Session
 from station.trace import read_trace
 from tests.station.test_session import FIX, ROOT, _poses_in, fast_config
