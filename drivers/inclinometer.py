@@ -211,6 +211,12 @@ class Inclinometer(Device):
             self._serial.close()
             self._serial = None
 
+    def discard_pending(self) -> None:
+        """Forget the frames received so far: the next read waits for a frame received
+        after now (a snapshot after a move must not take a frame of the moving robot)."""
+        with self._cond:
+            self._last_read_seq = self._seq
+
     def _read_internal(self, timeout: float) -> Sample:
         end = time.monotonic() + timeout
         with self._cond:

@@ -146,6 +146,10 @@ def take_snapshot(devices: Sequence[Device], *, samples: int = 10, period: float
         raise ValueError("period and settle must be >= 0 seconds")
     if settle > 0:
         sleep(settle)
+    for d in devices:      # a streaming device's frames from before the settle are not of the pose
+        discard = getattr(d, "discard_pending", None)
+        if discard is not None:
+            discard()
     reads: dict[str, list[Sample]] = {d.name: [] for d in devices}
     t_start, t0 = _utc_now(), clock()
     for i in range(samples):

@@ -65,10 +65,10 @@ def _truth(tmp_path: Path, robot: str) -> str:
 
 
 def _config(tmp_path: Path, robot: str) -> Path:
-    """:func:`fast_config` with two samples a pose and a short settle (shorter tests)."""
+    """:func:`fast_config` with two samples a pose (shorter tests)."""
     path = fast_config(tmp_path, robot)
     text = path.read_text()
-    fast = text.replace("samples = 5", "samples = 2").replace("settle = 0.05", "settle = 0.02")
+    fast = text.replace("samples = 5", "samples = 2")
     assert fast != text
     path.write_text(fast)
     return path
