@@ -38,7 +38,8 @@ SLACK_M, SLACK_RAD = 2e-3, math.radians(0.3)
 
 
 def check_config(config, method: str) -> None:
-    """Refuse a station config that lacks a device or an axis ``method`` reads."""
+    """Refuse a station config that lacks a device or an axis ``method`` reads (a robot
+    file's arm reads its tool inclinometer's roll and pitch for sm-distance-tilt)."""
     from calibration.methods import METHODS
 
     if "distance" in METHODS[method].channels and config.drawwire is None:
@@ -46,6 +47,8 @@ def check_config(config, method: str) -> None:
                           "[drawwire] section (the draw-wire's link, scale and word order)",
                           source=config.source, key="drawwire")
     axes = INCLINOMETER_AXES.get(method, ())
+    if method == "sm-distance-tilt" and getattr(config, "spec", None) is not None:
+        axes = ("roll", "pitch")
     if axes and config.inclinometer is None:
         raise ConfigError(f"{method} reads the inclinometer ({', '.join(axes)}), and the "
                           "station config has no [inclinometer] section",
