@@ -171,3 +171,103 @@ def test_ur5_hayati_session_matches_the_truth_point_to_point(tmp_path):
     assert nominal > 1e-3
     assert calibrated < 3e-5
     assert Path(files["urdf"]).exists() and Path(files["report"]).exists()
+
+
+def test_robot_file_session_resumes_exactly_after_a_kill(tmp_path, monkeypatch):
+    """Killed between the reference and the plan, mid-line and mid-poses, the robot
+    file's session resumes to the uninterrupted one's readings and result
+    (tests/station/test_resume.py, on a UR5-like arm)."""
+    import station.report
+    from tests.station.test_resume import Case, _check_same, _resume_after, _as_after_a_crash
+
+    monkeypatch.setattr(station.report, "write_report",
+                        lambda path, *a, **k: Path(path).write_text("report\n"))
+    truth_path = _truth_file(tmp_path, HAYATI, seed=8203)
+    cfg = _fast_config(tmp_path, HAYATI)
+    cfg.write_text(cfg.read_text().replace("samples = 5", "samples = 2"))
+    request = PlanRequest(count=16, validation=2, seed=5)
+    with SimulatorProcess(str(HAYATI), truth=str(truth_path), config=str(cfg), seed=21,
+                          pose_noise=True) as sim:
+        config = sim.station_config()
+        with sim.control() as ctl:
+            start = ctl.call(state=True)["qm"]
+        _as_after_a_crash(config, start)
+        with Session(config, "sm-distance-tilt", tmp_path / "whole", request=request) as s:
+            s.run()
+        trace = read_trace(s.trace_path)
+        case = Case("sm-distance-tilt", config, request, {}, start,
+                    s.trace_path.read_bytes().splitlines(True),
+                    {p["plan_index"]: p for p in trace.poses}, s.outcome.result.x.copy(),
+                    s.outcome.result.std.copy())
+        for k, partial in ((2, True), (4, False), (8, True), (len(case.lines) - 4, False)):
+            records, x = _resume_after(tmp_path, case, k, partial)
+            assert _check_same(case, k, records, x) < 1e-6
+
+
+def test_a_pose_below_the_real_floor_faults_and_is_skipped(tmp_path, monkeypatch):
+    """The engineer's start value puts the arm's base 25 cm higher than it is, so some
+    planned poses are below the real floor: the simulated drive faults naming the floor
+    (EMCY manufacturer bytes), the session retries, skips, and completes with the rest
+    (the base height is not seen by distances and tilts: the result is still right)."""
+    import station.report
+
+    monkeypatch.setattr(station.report, "write_report",
+                        lambda path, *a, **k: Path(path).write_text("report\n"))
+    truth_path = _truth_file(tmp_path, HAYATI, seed=8305)
+    cfg = _fast_config(tmp_path, HAYATI)
+    cfg.write_text(cfg.read_text().replace("samples = 5", "samples = 2"))
+    from drivers.sim.truth import load_truth
+
+    truth = load_truth(truth_path)
+    base_d = truth.parameters["base_d"] + 0.25
+    with SimulatorProcess(str(HAYATI), truth=str(truth_path), config=str(cfg)) as sim:
+        with Session(sim.station_config(), "sm-distance-tilt", tmp_path / "out",
+                     request=PlanRequest(count=40, validation=6, seed=2),
+                     nominal={"base_d": base_d}) as s:
+            files = s.run()
+    floor = [e for e in s.events if e["kind"] == "fault" and "FLOOR" in e["message"]]
+    skips = [e for e in s.events if e["kind"] == "skip"]
+    assert floor and skips, "no planned pose was below the real floor: the test proves nothing"
+    assert len(s.measured) + len(s.skipped) == len(s.plan_poses)
+    robot, xi = calibrated_model(read_params(files["params"]))
+    assert serial_plan.point_to_point_rms(robot, xi, truth.xi(), seed=1) < 5e-5
+
+
+def test_run_with_a_robot_file_needs_its_truth(tmp_path, capsys):
+    import app
+
+    assert app.main(["run", "--simulate", "--robot", str(HAYATI), "--method",
+                     "sm-distance-tilt", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs --truth" in err[0]
+    assert app.main(["simulate", "--robot", str(tmp_path / "no-such-arm.toml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no-such-arm.toml" in err[0]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot_file, seed", [(DH, 8407), (HAYATI, 8509)])
+def test_cli_run_on_a_ur5_like_arm(tmp_path, robot_file, seed):
+    """``app.py run --simulate --robot ARM --method sm-distance-tilt --truth T`` with the
+    default plan: held-out point-to-point distances well under 0.1 mm RMS from the truth's
+    where the nominal's are millimetres off."""
+    import subprocess
+    import sys
+
+    truth_path = _truth_file(tmp_path, robot_file, seed)
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, str(ROOT / "app.py"), "run", "--simulate", "--robot",
+                           str(robot_file), "--method", "sm-distance-tilt", "--truth",
+                           str(truth_path), "--out", str(out)], capture_output=True, text=True,
+                          timeout=900)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    from drivers.sim.truth import load_truth
+
+    truth = load_truth(truth_path)
+    robot, xi = calibrated_model(read_params(out / "params.json"))
+    nominal = serial_plan.point_to_point_rms(robot, robot.nominal, truth.xi(), seed=3)
+    calibrated = serial_plan.point_to_point_rms(robot, xi, truth.xi(), seed=3)
+    print(f"{robot.name}: point-to-point RMS nominal {nominal * 1e3:.3f} mm, calibrated "
+          f"{calibrated * 1e3:.4f} mm")
+    assert nominal > 1e-3 and calibrated < 3e-5
+    assert (out / "calibrated.urdf").exists()
