@@ -130,8 +130,11 @@ def plan(method: str, robot, xi, reference_qm, req, *, qm_range=None, start_qm=N
     count = req.count or int(np.ceil(req.margin * n_min))
     n_val = req.validation if req.validation is not None else max(3, count // 5)
     spare = int(np.ceil(1.3 * count))      # some ways there come near the floor
-    if spare + 4 * n_val > len(pool):
-        raise CalibrationError(f"{count + n_val} poses asked, only {len(pool)} safe candidates")
+    if 2 * (spare + 4 * n_val) > len(pool):     # a pool that leaves the design a choice
+        draws = int(POOL * 2 * (spare + 4 * n_val) / len(pool)) + 1
+        pool = safe_pool(robot, xi, rng, count=draws, qm_range=qm_range, anchor=anchor)
+        model = pose_design.pool_model(method, robot, xi, pool, reference_qm=ref)
+        info = dz.pose_information(model, model.x0, pose_design.DEFAULT_NOISE)
     fit = list(dz.d_optimal(info, spare))
     rest = np.setdiff1d(np.arange(len(pool)), fit)
     val = list(rng.choice(rest, size=4 * n_val, replace=False))

@@ -146,7 +146,15 @@ class Controller(QObject):
     def robot_of_config(self, path) -> str:
         from drivers.config import load_station_config
 
-        return load_station_config(path).robot
+        config = load_station_config(path)
+        if config.spec is not None:     # the wizard's pages know the built-in robots only
+            from calibration.errors import ConfigError
+
+            raise ConfigError(f"a robot file's station ({config.spec.name}): the wizard does "
+                              "not run robot files yet; run the session headless with python "
+                              "app.py run --robot FILE (docs/robot-files.md)",
+                              source=config.source, key="robot_file")
+        return config.robot
 
     def open_session(self, *, robot: str, method: str, out_dir, request,
                      on_done: Callable | None = None, on_error: Callable | None = None,

@@ -271,3 +271,37 @@ def test_cli_run_on_a_ur5_like_arm(tmp_path, robot_file, seed):
           f"{calibrated * 1e3:.4f} mm")
     assert nominal > 1e-3 and calibrated < 3e-5
     assert (out / "calibrated.urdf").exists()
+
+
+def test_sm_distance_session_on_a_robot_file(tmp_path, monkeypatch):
+    """sm-distance (draw-wire only) on the UR5-like arm: distances from the reference
+    point alone calibrate the arm's shape (point to point)."""
+    import station.report
+
+    monkeypatch.setattr(station.report, "write_report",
+                        lambda path, *a, **k: Path(path).write_text("report\n"))
+    truth_path = _truth_file(tmp_path, HAYATI, seed=8611)
+    cfg = _fast_config(tmp_path, HAYATI)
+    cfg.write_text(cfg.read_text().replace("samples = 5", "samples = 2"))
+    from drivers.sim.truth import load_truth
+
+    truth = load_truth(truth_path)
+    with SimulatorProcess(str(HAYATI), truth=str(truth_path), config=str(cfg)) as sim:
+        with Session(sim.station_config(), "sm-distance", tmp_path / "out",
+                     request=PlanRequest(count=90, validation=6, seed=6)) as s:
+            files = s.run()
+    tr = read_trace(files["trace"])
+    assert tr.reference["role"] == "reference-point" and "tilt" not in tr.poses[0]
+    robot, xi = calibrated_model(read_params(files["params"]))
+    nominal = serial_plan.point_to_point_rms(robot, robot.nominal, truth.xi(), seed=2)
+    calibrated = serial_plan.point_to_point_rms(robot, xi, truth.xi(), seed=2)
+    assert nominal > 1e-3 and calibrated < 1e-4, (nominal, calibrated)
+
+
+def test_the_wizard_says_it_does_not_run_robot_files_yet(tmp_path):
+    pytest.importorskip("PySide6")
+    from station.gui.controller import Controller
+
+    cfg = _fast_config(tmp_path, HAYATI)
+    with pytest.raises(ConfigError, match="app.py run --robot FILE"):
+        Controller.robot_of_config(None, cfg)
