@@ -112,9 +112,11 @@ def minimum_count(method: str, robot, xi, reference_qm, seed: int = 0) -> int:
 
 
 def plan(method: str, robot, xi, reference_qm, req, *, qm_range=None, start_qm=None):
-    """``(targets, qm, use)`` in visiting order: ``req.count`` fit poses (default the
-    margin times eq. 60) and ``req.validation`` held out (default a fifth, at least 3),
-    all safe (module docstring); held-out poses are drawn at random from the pool."""
+    """``(targets, qm, use, design)`` in visiting order: ``req.count`` fit poses (default
+    the margin times eq. 60; ``req.design`` ``"optimal"`` or ``"random"``) and
+    ``req.validation`` held out (default a fifth, at least 3), all safe (module
+    docstring); held-out poses are drawn at random from the pool. ``design`` is the
+    predicted accuracy of the fit poses kept (:meth:`station.pose_design.Design.as_record`)."""
     if method not in ROWS:
         raise CalibrationError(f"{method} is not planned for a robot file at the station "
                                f"(sessions: {', '.join(ROWS)})")
@@ -135,7 +137,11 @@ def plan(method: str, robot, xi, reference_qm, req, *, qm_range=None, start_qm=N
         pool = safe_pool(robot, xi, rng, count=draws, qm_range=qm_range, anchor=anchor)
         model = pose_design.pool_model(method, robot, xi, pool, reference_qm=ref)
         info = dz.pose_information(model, model.x0, pose_design.DEFAULT_NOISE)
-    fit = list(dz.d_optimal(info, spare))
+    if req.design not in pose_design.DESIGNS:
+        raise CalibrationError(f"unknown design {req.design!r} (known: "
+                               f"{', '.join(pose_design.DESIGNS)})")
+    fit = list(dz.d_optimal(info, spare) if req.design == "optimal"
+               else rng.choice(len(pool), size=spare, replace=False))
     rest = np.setdiff1d(np.arange(len(pool)), fit)
     val = list(rng.choice(rest, size=4 * n_val, replace=False))
     chosen = fit + val
@@ -159,7 +165,26 @@ def plan(method: str, robot, xi, reference_qm, req, *, qm_range=None, start_qm=N
                                f"of {n_val} held out of {robot.name} can be reached without the "
                                "tool coming near the floor")
     qm = np.array(out_q)
-    return robot.fk(qm, xi), qm, out_use
+    kept = [int(np.flatnonzero(np.all(pool == q, axis=1))[0]) for q in qm]
+    fit_idx = np.array([i for i, u in zip(kept, out_use) if u == "fit"])
+    val_qm = qm[[u == "validation" for u in out_use]]
+    return robot.fk(qm, xi), qm, out_use, _design_record(req.design, robot, model, info,
+                                                         fit_idx, val_qm)
+
+
+def _design_record(design: str, robot, model, info, fit_idx, val_qm) -> dict:
+    """The plan's predicted accuracy (:class:`station.pose_design.Design`) for the fit
+    poses kept, the held-out error predicted at the planned held-out poses."""
+    from calibration import design as dz
+
+    held = {}
+    hm = pose_design.heldout_map(robot, model, info, val_qm)
+    if hm is not None:
+        J, what, unit = hm
+        held = {"what": what, "unit": unit,
+                "rms": pose_design.heldout_rms(J, dz.covariance(info, fit_idx))}
+    return pose_design.Design(fit_idx, design, info.names, dz.cramer_rao(info, fit_idx),
+                              dz.observability(info, fit_idx), held).as_record()
 
 
 def point_to_point_rms(robot, xi_a, xi_b, *, pairs: int = 1000, seed: int = 0,

@@ -540,11 +540,13 @@ class Session:
                         "(the robot's nominal) must be right, or the other parameters come "
                         "out biased. Give the measured values as start values.")
         if self.serial:
-            targets, qm, use = serial_plan.plan(self.method, self.robot, self.nominal,
-                                                self.reference_qm, self.request,
-                                                qm_range=self.config.envelope.qm_range)
+            targets, qm, use, design = serial_plan.plan(
+                self.method, self.robot, self.nominal, self.reference_qm, self.request,
+                qm_range=self.config.envelope.qm_range)
             poses = [PlannedPose(i, tuple(map(float, q)), tuple(map(float, X)), u)
                      for i, (q, X, u) in enumerate(zip(qm, targets, use))]
+            self._set_plan(poses, replace=True, design=design)
+            return poses
         elif self.robot.name == "agebot-sm":
             start = self.reference_qm
             if start is None and self.rig is not None and all(d.is_open for d in self.rig.devices):

@@ -130,8 +130,14 @@ def test_plan_is_safe_and_counted_from_the_identifiable_set():
     from calibration.identifiability import minimum_poses
 
     assert n_min == minimum_poses(len(ident), 3)
-    targets, qm, use = serial_plan.plan("sm-distance-tilt", robot, xi, ref,
-                                        PlanRequest(seed=4))
+    targets, qm, use, design = serial_plan.plan("sm-distance-tilt", robot, xi, ref,
+                                                PlanRequest(seed=4))
+    assert design["poses"] == sum(u == "fit" for u in use)
+    assert 0 < design["predicted_heldout"]["rms"] < 1e-4        # m, at the devices' noise
+    _, _, _, rand = serial_plan.plan("sm-distance-tilt", robot, xi, ref,
+                                     PlanRequest(seed=4, design="random"))
+    assert rand["design"] == "random"
+    assert design["predicted_heldout"]["rms"] < rand["predicted_heldout"]["rms"]
     box = serial_plan.joint_box(robot)
     assert np.all((qm >= box[:, 0]) & (qm <= box[:, 1]))
     assert np.all(targets[:, 2] >= serial_plan.FLOOR_MARGIN)
