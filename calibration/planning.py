@@ -70,6 +70,12 @@ def sample_poses(robot, xi, bounds: np.ndarray, count: int, rng: np.random.Gener
     return Plan(np.array(targets), np.array(qms), draws)
 
 
+def scale_box(bounds: np.ndarray, scale: float, centre=None) -> np.ndarray:
+    """``bounds (k, 2)`` shrunk by ``scale`` about ``centre`` (default: its middle)."""
+    c = bounds.mean(axis=1) if centre is None else np.asarray(centre, dtype=float)
+    return c[:, None] + scale * (bounds - c[:, None])
+
+
 def order_for_travel(qm: np.ndarray, start=None, scale=None) -> np.ndarray:
     """A visiting order that keeps actuator travel short (greedy nearest
     neighbour in scaled actuator space). Returns indices."""

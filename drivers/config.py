@@ -16,7 +16,8 @@ errors, missing required keys are named. Layout (see
     [snapshot]       samples, period, settle, timeout
     [snapshot.std_limits] / [snapshot.drift_limits] / [snapshot.noise_floor]
     [envelope]       qm_min, qm_max (per actuator): the range the station may command
-                     (the wrist's slider stroke), actuator units
+                     (the wrist's slider stroke), actuator units; poll, latency;
+                     [envelope.tolerance] channel = value (the live watch)
 
 Endpoint values the simulator picks at run time are written as the placeholder
 ``"@endpoints"`` and filled by :func:`drivers.endpoints.with_endpoints` from the endpoints JSON of
@@ -175,16 +176,33 @@ class SnapshotConfig:
     noise_floor: Mapping[str, float] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
 
 
+#: default tolerances of the envelope's live watch (channel units: m, rad)
+ENVELOPE_TOLERANCE = {"distance": 0.05, "tilt": 0.0873, "roll": 0.0873, "pitch": 0.0873,
+                      "yaw": 0.0873}
+
+
 @dataclass(frozen=True)
 class EnvelopeConfig:
-    """The range the station may command (``[envelope]``).
+    """The session's safety envelope (:mod:`station.envelope`).
 
-    qm_min, qm_max: per actuator, actuator units (None: the config sets no limit on
-                    that side). For the wrist: the sliders' stroke.
+    qm_min, qm_max: per actuator, the range the station may command (actuator units;
+                    None: the config sets no limit on that side). For the wrist: the
+                    sliders' stroke.
+    tolerance:      channel -> largest ``|live reading - model prediction|`` tolerated
+                    while moving (channel units: m, rad); channels not listed are not
+                    watched. Default :data:`ENVELOPE_TOLERANCE`.
+    poll:           s between live readings while moving.
+    latency:        s a sensor's reading may lag the actuators' (frame period, bus,
+                    filter): a reading is compared with the predictions along the
+                    path travelled over that time.
     """
 
     qm_min: tuple[float, ...] | None = None
     qm_max: tuple[float, ...] | None = None
+    tolerance: Mapping[str, float] = dataclasses.field(
+        default_factory=lambda: MappingProxyType(dict(ENVELOPE_TOLERANCE)))
+    poll: float = 0.05
+    latency: float = 0.15
 
     @property
     def qm_range(self) -> np.ndarray | None:
@@ -362,15 +380,6 @@ def _drawwire(r: KeyReader, unresolved: list[str]) -> DrawwireConfig:
     return cfg
 
 
-def _envelope(r: KeyReader, n: int) -> EnvelopeConfig:
-    lo = r.float_list("qm_min", length=n, default=None)
-    hi = r.float_list("qm_max", length=n, default=None)
-    if lo is not None and hi is not None and any(a >= b for a, b in zip(lo, hi)):
-        r.fail("qm_max", "every qm_max must be above its qm_min")
-    r.finish()
-    return EnvelopeConfig(qm_min=lo, qm_max=hi)
-
-
 def _limits(r: KeyReader, key: str) -> Mapping[str, float]:
     t = r.table(key, required=False)
     if t is None:
@@ -387,6 +396,26 @@ def _limits(r: KeyReader, key: str) -> Mapping[str, float]:
 def _display(r: KeyReader) -> DisplayConfig:
     cfg = DisplayConfig(length=r.choice("length", DISPLAY_LENGTHS, default="mm"),
                         angle=r.choice("angle", DISPLAY_ANGLES, default="deg"))
+    r.finish()
+    return cfg
+
+
+def _envelope(r: KeyReader, n: int) -> EnvelopeConfig:
+    lo = r.float_list("qm_min", length=n, default=None)
+    hi = r.float_list("qm_max", length=n, default=None)
+    if lo is not None and hi is not None and any(a >= b for a, b in zip(lo, hi)):
+        r.fail("qm_max", "every qm_max must be above its qm_min")
+    tol = dict(ENVELOPE_TOLERANCE)
+    t = r.table("tolerance", required=False)
+    if t is not None:
+        for ch in t.keys():
+            if ch not in ENVELOPE_TOLERANCE:
+                t.fail(ch, f"unknown channel (known: {', '.join(ENVELOPE_TOLERANCE)})")
+            tol[ch] = t.float(ch, lo=0.0, lo_open=True)
+        t.finish()
+    cfg = EnvelopeConfig(qm_min=lo, qm_max=hi, tolerance=frozen_map(tol),
+                         poll=r.float("poll", default=0.05, lo=0.0, lo_open=True),
+                         latency=r.float("latency", default=0.15, lo=0.0))
     r.finish()
     return cfg
 

@@ -112,14 +112,30 @@ class Rig:
     # -- motion ----------------------------------------------------------------------------
     def move_to(self, qm: Sequence[float], timeout: float | None = None) -> None:
         """Move every actuator to ``qm`` (actuator units) and wait for target reached."""
+        t = self.config.canopen.move_timeout if timeout is None else timeout
+        t0 = time.monotonic()
+        self.start_move(qm)
+        self.wait_moved(max(0.1, t - (time.monotonic() - t0)))
+
+    def start_move(self, qm: Sequence[float]) -> None:
+        """Start a move of every actuator to ``qm`` and return at once (the drives
+        acknowledged the set-point); :meth:`wait_moved` waits for target reached."""
         if not self.can_move:
             raise DeviceError("the actuators are read-only encoders (canopen.mode = "
                               "\"cia406\"): move the robot with its own controller",
                               device=self.actuators.name)
-        t = self.config.canopen.move_timeout if timeout is None else timeout
-        t0 = time.monotonic()
         self.actuators.move_to(qm, timeout=self.config.canopen.sdo_timeout * 4)
-        self.actuators.wait_target_reached(max(0.1, t - (time.monotonic() - t0)))
+
+    def wait_moved(self, timeout: float | None = None) -> None:
+        """Wait until every drive reports target reached."""
+        self.actuators.wait_target_reached(self.config.canopen.move_timeout if timeout is None
+                                           else timeout)
+
+    def stop(self) -> None:
+        """Stop where the robot is now: a new set-point at the actuator values read now
+        (applied immediately), then wait for it."""
+        self.start_move(self.qm())
+        self.wait_moved()
 
     def fault_reset(self) -> None:
         if self.can_move:

@@ -14,7 +14,10 @@ import numpy as np
 from calibration import identifiability as ident
 from calibration.errors import CalibrationError
 from calibration.methods import METHODS, build, extra_params
+from calibration.robots import get_robot
+from calibration.robots.base import canonical_result
 from calibration.solver import CalibrationResult, SolverOptions, solve
+from station.arm_rounds import ROUND_METHODS, staged_start
 from station.params_file import params_document, write_params
 from station.trace import Trace, read_trace
 
@@ -115,6 +118,10 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
         if "ill-conditioned" in note:
             warnings.warn(note, ConditioningWarning, stacklevel=2)
     result = solve(model, opts, callback=callback)
+    if not result.converged and model.method in ROUND_METHODS:
+        result = _from_staged_start(trace, model, opts, callback) or result
+    # angles written wrapped to (-pi, pi], the SM's a0 >= 0 (file-formats.md)
+    result = canonical_result(model.robot, result, frame_free=model.method in ROUND_METHODS)
     if not result.converged:
         infl = [s.name for s in result.status if not s.identifiable and s.influences_model]
         hint = (f"; not identifiable and influencing the model: {', '.join(infl)} (their start "
@@ -134,6 +141,24 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
                               extra={"robot_file": src} if src else None)
         doc = write_params(out, doc)
     return BatchOutcome(trace, model, result, model.x0, doc)
+
+
+def _from_staged_start(trace: Trace, model, opts, callback):
+    """The fit again from start values grown with the data
+    (:func:`station.arm_rounds.staged_start`); None where that does not converge
+    either. The model's ``x0`` stays the trace's start values (validation's "before")."""
+    data = trace.method_data(model.method)
+    options = {"residual": getattr(model, "residual", "plain")}
+    start = staged_start(model.method, model.robot, data, model.x0, options)
+    if start is None:
+        return None
+    x0 = model.x0
+    model.x0 = start
+    try:
+        res = solve(model, opts, callback=callback)
+    finally:
+        model.x0 = x0
+    return res if res.converged else None
 
 
 def _fmt(v, width=13):

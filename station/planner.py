@@ -153,36 +153,80 @@ def reference_pose(method: str, nominal) -> tuple[np.ndarray | None, str | None,
 
 
 def plan_sm(method: str, nominal, reference_qm, req: PlanRequest, *,
-            plane=None) -> list[PlannedPose]:
-    """The poses of an SM method (``reference_qm``: where travel starts). sm-plane needs
-    ``plane`` ``(a, b, c)``; sm-self-redundancy counts pairs (``req.count`` pairs to fit,
-    ``req.validation`` pairs held out)."""
+            plane=None, box_scale: float = 1.0, accept=None, first_index: int = 0,
+            rnd: int = 0, start_qm=None, box_centre=None) -> list[PlannedPose]:
+    """The poses of an SM method (``reference_qm``: the reference; travel starts there or
+    at ``start_qm``). sm-plane needs ``plane`` ``(a, b, c)``; sm-self-redundancy counts
+    pairs (``req.count`` pairs to fit, ``req.validation`` pairs held out). The distance
+    methods' box is shrunk by ``box_scale`` (about the base origin for sm-distance-tilt,
+    about the box's middle for sm-distance), sm-distance-tilt's moved to ``box_centre``
+    (the reference pose as read there), and ``accept(X, qm)`` filters the poses (the
+    envelope's actuator limits); ``first_index``, ``rnd``: the poses' plan indices and
+    round (:mod:`station.arm_rounds`)."""
     robot = get_robot("agebot-sm")
     rng = np.random.default_rng(req.seed)
     count = req.count or int(np.ceil(req.margin * minimum_count(method)))
     n_val = req.validation if req.validation is not None else max(3, count // 5)
     total = count + n_val
     if method == "sm-plane":
-        return _plane_poses(robot, nominal, plane, count, n_val, rng, reference_qm)
+        return _plane_poses(robot, nominal, plane, count, n_val, rng, reference_qm, accept)
     if method == "sm-self-redundancy":
-        return _pair_poses(robot, nominal, count, n_val, rng, reference_qm)
+        return _pair_poses(robot, nominal, count, n_val, rng, reference_qm, accept)
     if method == "sm-distance-tilt":
         framed = reframe_nominal(robot, nominal, reference_qm)
         elbow = robot.elbow_of(reference_qm, nominal)
-        plan = planning.sample_poses(robot, framed, planning.box_array(robot, planning.SM_BOX_7_5),
-                                     total, rng, ik_options={"elbow": elbow})
+        box = planning.box_array(robot, planning.SM_BOX_7_5)
+        centre = np.zeros(4) if box_centre is None else np.asarray(box_centre, dtype=float)
+        bounds = planning.scale_box(box, box_scale, np.zeros(4)) + centre[:, None]
+        plan = planning.sample_poses(robot, framed, bounds,
+                                     total, rng, ik_options={"elbow": elbow}, accept=accept)
     else:
         off = np.r_[robot.base_offset(nominal), 0.0]
-        plan = planning.sample_poses(robot, nominal, planning.box_array(robot, planning.SM_BOX_7_1,
-                                                                        off), total, rng)
-    return _finish(robot, plan.targets, plan.qm, n_val, rng, reference_qm, 0, 0)
+        box = planning.box_array(robot, planning.SM_BOX_7_1, off)
+        plan = planning.sample_poses(robot, nominal, planning.scale_box(box, box_scale, box_centre),
+                                     total,
+                                     rng, accept=accept)
+    start = reference_qm if start_qm is None else start_qm
+    return _finish(robot, plan.targets, plan.qm, n_val, rng, start, first_index, rnd)
+
+
+#: the arm's scout step from the reference, per actuator, in joint units under the
+#: start model (rail m, joints rad): small enough that gear ratios 40 % off move the
+#: tip only a few cm away from where the start model puts it
+SM_SCOUT_STEP = (0.1, 0.05, 0.05, 0.05)
+
+
+def plan_sm_scout(xi, reference_qm, count: int, seed: int, *, accept=None,
+                  first_index: int = 0, step=SM_SCOUT_STEP) -> list[PlannedPose]:
+    """Round 0 of the arm's distance methods: ``count`` poses a small random actuator
+    step from the reference (``step / |k|`` per axis under the model ``xi``), no IK:
+    near the reference the start model's error is a fraction of a small motion, far
+    from it the same error may be a crash. ``target`` is where ``xi`` puts them."""
+    robot = get_robot("agebot-sm")
+    rng = np.random.default_rng(seed)
+    ref = np.asarray(reference_qm, dtype=float)
+    k = np.abs([xi[robot.index(f"k{i + 1}")] for i in range(robot.n_actuators)])
+    delta = np.asarray(step, dtype=float) / k
+    qm = []
+    for _ in range(400 * count):
+        q = ref + rng.uniform(-1.0, 1.0, len(ref)) * delta
+        if accept is None or accept(None, q):
+            qm.append(q)
+        if len(qm) == count:
+            break
+    if len(qm) < count:
+        raise CalibrationError(f"only {len(qm)} of {count} scout poses near the reference are "
+                               "inside the actuator limits: is the reference at a limit?")
+    qm = np.array(qm)
+    return _finish(robot, robot.fk(qm, xi), qm, 0, rng, ref, first_index, 0)
 
 
 def _sm_box(robot, nominal) -> np.ndarray:
     return planning.box_array(robot, planning.SM_BOX_7_1, np.r_[robot.base_offset(nominal), 0.0])
 
 
-def _plane_poses(robot, nominal, plane, count, n_val, rng, start_qm) -> list[PlannedPose]:
+def _plane_poses(robot, nominal, plane, count, n_val, rng, start_qm,
+                 accept=None) -> list[PlannedPose]:
     """Contact points on the rough plane inside the 7.1 box (the plane's steepest
     coordinate solved for), each approached from ``TOUCH_STANDOFF`` on the base side."""
     if plane is None:
@@ -212,12 +256,14 @@ def _plane_poses(robot, nominal, plane, count, n_val, rng, start_qm) -> list[Pla
             q = robot.ik(approach, nominal, elbow=1)
         except UnreachablePose:
             continue
+        if accept is not None and not accept(approach, q):
+            continue
         targets.append(X)
         qm.append(q)
     return _finish(robot, np.array(targets), np.array(qm), n_val, rng, start_qm, 0, 0)
 
 
-def _pair_poses(robot, nominal, count, n_val, rng, start_qm) -> list[PlannedPose]:
+def _pair_poses(robot, nominal, count, n_val, rng, start_qm, accept=None) -> list[PlannedPose]:
     """``count + n_val`` pairs at one (x, y, z) each, phi in -16..-8 and 8..16 degrees
     (one elbow); pairs held out whole and visited whole, first pose first."""
     box = _sm_box(robot, nominal)
@@ -235,6 +281,8 @@ def _pair_poses(robot, nominal, count, n_val, rng, start_qm) -> list[PlannedPose
         try:
             q1, q2 = robot.ik(X1, nominal, elbow=1), robot.ik(X2, nominal, elbow=1)
         except UnreachablePose:
+            continue
+        if accept is not None and not (accept(X1, q1) and accept(X2, q2)):
             continue
         pairs.append((X1, X2, q1, q2))
     use = np.array(["fit"] * total, dtype=object)

@@ -57,6 +57,8 @@ from drivers.config import StationConfig
 from drivers.errors import DeviceError
 from drivers.check import hint_for
 from station import device_loss, planner, plausibility, resume, serial_plan
+from station.arm_rounds import ROUND_METHODS, SCOUT_SCALE, ArmRounds
+from station.envelope import EnvelopeStop, limit_violation, watched_move, within_limits
 from station.batch import BatchOutcome, calibrate, frame_statement
 from station.lock import FolderLock
 from station.params_file import params_document, read_params, write_params
@@ -208,6 +210,7 @@ class Session:
         # the wrist's growing box (station/wrist_plan.py)
         self.wrist = (WristPlanner(method, self.request, self.components, config.envelope.qm_range)
                       if self.robot.name == "agebot-pm" else None)
+        self._rounds: ArmRounds | None = None   # the arm's rounds (station/arm_rounds.py)
         self.finished = False     # resumed a session that was measured and exported
         self._quiet = False       # events shown, not appended (a finished session)
         self._lock = FolderLock(self.out).acquire()    # one session per folder
@@ -338,6 +341,11 @@ class Session:
         return self._rig().read()
 
     def move_to(self, qm) -> None:
+        """Move to ``qm`` (actuator units); a target beyond the config's actuator limits
+        is refused (:class:`~calibration.errors.StationError`) and the robot stays."""
+        why = limit_violation(qm, self.config.envelope)
+        if why is not None:
+            raise StationError(f"not moved: {why} ([envelope] of the station config)")
         self._rig().move_to([float(v) for v in qm])
 
     def jog(self, axis: int, delta: float) -> None:
@@ -401,6 +409,8 @@ class Session:
         if rig.drawwire is not None:
             rec["zero"] = "reading"
             rec["tare"] = _tare(snap)
+        if "tilt" in snap.mean:
+            rec["tilt"] = float(snap.mean["tilt"])
         w = self._ensure_trace()
         w.append(rec)
         self.reference_qm = qm
@@ -539,6 +549,7 @@ class Session:
                         f"{self.method} and they influence the result; their start values "
                         "(the robot's nominal) must be right, or the other parameters come "
                         "out biased. Give the measured values as start values.")
+        scale = None
         if self.serial:
             targets, qm, use, design = serial_plan.plan(
                 self.method, self.robot, self.nominal, self.reference_qm, self.request,
@@ -547,12 +558,14 @@ class Session:
                      for i, (q, X, u) in enumerate(zip(qm, targets, use))]
             self._set_plan(poses, replace=True, design=design)
             return poses
+        elif self.rounds is not None:
+            poses, scale = self.rounds.first_plan(), SCOUT_SCALE
         elif self.robot.name == "agebot-sm":
             start = self.reference_qm
             if start is None and self.rig is not None and all(d.is_open for d in self.rig.devices):
                 start = self.qm()
             poses = planner.plan_sm(self.method, self.nominal, start, self.request,
-                                    plane=self.plane)
+                                    plane=self.plane, accept=within_limits(self.config.envelope))
         else:
             found = plausibility.check_wrist(self)      # a flipped sign stops here
             if found:
@@ -564,7 +577,7 @@ class Session:
             poses, wrist = self.wrist.scout(home_qm, home_X)
             self._set_plan(poses, replace=True, wrist=wrist)
             return poses
-        self._set_plan(poses, replace=True)
+        self._set_plan(poses, replace=True, box_scale=scale)
         return poses
 
     def _orientation_now(self) -> np.ndarray:
@@ -583,7 +596,20 @@ class Session:
             raise StationError("planned poses must have distinct indices")
         self._set_plan(list(poses), replace=True)
 
-    def _set_plan(self, poses: list[PlannedPose], replace: bool, **extra) -> None:
+    @property
+    def rounds(self) -> ArmRounds | None:
+        """The arm's round plan and envelope model (distance methods), else None."""
+        if (self._rounds is None and self.method in ROUND_METHODS
+                and self.robot.name == "agebot-sm"):
+            self._rounds = ArmRounds(self)
+        return self._rounds
+
+    def _set_plan(self, poses: list[PlannedPose], replace: bool,
+                  box_scale: float | None = None, **extra) -> None:
+        if box_scale is not None:                 # the arm's rounds
+            extra["box_scale"] = box_scale
+            if replace:                           # the session's counts
+                extra["totals"] = list(self.rounds.totals())
         if replace:
             self.plan_poses = list(poses)
         else:
@@ -621,6 +647,8 @@ class Session:
         """Wrist: after each round, refit the start model to every recorded pose and plan
         the next, wider round (:class:`station.wrist_plan.WristPlanner`); raises
         :class:`station.wrist_plan.WristStopped` (recorded as an event) where it cannot."""
+        if self.rounds is not None:
+            return self.rounds.next_round()
         if self.rounds_complete:
             return False
         records = sorted(self.measured.values(), key=lambda r: r["index"])
@@ -696,6 +724,8 @@ class Session:
                     raise SessionAborted("aborted; the trace is intact, resume to continue")
                 if self._measure(pose):
                     recorded += 1
+            if self.pending:      # re-planned meanwhile (an envelope stop)
+                continue
             if not self._plan_next_round():
                 break
         self._notify("state", "measured")
@@ -721,7 +751,8 @@ class Session:
                 closed = device_loss.not_connected(rig)     # a reconnection that failed
                 if closed is not None:
                     raise closed
-                rig.move_to(pose.qm)
+                if not self._move(pose):
+                    return False
                 if self.touching:
                     self._touch(pose)
                 snap = rig.snapshot()
@@ -774,6 +805,28 @@ class Session:
                  {k: v for k, v in snap.mean.items() if k.startswith("qm")})
         self._notify("progress", self._progress(pose, shown, f"pose {pose.index} " + (
             "touched (written with its pair)" if rest else "recorded")))
+        return True
+
+    def _move(self, pose: PlannedPose) -> bool:
+        """Move to ``pose`` inside the envelope (:mod:`station.envelope`): a pose beyond
+        the config's actuator limits is skipped unmoved; the arm's move is watched
+        against its current model, and where it departs the arm stops, the pose is
+        skipped and the round re-planned. False where the pose was not reached."""
+        env = self.config.envelope
+        why = limit_violation(pose.qm, env)
+        if why is not None:
+            self._skip(pose, f"pose {pose.index} skipped before moving: {why}")
+            return False
+        predict = self.rounds.predictor() if self.rounds is not None else None
+        try:
+            watched_move(self._rig(), pose.qm, predict, env, self.config.canopen.move_timeout)
+        except EnvelopeStop as e:
+            self._event("envelope", f"pose {pose.index}: {e}", plan_index=pose.index,
+                        qm=e.qm.tolist(), departed={k: list(v) for k, v in e.departed.items()})
+            self._skip(pose, f"pose {pose.index} not recorded: the arm was stopped by the "
+                       "envelope")
+            self.rounds.replan_after_stop(pose.round, self.rounds.scale_of(pose))
+            return False
         return True
 
     def _require_touch(self) -> None:

@@ -85,7 +85,15 @@ class SimulatedOperator:
         return J
 
     def _move(self, session, qm) -> None:
+        """Jog to ``qm``, stopping at the station's actuator limits as an operator stops
+        short of the end stops (the session refuses a target beyond them)."""
         session.check_abort()
+        env = session.config.envelope
+        qm = np.asarray(qm, dtype=float)
+        if env.qm_min is not None:
+            qm = np.maximum(qm, env.qm_min)
+        if env.qm_max is not None:
+            qm = np.minimum(qm, env.qm_max)
         session.move_to(qm)
         self.moves += 1
 

@@ -59,6 +59,8 @@ class AgebotSM(RobotModel):
     group_rows = (0, 1)  # sm-self-redundancy: z holds only the rail (always singular)
     n_actuators = 4
     joint_limits = JOINT_LIMITS
+    #: parameters that are angles (rad): compared modulo 2 pi, written wrapped to (-pi, pi]
+    angle_params = ("q2_off", "q3_off", "q4_off", "theta0")
 
     def __init__(self):
         self.nominal = NOMINAL.copy()
@@ -87,6 +89,35 @@ class AgebotSM(RobotModel):
         """Base offset ``(x0, y0, z0)`` of ``T_0^b`` (eq. 55): ``a0 (cos, sin) theta0``."""
         th, a = xi[self.index("theta0")], xi[self.index("a0")]
         return np.array([a * math.cos(th), a * math.sin(th), 0.0])
+
+    def canonical(self, xi, frame_free: bool = False):
+        """The one written form of equivalent parameter sets: lengths ``L2, L3, L4``
+        and ``a0`` positive, angles wrapped to ``(-pi, pi]``. Exact equivalences of
+        the FK (an iteration may end in either form):
+
+        * ``(L2, q2_off, q3_off) ~ (-L2, q2_off + pi, q3_off + pi)``, likewise ``L3``
+          with ``q3_off, q4_off``: ``Rz(t + pi) Tx(-L) = Rz(t) Tx(L) Rz(pi)``;
+        * ``(theta0, a0) ~ (theta0 + pi, -a0)`` (the same base offset, eq. 55).
+
+        frame_free: the measurements do not see the base frame turned by pi about
+        ``z_b`` through its origin (distances to the origin or to a point of the arm,
+        and phi modulo 2 pi: the distance methods); then also ``(L4, q4_off, q2_off,
+        theta0) ~ (-L4, q4_off + pi, q2_off + pi, theta0 + pi)``.
+        Returns ``(xi', s)``, ``s`` the sign of ``d xi' / d xi`` per parameter."""
+        xi = np.array(xi, dtype=float)
+        s = np.ones(len(xi))
+        i = {n: self.index(n) for n in PARAM_NAMES}
+        flips = [("L2", ("q2_off", "q3_off")), ("L3", ("q3_off", "q4_off"))]
+        if frame_free:
+            flips.insert(0, ("L4", ("q4_off", "q2_off", "theta0")))
+        flips.append(("a0", ("theta0",)))
+        for length, angles in flips:
+            if xi[i[length]] < 0:
+                xi[i[length]], s[i[length]] = -xi[i[length]], -s[i[length]]
+                for a in angles:
+                    xi[i[a]] += math.pi
+        xi, _ = super().canonical(xi)
+        return xi, s
 
     # -- inverse kinematics --------------------------------------------------------
     def ik_joints(self, X, xi, elbow: int = 1) -> np.ndarray:

@@ -24,6 +24,8 @@ class RobotModel:
     true: np.ndarray
     coords: tuple[str, ...]
     n_actuators: int
+    #: parameters that are angles (rad): compared modulo 2 pi, written wrapped to (-pi, pi]
+    angle_params: tuple[str, ...] = ()
 
     @property
     def n_params(self) -> int:
@@ -64,6 +66,18 @@ class RobotModel:
         X, psi = self.fk_jacobian(qm, xi)
         return X[:, :3], psi[:, :3, :]
 
+    def canonical(self, xi, frame_free: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The same robot in the parameters' one written form: angles (``angle_params``)
+        wrapped to ``(-pi, pi]``. Returns ``(xi', s)`` with ``s (N,)`` the derivative
+        ``d xi' / d xi`` (+-1 per parameter), so that a covariance becomes ``s C s``.
+        frame_free: the method's measurements do not see the base frame's turn about
+        its vertical axis (robots may then have more equivalent forms)."""
+        xi = np.array(xi, dtype=float)
+        for name in self.angle_params:
+            i = self.index(name)
+            xi[i] = wrap_half_open(xi[i])
+        return xi, np.ones(len(xi))
+
     def fk(self, qm, xi):  # pragma: no cover - interface
         """Generalized coordinates ``(m, len(coords))`` for actuator values ``qm (m, n)``."""
         raise NotImplementedError
@@ -71,3 +85,23 @@ class RobotModel:
     def ik(self, X, xi, **options):  # pragma: no cover - interface
         """Actuator values for one pose X; raises UnreachablePose where there is none."""
         raise NotImplementedError
+
+
+def wrap_half_open(a):
+    """Angles wrapped to ``(-pi, pi]`` (the parameter file's range)."""
+    return -((np.pi - np.asarray(a, dtype=float)) % (2 * np.pi) - np.pi)
+
+
+def canonical_result(robot: RobotModel, result, frame_free: bool = False):
+    """``result`` (:class:`calibration.solver.CalibrationResult`) with the robot's
+    parameters in their canonical form (:meth:`RobotModel.canonical`); the
+    covariance follows. Parameters of the method (extra names) are unchanged."""
+    import dataclasses
+
+    n = robot.n_params
+    xr, sign = robot.canonical(result.x[:n], frame_free)
+    x = np.r_[xr, result.x[n:]]
+    s_all = dict(zip(robot.param_names, sign))
+    s = np.array([s_all.get(name, 1.0) for name in result.covariance_names])
+    cov = np.asarray(result.covariance) * np.outer(s, s) if s.size else result.covariance
+    return dataclasses.replace(result, x=x, covariance=cov)

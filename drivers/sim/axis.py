@@ -10,16 +10,26 @@ import threading
 import time
 
 
+class AxisLimit(ValueError):
+    """A commanded target outside the axis's physical travel range."""
+
+
 class SimAxis:
     """A position-controlled axis with finite speed and acceleration.
 
     position:     start position (actuator units).
     velocity:     default profile velocity (units/s).
     acceleration: default profile acceleration (units/s^2).
+    limits:       ``(lo, hi)`` physical travel range (actuator units), or None; a target
+                  outside it is refused (:class:`AxisLimit`) and the axis stays where it is.
+    name:         what the axis moves, for messages (e.g. ``"rail (axis 1)"``).
     """
 
     def __init__(self, position: float = 0.0, velocity: float = 2000.0,
-                 acceleration: float = 8000.0, clock=time.monotonic):
+                 acceleration: float = 8000.0, clock=time.monotonic, *,
+                 limits: tuple[float, float] | None = None, name: str = "axis"):
+        self.limits = None if limits is None else (float(limits[0]), float(limits[1]))
+        self.name = name
         self._clock = clock
         self._lock = threading.Lock()
         self._start = float(position)
@@ -32,7 +42,11 @@ class SimAxis:
 
     def command(self, target: float, velocity: float | None = None,
                 acceleration: float | None = None) -> None:
-        """Start a move from wherever the axis is now to ``target``."""
+        """Start a move from wherever the axis is now to ``target``; :class:`AxisLimit`
+        (and no motion) where ``target`` is outside :attr:`limits`."""
+        if self.limits is not None and not self.limits[0] <= target <= self.limits[1]:
+            raise AxisLimit(f"{self.name}: target {target:.6g} is outside its travel range "
+                            f"[{self.limits[0]:.6g}, {self.limits[1]:.6g}]")
         with self._lock:
             now = self._clock()
             self._start = self._position_at(now)

@@ -133,12 +133,31 @@ class SimulatedAgebot:
         vel = np.broadcast_to(VELOCITY[truth.robot] if velocity is None else velocity, (n,))
         acc = np.broadcast_to(ACCELERATION[truth.robot] if acceleration is None
                               else acceleration, (n,))
-        self.axes = tuple(SimAxis(float(p), float(v), float(a), clock=clock)
-                          for p, v, a in zip(self.home_qm, vel, acc))
+        self.qm_limits = self.physical_limits()
+        self.axes = tuple(SimAxis(float(p), float(v), float(a), clock=clock, limits=lim,
+                                  name=f"axis {i + 1}")
+                          for i, (p, v, a, lim) in enumerate(zip(self.home_qm, vel, acc,
+                                                                 self.qm_limits)))
         self._last_pose = self.home_pose.copy()  # PM: keeps the FK's assembly mode
         self.qm_range = None if qm_range is None else np.asarray(qm_range, dtype=float)
         self._checked = (clock(), self.home_qm.copy(), self.home_pose.copy())
         self._anchor = self.ee_position()
+
+    def physical_limits(self) -> list[tuple[float, float] | None]:
+        """Per axis, the actuator range the true robot can travel (actuator units): the
+        model's joint limits (SM: rail +-2 m, joints +-170 deg) through the true
+        transmission ``Q = K*Qm + Q_off``; None where the model has none."""
+        lim = getattr(self.model, "joint_limits", None)
+        if lim is None:
+            return [None] * self.model.n_actuators
+        names = self.model.param_names
+        out = []
+        for i, (lo, hi) in enumerate(lim):
+            k = self._xi[names.index(f"k{i + 1}")]
+            off = self._xi[names.index(f"q{i + 1}_off")]
+            a, b = (lo - off) / k, (hi - off) / k
+            out.append((min(a, b), max(a, b)))
+        return out
 
     # -- state -----------------------------------------------------------------------------
     @property

@@ -7,21 +7,26 @@ node's own 0x1800/0x1A00, so a master may remap them), heartbeats (0x1017,
 through the fault plan), the CiA 402 state machine and set-point handshake on
 controlword writes, target reached from a :class:`~drivers.sim.axis.SimAxis`,
 EMCY on fault (``drive_fault_node`` of the fault plan goes to FAULT with EMCY
-0x8611, following error, at its next set-point, once).
+0x8611, following error, at its next set-point, once); a set-point outside the
+axis's physical travel range (:class:`~drivers.sim.axis.AxisLimit`) puts it in
+FAULT with EMCY 0x8612 (reference limit) and does not move it.
 
 Positions: increments = round(axis position [units] * resolution
 [increments/unit]); 0x6081 in increments/s and 0x6083 in increments/s^2.
 """
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import canopen
 from canopen.objectdictionary import UNSIGNED32, ODVariable
 
-from drivers.sim.axis import SimAxis
+from drivers.sim.axis import AxisLimit, SimAxis
 from drivers.sim.faults import FaultPlan
 from drivers.sim.sim_network import SimNetwork
+
+log = logging.getLogger("drivers.sim")
 
 EDS_PATH = Path(__file__).resolve().parents[2] / "fixtures" / "eds" / "agebot_cia402.eds"
 SW = {"SWITCH ON DISABLED": 0x0040, "READY TO SWITCH ON": 0x0021, "SWITCHED ON": 0x0023,
@@ -160,8 +165,13 @@ class SimDrive402(SimNode):
             return
         target = self.value(0x607A) + (round(self.axis.target * self.resolution) if cw & 0x40 else 0)
         vel, acc = self.value(0x6081), self.value(0x6083)
-        self.axis.command(target / self.resolution, vel / self.resolution if vel else None,
-                          acc / self.resolution if acc else None)
+        try:
+            self.axis.command(target / self.resolution, vel / self.resolution if vel else None,
+                              acc / self.resolution if acc else None)
+        except AxisLimit as e:      # the drive's limit switch / software position limit
+            log.warning("node %d: %s", self.id, e)
+            self.fault(0x8612)
+            return
         self.ack = True
 
     def fault(self, code: int, register: int = 0x01, data: bytes = b"") -> None:

@@ -70,3 +70,45 @@ def test_method_observation_matrix_matches_finite_differences(method, residual, 
     # W = d predicted / dx = -d residual / dx
     num = fd_jacobian(lambda v: -model.evaluate(v)[0], x)
     assert_columns_close(W, num, names=model.names)
+
+
+def test_canonical_parameters_are_the_same_robot():
+    """Angles wrapped to (-pi, pi] and (theta0 + pi, -a0) turned back to a0 >= 0:
+    the same FK, and the covariance's a0 row and column change sign."""
+    x = SM.true.copy()
+    x[SM.index("q2_off")] += 4 * math.pi
+    x[SM.index("q3_off")] = -math.pi            # -> +pi (the half-open range)
+    x[SM.index("theta0")] += math.pi
+    x[SM.index("a0")] *= -1
+    xc, s = SM.canonical(x)
+    qm = np.random.default_rng(3).uniform(-100, 100, (5, 4))
+    a, b = SM.fk(qm, xc), SM.fk(qm, x)
+    np.testing.assert_allclose(a[:, :3], b[:, :3], atol=1e-12)
+    np.testing.assert_allclose(np.cos(a[:, 3] - b[:, 3]), 1.0, atol=1e-12)   # phi mod 2 pi
+    assert xc[SM.index("a0")] > 0 and xc[SM.index("q3_off")] == pytest.approx(math.pi)
+    assert np.all((xc[[1, 2, 3, 11]] > -math.pi) & (xc[[1, 2, 3, 11]] <= math.pi))
+    np.testing.assert_allclose(xc[SM.index("theta0")], SM.true[SM.index("theta0")], atol=1e-12)
+    assert s[SM.index("a0")] == -1 and np.sum(s == 1) == 12
+
+
+def test_negative_lengths_are_the_same_robot_turned_around():
+    """(L2, q2_off, q3_off) ~ (-L2, q2_off + pi, q3_off + pi), likewise L3: the same FK.
+    (L4, q4_off, q2_off, theta0) ~ (-L4, ... + pi): the same distances to the origin and
+    phi modulo 2 pi (the distance methods' frame_free form)."""
+    qm = np.random.default_rng(4).uniform(-100, 100, (6, 4))
+    for length, angles, frame_free in (("L2", ("q2_off", "q3_off"), False),
+                                       ("L3", ("q3_off", "q4_off"), False),
+                                       ("L4", ("q4_off", "q2_off", "theta0"), True)):
+        x = SM.true.copy()
+        x[SM.index(length)] *= -1
+        for a in angles:
+            x[SM.index(a)] += math.pi
+        xc, s = SM.canonical(x, frame_free=frame_free)
+        np.testing.assert_allclose(xc, SM.canonical(SM.true)[0], atol=1e-12)
+        assert s[SM.index(length)] == -1
+        a, b = SM.fk(qm, x), SM.fk(qm, SM.true)
+        np.testing.assert_allclose(np.linalg.norm(a[:, :3], axis=1),
+                                   np.linalg.norm(b[:, :3], axis=1), atol=1e-12)
+        np.testing.assert_allclose(np.cos(a[:, 3] - b[:, 3]), 1.0, atol=1e-12)
+        if not frame_free:
+            np.testing.assert_allclose(a[:, :3], b[:, :3], atol=1e-12)

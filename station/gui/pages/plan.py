@@ -182,6 +182,12 @@ class PlanPage(Page):
                      "is measured the box grows round by round, each planned from the fit of "
                      f"the poses recorded so far, up to +-20 deg, for {want} fit poses in all.")
             ok = want >= need
+        elif s.rounds is not None and all(p.round == 0 for p in poses):
+            want, held = s.rounds.totals()
+            text += (f" This is the scout round ({len(poses)} poses a small step from the "
+                     "reference); after it the arm is planned in rounds from their fit (30 % of "
+                     f"the box, then all of it), for {want} fit poses + {held} held out in all.")
+            ok = want >= need
         else:
             ok = n_fit >= need
         if not ok:

@@ -1,0 +1,292 @@
+"""The arm's distance sessions planned in rounds, inside the safety envelope.
+
+A robot whose gear ratios differ from the nominal by tens of percent goes
+somewhere else than the nominal model says: planned with the nominal, poses of
+the report's box end up to 80 deg and 0.4 m outside it. So the arm's plan grows
+with what the station has learnt (sm-distance-tilt and sm-distance):
+
+Round 0, the *scout*, steps a little from the reference in actuator space
+(:func:`station.planner.plan_sm_scout`: the start values' error is a fraction
+of a small motion, whatever the arm's configuration). Round ``r >= 1`` is
+planned in the method's box shrunk to ``SCALES[r]`` (30 %, then the whole box;
+sm-distance-tilt's box centred on the reference pose as read there, tilt
+included; sm-distance's about its middle), with the model fitted to the poses
+measured so far. The first two rounds take a quarter of the fit poses each (at least
+6); the last the rest and the held-out poses.
+
+Every move is watched (:func:`station.envelope.watched_move`) against the current
+model. Where the live tilt or distance departs by more than the config's
+tolerance the arm stops there, that pose is not recorded, the rest of the round
+is dropped (``skip`` events) and re-planned with the model refitted on the poses
+so far; where nothing new was learnt since the last stop the round's box is
+halved first. Below :data:`MIN_SCALE` the session stops and tells the operator
+what to do. Everything is in the trace (``plan`` events with ``round`` and
+``box_scale``, ``envelope`` events), so a resumed session continues the same way.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+
+import numpy as np
+
+from calibration.errors import CalibrationError, StationError
+from calibration.methods import MethodData, build
+from calibration.methods.sm_distance_tilt import reframe_nominal
+from calibration.robots.agebot_sm import wrap
+from calibration.solver import SolverOptions, solve
+from station import planner
+from station.envelope import sm_predictor, within_limits
+
+log = logging.getLogger("station.session")
+
+ROUND_METHODS = ("sm-distance", "sm-distance-tilt")
+SCALES = (0.1, 0.3, 1.0)  # each round's box, as a fraction of the method's box
+SCOUT_SCALE = SCALES[0]
+MIN_SCALE = 0.02         # below this the envelope gives up: the start model is too wrong
+SCOUT_MIN = 6
+#: what a refit on fewer poses than parameters learns, in this order
+LEARN_FIRST = ("k1", "k2", "k3", "k4", "q4_off", "q3_off", "q2_off", "q1_off")
+
+
+def fixed_for_rows(model) -> tuple[str, ...]:
+    """With fewer rows than parameters, what the first poses can teach first: the
+    gear ratios, then the joints' offsets; the rest stays at its start value."""
+    free = len(model.row_channel) - 2
+    if free >= len(model.names):
+        return ()
+    learn = LEARN_FIRST[:max(free, 0)]
+    return tuple(n for n in model.names if n not in learn)
+
+
+def staged_start(method: str, robot, data: MethodData, x, options: dict | None = None):
+    """Start values grown with the data: fits on the first quarter, half and three
+    quarters of the poses in their recorded order (a session records from the
+    reference outwards), each from the last. For a robot so far from its start
+    values that the fit of every pose at once does not converge. None if no stage
+    gave finite values."""
+    m = len(data.qm)
+    x = np.array(x, dtype=float)
+    got = False
+    for frac in (0.25, 0.5, 0.75):
+        k = max(int(m * frac), 2)
+        sub = dataclasses.replace(data, qm=data.qm[:k],
+                                  channels={c: v[:k] for c, v in data.channels.items()})
+        try:
+            model = build(method, robot, sub, x, **(options or {}))
+            res = solve(model, SolverOptions(max_iter=300, fixed=fixed_for_rows(model)))
+        except (CalibrationError, np.linalg.LinAlgError, ValueError):
+            continue
+        if np.all(np.isfinite(res.x)):
+            x, got = np.array(res.x), True
+    return x if got else None
+
+
+class EnvelopeExhausted(StationError):
+    """The arm departs from the model even close to the reference: stop, ask the operator."""
+
+
+class ArmRounds:
+    """The round plan of one arm session (``session``: :class:`station.session.Session`)."""
+
+    def __init__(self, session):
+        self.s = session
+        self.xi = self._start_model()
+        self.distance_off = 0.0
+        self.learnt_at_stop: int | None = None   # poses measured at the last stop
+        self.fitted_on = 0                        # poses the model was last fitted on
+        self.prev_xi: np.ndarray | None = None    # the model before the last refit
+        self._totals: tuple[int, int] | None = None  # set by a new plan
+
+    # -- the model ---------------------------------------------------------------------
+    def _start_model(self) -> np.ndarray:
+        """The start values, told what the reference showed: the last link's offset
+        turned so that the model's tilt there is the one read (the nominal offsets
+        may be 0.3 rad off: every planned phi would be), and for sm-distance-tilt the
+        base frame moved to the reference (eqs. 76-77)."""
+        s = self.s
+        xi = np.array(s.nominal, dtype=float)
+        if s.reference_qm is None:
+            return xi
+        tilt = (s.reference_record or {}).get("tilt")
+        if tilt is not None:
+            phi = s.robot.fk(np.atleast_2d(s.reference_qm), xi)[0, 3]
+            xi[s.robot.index("q4_off")] += float(wrap(tilt - phi))
+        if s.method == "sm-distance-tilt":
+            xi = reframe_nominal(s.robot, xi, s.reference_qm)
+        return xi
+
+    def refit(self) -> None:
+        """The model fitted to the fit poses measured so far, from the start values
+        (through :func:`staged_start`): a function of the recorded poses alone, so a
+        resumed session plans as the uninterrupted one would. Unchanged where too
+        few or where the fit fails: planning then stays with what it had."""
+        s = self.s
+        recs = [r for r in s.measured.values() if r.get("use", "fit") == "fit"]
+        if len(recs) < 2:
+            return
+        ref = s.reference_record or {}
+        data = MethodData(qm=np.array([r["qm"] for r in recs]),
+                          channels={ch: np.array([r[ch] for r in recs]) for ch in s.info.channels},
+                          reference_qm=s.reference_qm, distance_zero=ref.get("zero", "exact"))
+        start = self._start_model()
+        try:
+            staged = staged_start(s.method, s.robot, data, start) if len(recs) >= 8 else None
+            model = build(s.method, s.robot, data, start if staged is None else staged)
+            res = solve(model, SolverOptions(max_iter=1000, fixed=fixed_for_rows(model)))
+        except (CalibrationError, np.linalg.LinAlgError, ValueError) as e:
+            log.warning("refit on %d poses failed: %s", len(recs), e)
+            return
+        self.fitted_on = len(recs)
+        if not np.all(np.isfinite(res.x)):
+            return
+        n = s.robot.n_params
+        self.prev_xi = self.xi
+        self.xi = s.robot.canonical(res.x[:n], frame_free=True)[0]
+        if len(res.x) > n:
+            self.distance_off = float(res.x[n])
+        s._event("info", f"model refitted on {len(recs)} poses ({res.n_identifiable} parameters "
+                 f"identifiable): {res.message}")
+
+    def predictor(self):
+        """What the sensors should read at ``qm`` under the current model."""
+        s = self.s
+        if s.reference_qm is None:
+            return None
+        if self.fitted_on == 0 and s.measured:     # a resumed session: learn from its poses
+            self.refit()
+        return sm_predictor(s.method, s.robot, self.xi, s.reference_qm, self.distance_off)
+
+    # -- counts ------------------------------------------------------------------------
+    def totals(self) -> tuple[int, int]:
+        """Fit and held-out poses of the whole session: as the first plan event recorded
+        them (a resumed session keeps its counts), else from the request."""
+        if self._totals is not None:
+            return self._totals
+        for ev in reversed(self.s.events):
+            if ev.get("kind") == "plan" and "totals" in ev:
+                return int(ev["totals"][0]), int(ev["totals"][1])
+        return self._requested()
+
+    def _requested(self) -> tuple[int, int]:
+        req = self.s.request
+        count = req.count or int(np.ceil(req.margin * planner.minimum_count(self.s.method)))
+        n_val = req.validation if req.validation is not None else max(3, count // 5)
+        return count, n_val
+
+    def round_targets(self, rnd: int) -> tuple[int, int]:
+        """Fit and held-out poses of round ``rnd``."""
+        count, n_val = self.totals()
+        early = [0] * (len(SCALES) - 1)
+        for r in range(len(early)):
+            early[r] = min(count - sum(early), max(SCOUT_MIN, math.ceil(count / 4)))
+        if rnd < len(early):
+            return early[rnd], 0
+        return count - sum(early), n_val
+
+    def _measured_in(self, rnd: int, use: str) -> int:
+        by_index = {p.index: p for p in self.s.plan_poses}
+        return sum(1 for i, r in self.s.measured.items()
+                   if i in by_index and by_index[i].round == rnd and r.get("use", "fit") == use)
+
+    # -- planning ----------------------------------------------------------------------
+    def _plan(self, rnd: int, scale: float, start_qm) -> list:
+        s = self.s
+        fit, val = self.round_targets(rnd)
+        fit -= self._measured_in(rnd, "fit")
+        val -= self._measured_in(rnd, "validation")
+        if fit + val <= 0:
+            return []
+        req = dataclasses.replace(s.request, count=max(fit, 1), validation=val,
+                                  seed=s.request.seed + 7919 * rnd + len(s.plan_poses))
+        first = max((p.index for p in s.plan_poses), default=-1) + 1
+        if rnd == 0:
+            return planner.plan_sm_scout(self.xi, s.reference_qm, fit, req.seed,
+                                         accept=within_limits(s.config.envelope),
+                                         first_index=first, step=np.multiply(
+                                             planner.SM_SCOUT_STEP, scale / SCOUT_SCALE))
+        poses = planner.plan_sm(s.method, self.xi, s.reference_qm, req, box_scale=scale,
+                                accept=within_limits(s.config.envelope), first_index=first,
+                                rnd=rnd, start_qm=start_qm, box_centre=self.box_centre(scale))
+        if fit <= 0:        # only held-out poses left
+            poses = [p for p in poses if p.use == "validation"] or poses[:0]
+        return poses
+
+    def box_centre(self, scale: float):
+        """Where the box is centred: sm-distance-tilt's on the reference pose as read
+        there (the base origin and its tilt: a start model far off may have put the
+        last link 50 deg from level, and turning it level is a reconfiguration the
+        model cannot predict yet); sm-distance's on the box's middle."""
+        if self.s.method != "sm-distance-tilt":
+            return None
+        tilt = (self.s.reference_record or {}).get("tilt", 0.0)
+        return np.array([0.0, 0.0, 0.0, float(wrap(tilt))])
+
+    def first_plan(self) -> list:
+        """Round 0, the scout (the session records it as its plan, with the session's
+        counts from the request)."""
+        self._totals = self._requested()
+        self.xi = self._start_model()
+        return self._plan(0, SCOUT_SCALE, self.s.reference_qm)
+
+    def next_round(self) -> bool:
+        """Refit and plan the next round; False when the last one is done."""
+        s = self.s
+        rnd = max((p.round for p in s.plan_poses), default=0) + 1
+        while rnd < len(SCALES):
+            self.refit()
+            poses = self._plan_safely(rnd, SCALES[rnd], s.qm())
+            if poses:
+                s._set_plan(poses, replace=False, box_scale=SCALES[rnd])
+                return True
+            rnd += 1
+        return False
+
+    def _plan_safely(self, rnd: int, scale: float, start_qm) -> list:
+        """:meth:`_plan`; where the fitted model reaches too few poses of the box (a fit
+        of few poses can be wild), plan in a box half as large, down to the scout's."""
+        while True:
+            try:
+                return self._plan(rnd, scale, start_qm)
+            except CalibrationError as e:
+                if self.prev_xi is not None:     # a wild refit: plan with the model before it
+                    self.s._event("warning", f"round {rnd}: {e} with the refitted model; "
+                                  "planning with the model before it")
+                    self.xi, self.prev_xi = self.prev_xi, None
+                    continue
+                if scale <= SCOUT_SCALE:
+                    raise
+                self.s._event("warning", f"round {rnd}: {e}; planning in a smaller box")
+                scale = max(scale / 2, SCOUT_SCALE)
+
+    def replan_after_stop(self, stopped_round: int, scale: float) -> None:
+        """The arm was stopped: drop the rest of the round, refit, plan it again (in a
+        box half as large where nothing was learnt since the last stop)."""
+        s = self.s
+        for p in s.pending:
+            if p.round == stopped_round:
+                s._skip(p, f"pose {p.index} dropped: re-planned after the envelope stop")
+        learnt = len(s.measured)
+        if self.learnt_at_stop is not None and learnt <= self.learnt_at_stop:
+            scale *= 0.5            # nothing learnt since the last stop: closer in
+        self.learnt_at_stop = learnt
+        if scale < MIN_SCALE:
+            raise EnvelopeExhausted(
+                "the arm departs from the model's prediction even within "
+                f"{100 * scale:.0f} % of the box around the reference: the start values are too "
+                "far from this robot. Enter the gear ratios (k1..k4) from the drives' data sheets "
+                "and the link lengths as measured (app.py run --nominal k1=...), check the "
+                "[envelope.tolerance] of the station config, then start a new session")
+        self.refit()
+        poses = self._plan_safely(stopped_round, scale, s.qm())
+        if poses:
+            s._set_plan(poses, replace=False, box_scale=scale)
+
+    def scale_of(self, pose) -> float:
+        """The box scale the pose's round was planned with (from the plan events)."""
+        for ev in reversed(self.s.events):
+            if ev.get("kind") == "plan" and any(r["index"] == pose.index
+                                                for r in ev.get("poses", ())):
+                return float(ev.get("box_scale", SCALES[min(pose.round, len(SCALES) - 1)]))
+        return 1.0

@@ -1,0 +1,256 @@
+"""Whole simulated sessions over drawn robots, scored against their truth.
+
+The Monte Carlo of issue 10 (``bench/bench_sessions.py``, the slow session
+tests): a robot drawn around the nominal (:func:`drivers.sim.truth.draw_truth`)
+with the noise real devices have, the simulator in its own process
+(:class:`drivers.sim.server.SimulatorProcess`), one unattended
+:meth:`station.session.Session.run`, and the result compared with the truth
+*in the frame the session captured*: for sm-distance-tilt the base origin is
+where the true end effector was at the reference (the draw-wire anchor), and
+``distance_off`` is the reading the simulated draw-wire gives where the true
+distance is 0 (minus the length it read when zeroed).
+
+Nothing here is used by a real station; it needs the simulator.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calibration import planning
+from calibration.methods.sm_distance_tilt import reframe_nominal
+from calibration.robots import get_robot
+from drivers.config import load_station_config, with_endpoints
+from drivers.sim.truth import SimTruth, draw_truth, save_truth
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: Std of one reading as the station's devices have them: a draw-wire of 1 um
+#: resolution and 10 um repeatability, an inclinometer of 0.01 deg, encoders whose
+#: noise is below their resolution.
+DEVICE_NOISE = {"agebot-sm": {"distance": 1e-5, "tilt": 1.7e-4, "roll": 1.7e-4,
+                              "pitch": 1.7e-4, "qm": 0.0},
+                "agebot-pm": {"roll": 1.7e-4, "pitch": 1.7e-4, "yaw": 1.7e-3, "qm": 0.0}}
+DEFAULT_METHOD = {"agebot-sm": "sm-distance-tilt", "agebot-pm": "pm-fk"}
+
+
+def station_truth(robot: str, seed: int, **draw) -> SimTruth:
+    """A robot drawn with ``default_rng(seed)`` around the nominal, with the devices'
+    noise (:data:`DEVICE_NOISE`) and the simulator's noise seeded by ``seed`` too."""
+    rng = np.random.default_rng(seed)
+    return draw_truth(robot, rng, noise=DEVICE_NOISE[robot], seed=seed,
+                      comment=f"drawn by station.sim_sessions, seed {seed}", **draw)
+
+
+def fast_config(robot: str, folder: Path, speed: float = 4.0, truth: SimTruth | None = None,
+                margin: float = 0.95) -> Path:
+    """The simulated station's config with moves ``speed`` times faster (velocity
+    ``speed``, acceleration ``speed**2``): the same devices, shorter sessions. With
+    ``truth``, the envelope's actuator limits are that robot's travel times ``margin``
+    (what a station's config takes from the robot's data sheets)."""
+    name = "sim-sm.toml" if robot == "agebot-sm" else "sim-pm.toml"
+    text = (ROOT / "fixtures" / "stations" / name).read_text()
+    data = tomllib.loads(text)
+    out = text
+    for key, f in (("profile_velocity", speed), ("profile_acceleration", speed * speed)):
+        v = data["canopen"][key]
+        out = out.replace(f"{key} = {_toml(v)}", f"{key} = {_toml(_scale(v, f))}")
+    if out == text and speed != 1.0:
+        raise ValueError(f"{name}: profile_velocity/profile_acceleration not found to scale")
+    env = data.get("envelope", {})
+    if truth is not None and "qm_min" in env:
+        from drivers.sim.robot import SimulatedAgebot
+
+        lim = SimulatedAgebot(truth).physical_limits()
+        if all(v is not None for v in lim):
+            mid = np.array([(a + b) / 2 for a, b in lim])
+            half = np.array([(b - a) / 2 for a, b in lim]) * margin
+            for key, v in (("qm_min", mid - half), ("qm_max", mid + half)):
+                out = out.replace(f"{key} = {_toml(env[key])}", f"{key} = {_toml(list(v))}")
+    path = Path(folder) / name
+    path.write_text(out)
+    return path
+
+
+def _scale(v, f):
+    return [x * f for x in v] if isinstance(v, list) else v * f
+
+
+def _toml(v) -> str:
+    return "[" + ", ".join(repr(float(x)) for x in v) + "]" if isinstance(v, list) else repr(float(v))
+
+
+@dataclass
+class SessionScore:
+    """One scored session.
+
+    completed: the session ran to its parameter file; ``error`` says why not.
+    names, z:  the calibrated (identifiable) parameters and their error / reported std
+               (angles compared modulo 2 pi).
+    excursion: largest distance of a visited pose (true pose, from the trace's ``qm``)
+               outside the planned workspace box, per coordinate (m or rad).
+    """
+
+    seed: int
+    robot: str
+    method: str
+    completed: bool
+    error: str = ""
+    names: list[str] = field(default_factory=list)
+    z: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    excursion: dict = field(default_factory=dict)
+    poses: int = 0
+    skipped: int = 0
+    events: dict = field(default_factory=dict)
+    offset: dict = field(default_factory=dict)
+
+    @property
+    def worst(self) -> float:
+        return float(np.max(np.abs(self.z))) if self.z.size else math.nan
+
+
+def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, seed: int = 0,
+                request=None, speed: float = 4.0) -> SessionScore:
+    """Run one unattended session on the simulated ``truth`` in ``folder`` and score it."""
+    from drivers.sim.server import SimulatorProcess
+    from station.planner import PlanRequest
+    from station.session import Session
+
+    robot = truth.robot
+    method = method or DEFAULT_METHOD[robot]
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    truth_file = folder / "truth.json"
+    save_truth(truth, truth_file)
+    cfg = fast_config(robot, folder, speed, truth)
+    score = SessionScore(seed=seed, robot=robot, method=method, completed=False)
+    req = request or PlanRequest(seed=seed)
+    with SimulatorProcess(robot, truth=str(truth_file), config=str(cfg), seed=seed) as sim:
+        config = with_endpoints(load_station_config(cfg), sim.endpoints, source="simulator")
+        s = Session(config, method, folder / "run", request=req)
+        try:
+            s.run()
+            score.completed = True
+        except Exception as e:   # the score says what went wrong; the bench goes on
+            score.error = f"{type(e).__name__}: {e}"
+            (folder / "error.txt").write_text(traceback.format_exc())
+        finally:
+            with sim.control() as ctl:
+                state = ctl.call(state=True)
+            s.close()
+    score.poses, score.skipped = len(s.measured), len(s.skipped)
+    for ev in s.events:
+        score.events[ev["kind"]] = score.events.get(ev["kind"], 0) + 1
+    score.excursion = excursion(s, truth)
+    if score.completed:
+        score.names, score.z = normalized_errors(s, truth, state)
+        score.offset = residual_offset(s, truth, state)
+    return score
+
+
+def residual_offset(session, truth: SimTruth, state: dict) -> dict:
+    """The fit poses' distance residuals at the true parameters (captured frame): their
+    mean and its standard error (m) with the zero taken as exact (``distance_off``
+    0, the report's model) and with the draw-wire's true zero reading."""
+    if "distance" not in session.info.channels:
+        return {}
+    robot = get_robot(truth.robot)
+    ref = truth_in_session_frame(session, truth, state)
+    xi = np.array([ref[n] for n in robot.param_names])
+    recs = [r for r in session.measured.values() if r.get("use", "fit") == "fit"]
+    qm = np.array([r["qm"] for r in recs])
+    X = robot.fk(qm, xi)
+    p0 = robot.fk(np.atleast_2d(session.reference_qm), xi)[0, :3]
+    r = np.array([rec["distance"] for rec in recs]) - np.linalg.norm(X[:, :3] - p0, axis=1)
+    se = float(np.std(r, ddof=1) / np.sqrt(len(r)))
+    return {"exact": float(np.mean(r)), "reading": float(np.mean(r) - ref.get("distance_off", 0.0)),
+            "se": se}
+
+
+def truth_in_session_frame(session, truth: SimTruth, state: dict) -> dict[str, float]:
+    """The truth as the session's calibrated parameters name it: for sm-distance-tilt in
+    the base frame captured at the reference; ``distance_off`` from the simulator."""
+    robot = get_robot(truth.robot)
+    xi = truth.xi()
+    if session.method == "sm-distance-tilt":
+        xi = reframe_nominal(robot, xi, session.reference_qm)
+    out = robot.as_dict(xi)
+    if state.get("drawwire_offset") is not None:
+        out["distance_off"] = -float(state["drawwire_offset"])
+    return out
+
+
+def normalized_errors(session, truth: SimTruth, state: dict) -> tuple[list[str], np.ndarray]:
+    """Names and ``(calibrated - truth) / std`` of the identifiable parameters."""
+    res = session.outcome.result
+    robot = get_robot(truth.robot)
+    angles = set(getattr(robot, "angle_params", ()))
+    ref = truth_in_session_frame(session, truth, state)
+    names, z = [], []
+    for j, (name, st) in enumerate(zip(res.names, res.status)):
+        if not st.identifiable or name not in ref:
+            continue
+        d = res.x[j] - ref[name]
+        if name in angles:
+            d = (d + math.pi) % (2 * math.pi) - math.pi
+        names.append(name)
+        z.append(d / res.std[j])
+    return names, np.array(z)
+
+
+def excursion(session, truth: SimTruth) -> dict[str, float]:
+    """Per coordinate, how far the true poses of the recorded poses lie outside the
+    planned box (0 inside): sm-distance-tilt's box around the captured origin,
+    sm-distance's around the base offset, the wrist's +-20 deg."""
+    robot = get_robot(truth.robot)
+    qm = [p["qm"] for p in session.measured.values()]
+    if not qm:
+        return {}
+    xi = truth.xi()
+    if session.method == "sm-distance-tilt":
+        xi = reframe_nominal(robot, xi, session.reference_qm)
+        box = planning.box_array(robot, planning.SM_BOX_7_5)
+        if session.rounds is not None:           # centred on the reference pose as read
+            box = box + session.rounds.box_centre(1.0)[:, None]
+    elif robot.name == "agebot-sm":
+        box = planning.box_array(robot, planning.SM_BOX_7_1,
+                                 np.r_[robot.base_offset(xi), 0.0])
+    else:
+        box = planning.box_array(robot, planning.PM_BOX)
+    if robot.name != "agebot-sm":
+        return {}
+    X = robot.fk(np.array(qm), xi)
+    mid = box.mean(axis=1)
+    X[:, 3] = mid[3] + (X[:, 3] - mid[3] + np.pi) % (2 * np.pi) - np.pi     # phi modulo 2 pi
+    out = np.maximum(box[:, 0] - X, X - box[:, 1]).clip(min=0.0).max(axis=0)
+    return dict(zip(robot.coords, out.tolist()))
+
+
+def summary(scores: list[SessionScore]) -> dict:
+    """Success rate, worst |error|/std, pooled RMS of error/std, coverage (share within
+    2 std), worst per parameter, largest excursion per coordinate."""
+    done = [s for s in scores if s.completed]
+    z = np.concatenate([s.z for s in done]) if done else np.zeros(0)
+    per: dict[str, float] = {}
+    for s in done:
+        for n, v in zip(s.names, s.z):
+            per[n] = max(per.get(n, 0.0), abs(float(v)))
+    exc: dict[str, float] = {}
+    for s in scores:
+        for k, v in s.excursion.items():
+            exc[k] = max(exc.get(k, 0.0), v)
+    off = [s.offset for s in done if s.offset]
+    return {"sessions": len(scores), "completed": len(done),
+            "offset_exact_se": [o["exact"] / o["se"] for o in off],
+            "offset_reading_se": [o["reading"] / o["se"] for o in off],
+            "offset_exact_um": [1e6 * o["exact"] for o in off],
+            "success_rate": len(done) / max(len(scores), 1),
+            "worst": float(np.max(np.abs(z))) if z.size else math.nan,
+            "rms": float(np.sqrt(np.mean(z ** 2))) if z.size else math.nan,
+            "coverage_2std": float(np.mean(np.abs(z) <= 2.0)) if z.size else math.nan,
+            "n_errors": int(z.size), "worst_per_parameter": per, "excursion": exc}

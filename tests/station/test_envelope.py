@@ -1,0 +1,112 @@
+"""The safety envelope: actuator limits from the config, the live watch against the
+model while moving, and the simulated arm's physical limits seen over the wire."""
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibration.errors import ConfigError
+from calibration.robots import get_robot
+from drivers.config import ENVELOPE_TOLERANCE, load_station_config, parse_station_config
+from drivers.errors import ProtocolError
+from drivers.rig import Rig
+from drivers.sim.server import SimulatorProcess
+from drivers.sim.truth import load_truth
+from station.envelope import (EnvelopeStop, departures, limit_violation, sm_predictor,
+                              watched_move)
+from station.sim_sessions import fast_config
+
+ROOT = Path(__file__).resolve().parents[2]
+SIM_SM = ROOT / "fixtures" / "stations" / "sim-sm.toml"
+UNSEEN = ROOT / "fixtures" / "truth" / "agebot-sm-unseen.json"
+
+
+def test_config_limits_and_tolerances():
+    env = load_station_config(SIM_SM).envelope
+    assert env.qm_min == (-85.0, -250.0, -250.0, -250.0) and env.qm_max[0] == 85.0
+    assert env.tolerance["distance"] == 0.05 and env.latency == 0.15
+    assert limit_violation([0, 0, 0, 0], env) is None
+    why = limit_violation([0, 0, 250.0, 0], env)
+    assert "actuator 3" in why and "qm_max 235" in why
+    data = tomllib.loads(SIM_SM.read_text())
+    assert parse_station_config({**data, "envelope": {}}).envelope.tolerance == ENVELOPE_TOLERANCE
+    bad = {**data, "envelope": {"qm_min": [0, 0, 0, 0], "qm_max": [1, 1, -1, 1]}}
+    with pytest.raises(ConfigError, match="envelope.qm_max: every"):
+        parse_station_config(bad, "st.toml")
+    with pytest.raises(ConfigError, match="envelope.tolerance.speed: unknown channel"):
+        parse_station_config({**data, "envelope": {"tolerance": {"speed": 1.0}}}, "st.toml")
+
+
+def test_departures_along_the_path_and_modulo_2pi():
+    tol = {"distance": 0.01, "tilt": 0.05}
+    path = [{"distance": 0.10, "tilt": 3.12}, {"distance": 0.20, "tilt": -3.10}]
+    # somewhere on the path it matches; the tilt near +-pi compares modulo 2 pi
+    assert departures({"distance": 0.205, "tilt": 3.14}, path, tol) == {}
+    bad = departures({"distance": 0.30, "tilt": 0.0}, path, tol)
+    assert set(bad) == {"distance", "tilt"} and bad["distance"] == (0.30, 0.20)
+    assert departures({"distance": 0.3}, {"distance": 0.3, "yaw": 1.0}, tol) == {}
+
+
+@pytest.fixture(scope="module")
+def sim_rig(tmp_path_factory):
+    """The unseen arm in its own process, its devices opened (4x faster moves)."""
+    folder = tmp_path_factory.mktemp("envelope")
+    cfg = fast_config("agebot-sm", folder)
+    with SimulatorProcess("agebot-sm", truth=str(UNSEEN), config=str(cfg), seed=21) as sim:
+        with Rig(sim.station_config()) as rig:
+            yield sim, rig
+
+
+def test_the_simulated_arm_refuses_a_target_beyond_its_travel(sim_rig):
+    """A set-point outside the physical range (the rail's +-2 m through the true
+    transmission) is a drive FAULT with EMCY 0x8612 naming the node; the axis stays;
+    after a reset the arm moves again."""
+    sim, rig = sim_rig
+    truth = load_truth(UNSEEN)
+    names = get_robot("agebot-sm").param_names
+    k1, off1 = truth.xi()[names.index("k1")], truth.xi()[names.index("q1_off")]
+    start = np.array(rig.qm())
+    beyond = start.copy()
+    beyond[0] = (2.0 - off1) / k1 + 1.0           # 1 unit past the rail's end
+    with pytest.raises(ProtocolError) as e:
+        rig.move_to(beyond)
+    assert e.value.code == 0x8612 and "end of its travel" in str(e.value)
+    assert "node 1" in str(e.value)
+    with sim.control() as ctl:
+        np.testing.assert_allclose(ctl.call(state=True)["qm"], start, atol=1e-4)   # one increment
+    rig.recover()
+    inside = start.copy()
+    inside[0] += 2.0
+    rig.move_to(inside)
+    np.testing.assert_allclose(rig.qm(), inside, atol=1e-4)
+    rig.move_to(start)
+
+
+def test_the_watch_stops_a_move_the_model_does_not_explain(sim_rig):
+    """The true model sees the move through; a model whose k2 is 30 % off stops the arm
+    on the way, short of the target, and says which channel departed."""
+    sim, rig = sim_rig
+    robot = get_robot("agebot-sm")
+    truth = load_truth(UNSEEN).xi()
+    env = dataclasses.replace(rig.config.envelope, tolerance={"distance": 0.02, "tilt": 0.03})
+    start = np.array(rig.qm())
+    rig.zero_drawwire()
+    target = start + np.array([4.0, 30.0, -25.0, 20.0])
+    watched_move(rig, target, sm_predictor("sm-distance-tilt", robot, truth, start), env, 20.0)
+    np.testing.assert_allclose(rig.qm(), target, atol=1e-4)
+    wrong = truth.copy()
+    wrong[robot.index("k2")] *= 1.3
+    with pytest.raises(EnvelopeStop) as e:
+        watched_move(rig, start, sm_predictor("sm-distance-tilt", robot, wrong, start), env, 20.0)
+    assert "tilt" in e.value.departed or "distance" in e.value.departed
+    here = np.array(rig.qm())
+    assert np.max(np.abs(here - start)) > 1.0           # stopped on the way
+    np.testing.assert_allclose(here, e.value.qm, atol=5.0)     # where it was seen, give or take a read
+    with sim.control() as ctl:
+        assert ctl.call(state=True)["target_reached"]
+    assert math.isfinite(here.sum())

@@ -1,0 +1,64 @@
+"""Whole simulated sessions on arms that are not the report's (issue 10).
+
+Each arm is drawn around the nominal (``draw_truth``: gear ratios +-40 %, lengths
++-5 %, offsets +-0.03) with the noise real devices have; the simulator runs in its
+own process and the session runs unattended (``station.sim_sessions``). The
+result is compared with the truth in the frame the session captured, angles
+modulo 2 pi; ``distance_off`` with the simulated draw-wire's zero reading.
+Seeds 9300-9309 and 9422 are used nowhere else (the bench uses 9100-).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calibration.robots import get_robot
+from station.planner import PlanRequest
+from station.sim_sessions import run_session, station_truth, summary
+from station.trace import read_trace
+
+FAR_SEED = 9422          # k1, k2, k4 32-38 % below the nominal, k3 16 % above
+SLOW_SEEDS = range(9300, 9310)
+
+
+def _gear_deviation(truth) -> np.ndarray:
+    robot = get_robot("agebot-sm")
+    x = truth.xi()
+    return np.array([x[robot.index(f"k{i}")] / robot.nominal[robot.index(f"k{i}")] - 1
+                     for i in range(1, 5)])
+
+
+def test_a_far_off_arm_completes_inside_the_envelope(tmp_path):
+    """Three gear ratios a third off the nominal: planned with the nominal, poses would
+    land up to 80 deg outside the box. The session scouts near the reference, refits,
+    re-plans where the envelope stops it, stays within the tolerance of its box and
+    ends with every parameter within 5 std of the truth."""
+    truth = station_truth("agebot-sm", FAR_SEED)
+    assert np.sum(np.abs(_gear_deviation(truth)) > 0.3) >= 3
+    score = run_session(truth, tmp_path, seed=FAR_SEED,
+                        request=PlanRequest(count=24, validation=6, seed=FAR_SEED))
+    assert score.completed, score.error
+    assert score.worst < 5.0, dict(zip(score.names, np.round(score.z, 2)))
+    assert len(score.z) == 14 and "distance_off" in score.names
+    # the tilt is watched (tolerance 5 deg); the position only through the distance
+    # (5 cm), so a pose may lie a little farther than that from where it was planned
+    assert score.excursion["phi"] <= 0.0873 and max(score.excursion[c] for c in "xyz") <= 0.1
+    trace = read_trace(tmp_path / "run" / "trace.jsonl")
+    assert len(trace.fit_poses) == 24 and len(trace.validation_poses) == 6
+    plans = [e for e in trace.events if e["kind"] == "plan"]
+    assert plans[0]["box_scale"] < 1.0 and plans[-1]["box_scale"] <= 1.0   # scout first
+
+
+@pytest.mark.slow
+def test_ten_drawn_arms_are_calibrated_within_their_std(tmp_path):
+    """Ten arms: every session completes, every calibrated parameter lies within 5 std
+    of the truth, and the pooled RMS of error/std is between 0.8 and 1.3."""
+    scores = [run_session(station_truth("agebot-sm", s), tmp_path / f"s{s}", seed=s,
+                          request=PlanRequest(count=24, validation=6, seed=s))
+              for s in SLOW_SEEDS]
+    s = summary(scores)
+    failed = {sc.seed: sc.error for sc in scores if not sc.completed}
+    assert not failed
+    assert s["worst"] < 5.0, s["worst_per_parameter"]
+    assert 0.8 <= s["rms"] <= 1.3, s
+    assert s["n_errors"] == 10 * 14
