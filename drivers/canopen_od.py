@@ -20,7 +20,7 @@ EMCY_TEXT = {
     0x5530: "non-volatile memory (EEPROM) error", 0x6320: "parameter error",
     0x7305: "incremental sensor 1 fault", 0x8110: "CAN overrun (objects lost)",
     0x8130: "life guard or heartbeat error", 0x8611: "following error",
-    0x8612: "reference limit (the axis reached the end of its travel range)", 0xFF00: "device specific",
+    0x8612: "reference limit", 0xFF00: "device specific",
 }
 NMT_OPERATIONAL = 5                       # NMT state code in heartbeats
 

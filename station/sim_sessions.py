@@ -25,7 +25,8 @@ import numpy as np
 from calibration import planning
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
-from drivers.config import load_station_config, with_endpoints
+from drivers.config import load_station_config
+from drivers.endpoints import with_endpoints
 from drivers.sim.truth import SimTruth, draw_truth, save_truth
 
 ROOT = Path(__file__).resolve().parents[1]

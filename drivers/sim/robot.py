@@ -45,6 +45,11 @@ that rod goes to FAULT with EMCY 0x8612 (reference limit) whose manufacturer
 bytes name what was hit (:data:`LIMIT_NAMES`: ``STRK`` stroke, ``SLDJ`` slider
 joint, ``PLTJ`` platform joint, ``CTRJ`` centre joint, ``REACH`` a rod cannot reach).
 
+Physical limits (SM): each axis travels the true robot's joint range (rail
++-2 m, joints +-170 deg) through the true transmission (:meth:`physical_limits`);
+a set-point beyond is refused by the drive: FAULT, EMCY 0x8612 with manufacturer
+bytes ``TRVL``, the axis stays where it is.
+
 The draw-wire reads ``|p - anchor|`` (m) where ``p`` is the end-effector
 position (SM: ``X[:3]``; PM: the fixed platform centre ``(0, 0, v)``) and the
 anchor is the true ``p`` when :meth:`SimulatedAgebot.zero_drawwire` was called

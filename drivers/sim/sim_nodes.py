@@ -9,7 +9,8 @@ controlword writes, target reached from a :class:`~drivers.sim.axis.SimAxis`,
 EMCY on fault (``drive_fault_node`` of the fault plan goes to FAULT with EMCY
 0x8611, following error, at its next set-point, once); a set-point outside the
 axis's physical travel range (:class:`~drivers.sim.axis.AxisLimit`) puts it in
-FAULT with EMCY 0x8612 (reference limit) and does not move it.
+FAULT with EMCY 0x8612 (reference limit, manufacturer bytes ``TRVL``) and does not
+move it.
 
 Positions: increments = round(axis position [units] * resolution
 [increments/unit]); 0x6081 in increments/s and 0x6083 in increments/s^2.
@@ -170,7 +171,7 @@ class SimDrive402(SimNode):
                               acc / self.resolution if acc else None)
         except AxisLimit as e:      # the drive's limit switch / software position limit
             log.warning("node %d: %s", self.id, e)
-            self.fault(0x8612)
+            self.fault(0x8612, register=0x21, data=b"TRVL")   # manufacturer bytes: travel
             return
         self.ack = True
 

@@ -64,7 +64,8 @@ def sim_rig(tmp_path_factory):
 
 def test_the_simulated_arm_refuses_a_target_beyond_its_travel(sim_rig):
     """A set-point outside the physical range (the rail's +-2 m through the true
-    transmission) is a drive FAULT with EMCY 0x8612 naming the node; the axis stays;
+    transmission) is a drive FAULT with EMCY 0x8612 naming the node and, in its
+    manufacturer bytes, the travel; the axis stays;
     after a reset the arm moves again."""
     sim, rig = sim_rig
     truth = load_truth(UNSEEN)
@@ -75,7 +76,7 @@ def test_the_simulated_arm_refuses_a_target_beyond_its_travel(sim_rig):
     beyond[0] = (2.0 - off1) / k1 + 1.0           # 1 unit past the rail's end
     with pytest.raises(ProtocolError) as e:
         rig.move_to(beyond)
-    assert e.value.code == 0x8612 and "end of its travel" in str(e.value)
+    assert e.value.code == 0x8612 and "reference limit (drive says 'TRVL')" in str(e.value)
     assert "node 1" in str(e.value)
     with sim.control() as ctl:
         np.testing.assert_allclose(ctl.call(state=True)["qm"], start, atol=1e-4)   # one increment
