@@ -36,7 +36,7 @@ from calibration.methods import MethodData, build
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots.agebot_sm import wrap
 from calibration.solver import SolverOptions, solve
-from station import planner
+from station import planner, resume
 from station.envelope import sm_predictor, within_limits
 
 log = logging.getLogger("station.session")
@@ -266,7 +266,8 @@ class ArmRounds:
         s = self.s
         for p in s.pending:
             if p.round == stopped_round:
-                s._skip(p, f"pose {p.index} dropped: re-planned after the envelope stop")
+                s._skip(p, f"pose {p.index} dropped: re-planned after the envelope stop",
+                        resume.DROPPED)
         learnt = len(s.measured)
         if self.learnt_at_stop is not None and learnt <= self.learnt_at_stop:
             scale *= 0.5            # nothing learnt since the last stop: closer in

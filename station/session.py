@@ -815,7 +815,7 @@ class Session:
         env = self.config.envelope
         why = limit_violation(pose.qm, env)
         if why is not None:
-            self._skip(pose, f"pose {pose.index} skipped before moving: {why}")
+            self._skip(pose, f"pose {pose.index} skipped before moving: {why}", resume.DROPPED)
             return False
         predict = self.rounds.predictor() if self.rounds is not None else None
         try:
@@ -824,7 +824,7 @@ class Session:
             self._event("envelope", f"pose {pose.index}: {e}", plan_index=pose.index,
                         qm=e.qm.tolist(), departed={k: list(v) for k, v in e.departed.items()})
             self._skip(pose, f"pose {pose.index} not recorded: the arm was stopped by the "
-                       "envelope")
+                       "envelope", resume.DROPPED)
             self.rounds.replan_after_stop(pose.round, self.rounds.scale_of(pose))
             return False
         return True
