@@ -818,13 +818,18 @@ class Session:
             self._skip(pose, f"pose {pose.index} skipped before moving: {why}", resume.DROPPED)
             return False
         predict = self.rounds.predictor() if self.rounds is not None else None
+        came_from = self.qm() if predict is not None else None
         try:
             watched_move(self._rig(), pose.qm, predict, env, self.config.canopen.move_timeout)
         except EnvelopeStop as e:
-            self._event("envelope", f"pose {pose.index}: {e}", plan_index=pose.index,
-                        qm=e.qm.tolist(), departed={k: list(v) for k, v in e.departed.items()})
+            self._event("envelope", f"pose {pose.index}: {e}; back to where the move started",
+                        plan_index=pose.index, qm=e.qm.tolist(),
+                        departed={k: list(v) for k, v in e.departed.items()})
             self._skip(pose, f"pose {pose.index} not recorded: the arm was stopped by the "
                        "envelope", resume.DROPPED)
+            # back the way it came (the same straight line in actuator space): where the
+            # model departs already, every move from there would be stopped at once
+            self._rig().move_to(came_from)
             self.rounds.replan_after_stop(pose.round, self.rounds.scale_of(pose))
             return False
         return True
