@@ -96,6 +96,7 @@ class PlanRequest:
     seed: int = 0
     margin: float = 2.0
     components: tuple[str, ...] = ("alpha", "beta", "gamma")
+    grow: bool = False    # the arm's distance methods in rounds, live-watched (arm_rounds)
     notes: list[str] = field(default_factory=list)
     design: str = "optimal"
     target: tuple[str, float] | None = None

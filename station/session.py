@@ -598,8 +598,11 @@ class Session:
 
     @property
     def rounds(self) -> ArmRounds | None:
-        """The arm's round plan and envelope model (distance methods), else None."""
-        if (self._rounds is None and self.method in ROUND_METHODS
+        """The arm's round plan and envelope model (distance methods, with
+        ``PlanRequest.grow`` or resuming such a session), else None."""
+        grow = self.request.grow or any("box_scale" in e for e in self.events
+                                         if e.get("kind") == "plan")   # a resumed one
+        if (self._rounds is None and grow and self.method in ROUND_METHODS
                 and self.robot.name == "agebot-sm"):
             self._rounds = ArmRounds(self)
         return self._rounds

@@ -14,6 +14,7 @@ Nothing here is used by a real station; it needs the simulator.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
 import traceback
@@ -130,7 +131,7 @@ def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, see
     save_truth(truth, truth_file)
     cfg = fast_config(robot, folder, speed, truth)
     score = SessionScore(seed=seed, robot=robot, method=method, completed=False)
-    req = request or PlanRequest(seed=seed)
+    req = dataclasses.replace(request or PlanRequest(seed=seed), grow=True)
     with SimulatorProcess(robot, truth=str(truth_file), config=str(cfg), seed=seed) as sim:
         config = with_endpoints(load_station_config(cfg), sim.endpoints, source="simulator")
         s = Session(config, method, folder / "run", request=req)

@@ -72,12 +72,10 @@ def test_sm_distance_tilt_session(open_window, qtbot, tmp_path, answers):
     # covered by the session's own tests once it replays replaced plans)
     qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
     plan = win.page(PageId.PLAN)
-    # the arm's scout round (station/arm_rounds.py); the rest is planned from its fit
-    qtbot.waitUntil(lambda: plan.table.rowCount() == 6, timeout=TIMEOUT)
+    qtbot.waitUntil(lambda: plan.table.rowCount() == 28, timeout=TIMEOUT)
     wait_idle(qtbot, c)
-    assert "6 poses to fit + 0 held out; eq. 60 minimum 33" in plan.counts.text()
-    assert "scout round" in plan.counts.text() and "24 fit poses + 4 held out" in plan.counts.text()
-    assert plan.plot.count == 6
+    assert "24 poses to fit + 4 held out; eq. 60 minimum 33" in plan.counts.text()
+    assert plan.plot.count == 28
     screenshot(win, "03-plan")
 
     # 4 execute, a drive fault answered Retry, then the window closes mid-run
