@@ -48,23 +48,16 @@ def _truth_file(tmp_path, robot_file, seed) -> Path:
 
 def _fast_config(tmp_path, robot_file) -> Path:
     """A station config naming the robot file (``robot_file``), moves 3x faster."""
-    import tomllib  # noqa: F401  (the text below is TOML)
-
     data = sim_config_data(load_robot_file(robot_file), velocity=6.0, acceleration=60.0)
     lines = [f'robot_file = "{robot_file}"']
 
     def emit(prefix, table):
         lines.append(f"[{prefix}]")
-        sub = []
+        lines.extend(f"{k} = {json.dumps(v)}" for k, v in table.items()
+                     if not isinstance(v, dict))
         for k, v in table.items():
-            if isinstance(v, dict) and all(isinstance(x, dict) for x in v.values()):
-                sub.append((f"{prefix}.{k}", v))
-            elif isinstance(v, dict):
-                sub.append((f"{prefix}.{k}", v))
-            else:
-                lines.append(f"{k} = {json.dumps(v)}")
-        for p, t in sub:
-            emit(p, t)
+            if isinstance(v, dict):
+                emit(f"{prefix}.{k}", v)
 
     for key in ("canopen", "inclinometer", "drawwire", "snapshot"):
         emit(key, data[key])
