@@ -17,29 +17,47 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import warnings
 
 
 def _cmd_batch(args) -> int:
     from calibration.solver import SolverOptions
-    from station.batch import calibrate_trace, format_table
+    from station.batch import calibrate_trace, format_table, write_outputs
 
+    _check_outputs((args.out, "the parameter file"), (args.report, "the report"),
+                   inputs=(args.trace,))
     opts = SolverOptions(max_iter=args.max_iter)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        outcome = calibrate_trace(args.trace, out=args.out, method=args.method,
-                                  residual=args.residual, options=opts)
+        outcome = calibrate_trace(args.trace, method=args.method, residual=args.residual,
+                                  options=opts, accept_poor_fit=args.accept_poor_fit)
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
     print(format_table(outcome))
+    outcome = write_outputs(outcome, args.trace, args.out, args.report)
     if args.report:
-        from station.report import write_report
-
-        write_report(args.report, outcome)
         print(f"report written to {args.report}")
     print(f"parameter file written to {args.out} ({outcome.document['checksum']})")
     return 0
+
+
+def _check_outputs(*outputs, inputs=()) -> None:
+    """Refuse, before any work, output files (``(path, what)``, path None = not
+    asked for) that cannot be written or would overwrite an input or each other."""
+    from calibration.errors import ConfigError
+    from drivers.atomic import check_writable
+
+    seen: dict = {}
+    for path, what in outputs:
+        if not path:
+            continue
+        check_writable(path, what, inputs=inputs)
+        key = os.path.abspath(path)
+        if key in seen:
+            raise ConfigError(f"cannot write {what} {path}: it is also {seen[key]}")
+        seen[key] = what
 
 
 def _cmd_params_verify(args) -> int:
@@ -77,6 +95,7 @@ def _cmd_trace_generate(args) -> int:
     from station.tracegen import generate_from_truth
     from station.units import MM_DEG, channel_si
 
+    _check_outputs((args.out, "the trace"), inputs=(args.truth,))
     noise = generate_from_truth(
         args.out, args.method, truth=args.truth, noise=args.noise or (), seed=args.seed,
         count=args.count, known=tuple(k for k in (args.known or "").split(",") if k),
@@ -125,6 +144,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--residual", choices=("plain", "squared"),
                    help="distance residual D_M - D (plain, default) or D_M^2 - D^2 (report)")
     b.add_argument("--max-iter", type=int, default=1000)
+    b.add_argument("--accept-poor-fit", action="store_true",
+                   help="write the parameter file even if the fit fails the quality gate "
+                        "(recorded in its fit.quality)")
     b.set_defaults(func=_cmd_batch)
 
     pa = sub.add_parser("params", help="parameter files")
@@ -224,6 +246,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--nominal", action="append", metavar="NAME=VALUE",
                    help="a start value the engineer knows (repeatable), e.g. k3=1.111e-4; "
                         "sm-plane also plane_a/plane_b/plane_c")
+    r.add_argument("--accept-poor-fit", action="store_true",
+                   help="export the calibration even if the fit fails the quality gate "
+                        "(recorded in the parameter file's fit.quality)")
     r.set_defaults(func=_delegate("station.headless", "main"))
 
     st = sub.add_parser("study", help="Monte Carlo calibrations over robots drawn around the "
@@ -260,6 +285,10 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _one_line(e) -> str:
+    return " ".join(str(e).split())
+
+
 def main(argv=None) -> int:
     from calibration.errors import StationError
 
@@ -272,7 +301,11 @@ def main(argv=None) -> int:
     try:
         return int(args.func(args) or 0)
     except StationError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {_one_line(e)}", file=sys.stderr)
+        return 2
+    except OSError as e:   # a file the command writes: disk full, permissions, ...
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"error: {where}{e.strerror or _one_line(e)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:
         print(str(e) or "interrupted", file=sys.stderr)

@@ -53,3 +53,35 @@ def write_atomic(path, data: bytes) -> None:
             os.close(dfd)
     except OSError:
         pass
+
+
+def check_writable(path, what: str = "the file", *, inputs=(), error=None) -> None:
+    """Refuse, before any work, an output file that cannot be written: its folder
+    missing or not writable (probed with an unnamed temporary file), the path a
+    folder, or the same file as one of ``inputs``. Raises ``error`` (a
+    :class:`calibration.errors.StationError` subclass; default ConfigError) with
+    one line: ``cannot write <what> <path>: <reason>``."""
+    from calibration.errors import ConfigError
+
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    reason = None
+    if not folder.is_dir():
+        reason = f"the folder {folder} does not exist"
+    elif path.is_dir():
+        reason = "it is a folder"
+    else:
+        for other in inputs:
+            if other and (os.path.abspath(other) == os.path.abspath(path)
+                          or (path.exists() and os.path.exists(other)
+                              and os.path.samefile(other, path))):
+                reason = f"it is the input {other}; choose another file"
+                break
+    if reason is None:
+        try:
+            with tempfile.TemporaryFile(dir=folder):
+                pass
+        except OSError as e:
+            reason = f"the folder {folder} is not writable ({e.strerror or e})"
+    if reason:
+        raise (error or ConfigError)(f"cannot write {what} {path}: {reason}")

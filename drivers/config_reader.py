@@ -141,5 +141,10 @@ def load_json(path: str | Path):
         return json.loads(Path(path).read_text(encoding="utf-8"))
     except OSError as e:
         raise ConfigError(f"cannot read: {e.strerror or e}", source=str(path)) from e
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"not UTF-8 text ({e.reason} at byte {e.start}): save it as UTF-8",
+                          source=str(path)) from None
     except json.JSONDecodeError as e:
         raise ConfigError(f"not valid JSON: {e}", source=str(path)) from e
+    except RecursionError:
+        raise ConfigError("the JSON is nested too deeply", source=str(path)) from None

@@ -5,7 +5,9 @@ parameter file is written unless the fit converged.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
+import os
 import warnings
 from dataclasses import dataclass
 
@@ -18,7 +20,8 @@ from calibration.robots import get_robot
 from calibration.robots.base import canonical_result
 from calibration.solver import CalibrationResult, SolverOptions, solve
 from station.arm_rounds import ROUND_METHODS, staged_start
-from station.params_file import params_document, write_params
+from station.gate import FitQualityError, NotConverged, Quality, gated_fit
+from station.params_file import checksum, params_document, write_params
 from station.trace import Trace, read_trace
 
 # vector channels of a trace and the solver's row channels they map to
@@ -41,6 +44,8 @@ class BatchOutcome:
     result: CalibrationResult
     nominal: np.ndarray
     document: dict | None
+    quality: Quality | None = None
+    validation: list | None = None
 
 
 def solver_sigma(model, trace: Trace) -> dict | None:
@@ -92,32 +97,27 @@ def frame_statement(trace: Trace) -> dict | None:
 
 def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | None = None,
                     residual: str | None = None, options: SolverOptions | None = None,
-                    callback=None) -> BatchOutcome:
+                    callback=None, accept_poor_fit: bool = False) -> BatchOutcome:
     """Read a trace file and :func:`calibrate` it."""
     trace = read_trace(trace_path, method_override=method)
     return calibrate(trace, out=out, method=method, residual=residual, options=options,
-                     callback=callback)
+                     callback=callback, accept_poor_fit=accept_poor_fit)
 
 
-def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None,
-              residual: str | None = None, options: SolverOptions | None = None,
-              callback=None) -> BatchOutcome:
-    """Calibrate the fit poses of ``trace``; write the parameter file ``out`` if given.
-    ``callback(k, iteration)`` is called after every iteration (live plots)."""
-    trace_path = trace.path
-    model, nominal = make_model(trace, method=method, residual=residual)
-    opts = options or SolverOptions()
-    fixed = tuple(getattr(model.robot, "fixed", ()) or ())
-    if fixed and not opts.fixed:  # the robot file's fixed parameters
-        opts = SolverOptions(**{**opts.__dict__, "fixed": fixed})
-    if opts.sigma is None:
-        sig = solver_sigma(model, trace)
-        if sig:
-            opts = SolverOptions(**{**opts.__dict__, "sigma": sig})
-    for note in getattr(model, "notes", ()) or ():
-        if "ill-conditioned" in note:
-            warnings.warn(note, ConditioningWarning, stacklevel=2)
-    result = solve(model, opts, callback=callback)
+def _fit(trace: Trace, method, residual, opts, callback, model=None, start=None):
+    """Algorithm 2 on ``trace`` (or ``model``), from ``start`` if given (a refit
+    without outliers); the model keeps its own start values as the nominal."""
+    if model is None:
+        model, _ = make_model(trace, method=method, residual=residual)
+    if start is not None and np.all(np.isfinite(start)):
+        nominal = model.x0
+        model.x0 = np.asarray(start, dtype=float).copy()
+        try:
+            result = solve(model, opts, callback=callback)
+        finally:
+            model.x0 = nominal
+    else:
+        result = solve(model, opts, callback=callback)
     if not result.converged and model.method in ROUND_METHODS:
         result = _from_staged_start(trace, model, opts, callback) or result
     # angles written wrapped to (-pi, pi], the SM's a0 >= 0 (file-formats.md)
@@ -126,21 +126,100 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
         infl = [s.name for s in result.status if not s.identifiable and s.influences_model]
         hint = (f"; not identifiable and influencing the model: {', '.join(infl)} (their start "
                 f"values must be right)" if infl else "")
-        raise CalibrationError(f"the calibration did not converge: {result.message}{hint}")
-    need = ident.minimum_poses(result.n_identifiable, model.p)
-    doc = None
-    notes = list(getattr(model, "notes", ()) or ())
-    if model.n_poses < need:
-        notes.append(f"only {model.n_poses} poses for {result.n_identifiable} identifiable "
-                     f"parameters; eq. 60 recommends at least {need}")
+        raise NotConverged(f"the calibration did not converge: {result.message}{hint}", model)
+    return model, result
+
+
+def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None,
+              residual: str | None = None, options: SolverOptions | None = None,
+              callback=None, accept_poor_fit: bool = False) -> BatchOutcome:
+    """Calibrate the fit poses of ``trace`` and pass the fit-quality gate
+    (:mod:`station.gate`: outliers left out and refitted, noise, validation, pose
+    spread); write the parameter file ``out`` if given. A failed gate raises
+    :class:`station.gate.FitQualityError` (nothing written) unless
+    ``accept_poor_fit``. ``callback(k, iteration)`` is called after every
+    iteration of the first fit (live plots)."""
+    trace_path = trace.path
+    model, _ = make_model(trace, method=method, residual=residual)
+    opts = options or SolverOptions()
+    fixed = tuple(getattr(model.robot, "fixed", ()) or ())
+    if fixed and not opts.fixed:  # the robot file's fixed parameters
+        opts = SolverOptions(**{**opts.__dict__, "fixed": fixed})
+    for note in getattr(model, "notes", ()) or ():
+        if "ill-conditioned" in note:
+            warnings.warn(note, ConditioningWarning, stacklevel=2)
+    stated = None
+    if opts.sigma is None:
+        stated = solver_sigma(model, trace)
+        if stated:
+            opts = SolverOptions(**{**opts.__dict__, "sigma": stated})
+    else:
+        stated = dict(opts.sigma)
+
+    def validate(tr, mo, re):
+        from station.validation import validation_errors
+
+        return validation_errors(BatchOutcome(tr, mo, re, mo.x0, None))
+
+    quality, trace, model, result, validation = gated_fit(
+        trace, model, first=lambda: _fit(trace, method, residual, opts, callback, model),
+        refit=lambda tr, start: _fit(tr, method, residual, opts, None, start=start),
+        stated_sigma=stated,
+        validate=validate)
+    outcome = BatchOutcome(trace, model, result, model.x0, None, quality, validation)
+    if not quality.passed:
+        if not accept_poor_fit:
+            raise FitQualityError(f"the fit failed the quality gate: {quality.summary()} "
+                                  f"(no parameter file written; --accept-poor-fit to keep it "
+                                  f"anyway)", outcome)
+        quality.accepted = True
     if out:
-        src = trace.header.get("robot_file")
-        doc = params_document(result, robot=trace.robot, nominal=model.x0, trace_path=trace_path,
-                              poses=model.n_poses,
-                              frame=frame_statement(trace), notes=notes,
-                              extra={"robot_file": src} if src else None)
-        doc = write_params(out, doc)
-    return BatchOutcome(trace, model, result, model.x0, doc)
+        outcome = write_outputs(outcome, trace_path, out)
+    return outcome
+
+
+def write_outputs(outcome: BatchOutcome, trace_path: str | None, out, report=None,
+                  **report_options) -> BatchOutcome:
+    """Write the parameter file ``out`` and, if given, the HTML ``report``: both or
+    neither (the report first; removed again if the parameter file cannot be
+    written). Returns the outcome with its document."""
+    doc = outcome_document(outcome, trace_path)
+    doc["checksum"] = checksum(doc)
+    outcome = dataclasses.replace(outcome, document=doc)
+    if report:
+        from station.report import write_report
+
+        write_report(report, outcome, **report_options)
+    try:
+        write_params(out, doc)
+    except BaseException:
+        if report:
+            try:
+                os.unlink(report)
+            except OSError:
+                pass
+        raise
+    return outcome
+
+
+def outcome_document(outcome: BatchOutcome, trace_path: str | None,
+                     notes: list[str] | None = None) -> dict:
+    """The parameter file's content (no checksum) for a calibration outcome: batch,
+    session and the GUI's offline page write the same fields, ``fit.quality``
+    included. ``notes`` default to the model's and eq. 60's."""
+    if notes is None:
+        notes = list(getattr(outcome.model, "notes", ()) or ())
+        res, model = outcome.result, outcome.model
+        need = ident.minimum_poses(res.n_identifiable, model.p)
+        if model.n_poses < need:
+            notes.append(f"only {model.n_poses} poses for {res.n_identifiable} identifiable "
+                         f"parameters; eq. 60 recommends at least {need}")
+    quality = outcome.quality.as_dict() if outcome.quality is not None else None
+    src = outcome.trace.header.get("robot_file")
+    return params_document(outcome.result, robot=outcome.trace.robot,
+                           nominal=outcome.model.x0, trace_path=trace_path,
+                           poses=outcome.model.n_poses, frame=frame_statement(outcome.trace), notes=notes, quality=quality,
+                           extra={"robot_file": src} if src else None)
 
 
 def _from_staged_start(trace: Trace, model, opts, callback):
@@ -193,4 +272,6 @@ def format_table(outcome: BatchOutcome) -> str:
         lines.append(f"note: {note}")
     if outcome.trace.method == "sm-distance-tilt" and "robot_file" not in outcome.trace.header:
         lines.append("note: theta0, a0 and q1_off refer to the captured base origin")
+    if outcome.quality is not None:
+        lines.extend(outcome.quality.lines())
     return "\n".join(lines)

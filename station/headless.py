@@ -72,6 +72,7 @@ class TerminalProgress:
 
 def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
+    accept = bool(getattr(args, "accept_poor_fit", False))
     request = PlanRequest(count=getattr(args, "count", None), seed=getattr(args, "seed", 0) or 0,
                           design=getattr(args, "design", None) or "optimal",
                           target=parse_target(getattr(args, "target_std", None)))
@@ -106,13 +107,14 @@ def main(args: argparse.Namespace) -> int:
                               seed=seed, pose_noise=True) as sim:
             config = with_endpoints(config, sim.endpoints, source="simulator")
             if args.method not in TOUCH_METHODS:
-                return _run(config, args.method, out, request, nominal, station=record)
+                return _run(config, args.method, out, request, nominal, station=record,
+                            accept=accept)
             from station.sim_operator import SimulatedOperator
 
             with sim.control() as control:
                 return _run(config, args.method, out, request, {**nominal, **measured},
                             touch=SimulatedOperator(control), measured=measured,
-                            station=record)
+                            station=record, accept=accept)
     if args.method in TOUCH_METHODS:
         raise ConfigError(f"{args.method} is measured by guided touching, and a headless run "
                           "has no operator to bring the tool into contact: use --simulate "
@@ -123,7 +125,7 @@ def main(args: argparse.Namespace) -> int:
     config = load_station_config(args.config)
     if getattr(args, "endpoints", None):
         config = with_endpoints(config, load_endpoints(args.endpoints), source=args.endpoints)
-    return _run(config, args.method, out, request, nominal)
+    return _run(config, args.method, out, request, nominal, accept=accept)
 
 
 def simulator_seed(truth: str, given: int | None) -> int:
@@ -171,7 +173,8 @@ def engineer_measurements(robot: str, method: str, truth: str | None, given: dic
 
 
 def _run(config, method: str, out: Path, request: PlanRequest, nominal: dict, *,
-         touch=None, measured: dict | None = None, station: dict | None = None) -> int:
+         touch=None, measured: dict | None = None, station: dict | None = None,
+         accept: bool = False) -> int:
     from calibration.methods import METHODS
     from station.units import from_config
 
@@ -181,7 +184,7 @@ def _run(config, method: str, out: Path, request: PlanRequest, nominal: dict, *,
     progress = TerminalProgress(units=units, hidden=hide)
     try:
         return _session(config, method, out, request, nominal, touch, measured, station,
-                        progress, units)
+                        progress, units, accept)
     except KeyboardInterrupt:
         kept = _recorded_poses(out / "trace.jsonl")
         print(file=sys.stderr)
@@ -212,11 +215,12 @@ def _recorded_poses(path: Path) -> int:
 
 
 def _session(config, method, out, request, nominal, touch, measured, station, progress,
-             units) -> int:
+             units, accept=False) -> int:
     from station.batch import format_table
 
     with Session(config, method, out, request=request, observer=progress,
-                 nominal=nominal, touch=touch, station=station) as s:
+                 nominal=nominal, touch=touch, station=station,
+                 accept_poor_fit=accept) as s:
         if s.finished:
             print(f"the session in {out} is finished ({len(s.measured)} poses recorded and "
                   "exported): its result again; the files are left as they are", flush=True)

@@ -44,10 +44,11 @@ def _f(v):
 
 def params_document(result, *, robot: str, nominal: np.ndarray, trace_path: str | None,
                     poses: int, frame: dict | None = None, notes: list[str] | None = None,
-                    extra: dict | None = None) -> dict:
+                    extra: dict | None = None, quality: dict | None = None) -> dict:
     """The parameter file's content (without checksum) for a solver result; ``poses``
     is the number of fit poses (the model's ``n_poses``; a pose gives one row per
-    measured channel, ``fit.rows``)."""
+    measured channel, ``fit.rows``); ``quality`` the fit-quality gate's result
+    (``fit.quality``)."""
     params = {}
     for j, (name, st) in enumerate(zip(result.names, result.status)):
         params[name] = {
@@ -81,6 +82,8 @@ def params_document(result, *, robot: str, nominal: np.ndarray, trace_path: str 
         "covariance": {"names": list(result.covariance_names),
                        "matrix": [[float(v) for v in row] for row in np.atleast_2d(result.covariance)]},
     }
+    if quality is not None:
+        doc["fit"]["quality"] = quality
     if frame is not None:
         doc["frame"] = frame
     if notes:
@@ -98,29 +101,136 @@ def write_params(path, doc: dict) -> dict:
     return doc
 
 
+_NUM = {"type": "number"}
+_NUM_OR_NULL = {"type": ["number", "null"]}
+# The parameter file's structure (file-formats.md); values are checked by _check_values.
+SCHEMA = {
+    "type": "object",
+    "required": ["format", "version", "robot", "method", "created", "parameters", "fit",
+                 "covariance", "checksum"],
+    "properties": {
+        "format": {"const": FORMAT},
+        "version": {"type": "integer", "const": VERSION},
+        "robot": {"type": "string"},
+        "method": {"type": "string"},
+        "created": {"type": "string"},
+        "checksum": {"type": "string", "pattern": "^sha256:[0-9a-f]{64}$"},
+        "source_trace": {"oneOf": [{"type": "null"}, {
+            "type": "object", "required": ["file", "sha256"],
+            "properties": {"file": {"type": "string"}, "sha256": {"type": "string"}}}]},
+        "parameters": {"type": "object", "minProperties": 1, "additionalProperties": {
+            "type": "object",
+            "required": ["value", "nominal", "std", "identifiable", "influences_model"],
+            "properties": {"value": _NUM, "nominal": _NUM,
+                           "std": {"oneOf": [{"type": "null"}, {"type": "number", "minimum": 0}]},
+                           "identifiable": {"type": "boolean"},
+                           "influences_model": {"type": "boolean"}}}},
+        "fit": {"type": "object",
+                "properties": {"converged": {"type": "boolean"},
+                               "iterations": {"type": "integer", "minimum": 0},
+                               "sigma": {"type": "object", "additionalProperties": _NUM_OR_NULL},
+                               "residual_rms": {"type": "object",
+                                                "additionalProperties": _NUM_OR_NULL},
+                               "condition_number": _NUM_OR_NULL,
+                               "quality": {"type": "object",
+                                           "required": ["passed", "accepted", "outliers", "checks"],
+                                           "properties": {"passed": {"type": "boolean"},
+                                                          "accepted": {"type": "boolean"},
+                                                          "outliers": {"type": "array"},
+                                                          "checks": {"type": "array"}}}}},
+        "covariance": {"type": "object", "required": ["names", "matrix"],
+                       "properties": {"names": {"type": "array", "items": {"type": "string"}},
+                                      "matrix": {"type": "array", "items": {
+                                          "type": "array", "items": _NUM}}}},
+        "frame": {"type": "object"},
+        "robot_file": {"type": "object"},
+        "notes": {"type": "array", "items": {"type": "string"}},
+    },
+}
+
+
+def _reject_constant(name):
+    raise ValueError(f"{name} is not a JSON number")
+
+
 def read_params(path) -> dict:
-    """Read and verify a parameter file: format, version, fields and checksum."""
+    """Read and verify a parameter file: structure against :data:`SCHEMA`, values
+    (robot, method, parameter names, covariance shape), and checksum."""
+    import jsonschema
+
     path = str(path)
     try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+        doc = json.loads(Path(path).read_text(encoding="utf-8"), parse_constant=_reject_constant)
     except OSError as e:
         raise TraceFormatError(f"cannot read the parameter file: {e.strerror}", file=path) from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+    except RecursionError:
+        raise TraceFormatError("the JSON is nested too deeply", file=path) from None
+    except (UnicodeDecodeError, ValueError) as e:  # JSONDecodeError is a ValueError
         raise TraceFormatError(f"not valid JSON ({e})", file=path) from None
     if not isinstance(doc, dict):
         raise TraceFormatError("a parameter file must be a JSON object", file=path)
     if doc.get("format") != FORMAT:
-        raise TraceFormatError(f"format must be {FORMAT!r}, not {doc.get('format')!r}", file=path)
-    if doc.get("version") != VERSION:
-        raise TraceFormatError(f"unsupported parameter file version {doc.get('version')!r} "
+        raise TraceFormatError(f"format must be {FORMAT!r}, not {_short(doc.get('format'))}",
+                               file=path)
+    if doc.get("version") != VERSION or isinstance(doc.get("version"), bool):
+        raise TraceFormatError(f"unsupported parameter file version {_short(doc.get('version'))} "
                                f"(this reader knows version {VERSION})", file=path)
-    for key in ("robot", "method", "created", "parameters", "fit", "covariance", "checksum"):
-        if key not in doc:
-            raise TraceFormatError(f"missing field {key!r}", file=path)
+    try:
+        err = jsonschema.exceptions.best_match(
+            jsonschema.Draft202012Validator(SCHEMA).iter_errors(doc))
+    except RecursionError:
+        raise TraceFormatError("the JSON is nested too deeply", file=path) from None
+    if err is not None:
+        where = ".".join(str(k) for k in err.absolute_path) or "the file"
+        raise TraceFormatError(f"{where}: {_short(err.message, 120)}", file=path)
+    _check_values(doc, path)
     if doc["checksum"] != checksum(doc):
         raise TraceFormatError("checksum does not match: the file was damaged or edited", file=path)
-    for name, p in doc["parameters"].items():
-        for key in ("value", "nominal", "std", "identifiable", "influences_model"):
-            if key not in p:
-                raise TraceFormatError(f"parameters.{name}: missing field {key!r}", file=path)
     return doc
+
+
+def _short(v, n: int = 60) -> str:
+    text = v if isinstance(v, str) and n > 60 else repr(v)
+    return text if len(text) <= n else text[:n - 3] + "..."
+
+
+def _check_values(doc: dict, path: str) -> None:
+    """What a schema cannot say: a known robot and method, the method's parameters,
+    a square covariance over calibrated parameters."""
+    from calibration.errors import ConfigError
+    from calibration.methods import METHODS, extra_params
+    from calibration.methods.sm_distance import DISTANCE_OFF
+    from calibration.robots import ROBOTS, get_robot
+    from drivers.robot_file import spec_from_source
+
+    def fail(msg):
+        raise TraceFormatError(msg, file=path)
+
+    robot, method = doc["robot"], doc["method"]
+    if "robot_file" in doc:
+        try:
+            model = get_robot(spec_from_source(doc["robot_file"], "robot_file"))
+        except ConfigError as e:
+            fail(" ".join(str(e).split()))
+        if model.name != robot:
+            fail(f"robot: {_short(robot)} is not the robot file's name {model.name!r}")
+    elif robot not in ROBOTS:
+        fail(f"robot: unknown robot {_short(robot)} (known: {', '.join(ROBOTS)}, or a file "
+             f"with robot_file)")
+    else:
+        model = get_robot(robot)
+    if method not in METHODS or METHODS[method].kind != model.kind:
+        fail(f"method: {_short(method)} is not a method of {robot}")
+    names = set(model.param_names) | set(extra_params(method, model))
+    if "distance" in METHODS[method].channels:
+        names.add(DISTANCE_OFF)       # a draw-wire zero that was a reading
+    extra = set(doc["parameters"]) - names
+    if extra:
+        fail(f"parameters: unknown {sorted(extra)} for {robot} {method}")
+    cov = doc["covariance"]
+    n = len(cov["names"])
+    if set(cov["names"]) - set(doc["parameters"]):
+        fail(f"covariance.names: not parameters: "
+             f"{sorted(set(cov['names']) - set(doc['parameters']))}")
+    if len(cov["matrix"]) != n or any(len(row) != n for row in cov["matrix"]):
+        fail(f"covariance.matrix must be {n} x {n} (one row and column per name)")

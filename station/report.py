@@ -30,7 +30,7 @@ import numpy as np
 
 from calibration import identifiability as ident
 from calibration.errors import StationError
-from drivers.atomic import write_atomic
+from drivers.atomic import check_writable, write_atomic
 from station import report_figures as figs
 from station.params_file import file_sha256
 from station.trace import utc_now
@@ -113,16 +113,20 @@ def write_report(path, outcome, *, validation=None, events=(), title=None,
 
 
 def _check_writable(path: Path) -> None:
-    folder = path.parent if str(path.parent) else Path(".")
-    reason = None
-    if not folder.is_dir():
-        reason = f"the folder {folder} does not exist"
-    elif path.is_dir():
-        reason = "it is a folder"
-    elif not os.access(folder, os.W_OK | os.X_OK):
-        reason = f"no permission to write in {folder}"
-    if reason:
-        raise ReportError(f"cannot write the report {path}: {reason}")
+    check_writable(path, "the report", error=ReportError)
+
+
+def _quality_view(outcome) -> dict | None:
+    """The fit-quality gate (station.gate): verdict, outliers left out, each check."""
+    q = getattr(outcome, "quality", None)
+    if q is None:
+        return None
+    verdict = "passed" if q.passed else (
+        "FAILED, accepted by the operator (--accept-poor-fit)" if q.accepted else "FAILED")
+    return {"ok": q.passed, "verdict": verdict,
+            "checks": [(c["ok"], c["message"]) for c in q.checks],
+            "outliers": [(o["pose"], o["channel"], f"{o['residual']:.4g}", f"{o['t']:.3g}",
+                          f"{o['threshold']:.3g}") for o in q.outliers]}
 
 
 def template_environment():
@@ -154,6 +158,7 @@ def render_report(outcome, *, validation=None, events=(), title=None, session=No
         "created": ctx.created,
         "summary": _summary_view(ctx, val_rows),
         "notes": _notes(ctx),
+        "quality": _quality_view(outcome),
         "params": _param_view(ctx),
         "channels": _channel_view(ctx),
         "figures": figs.figures(ctx),

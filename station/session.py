@@ -59,9 +59,10 @@ from drivers.check import hint_for
 from station import device_loss, planner, plausibility, resume, serial_plan
 from station.arm_rounds import ROUND_METHODS, SCOUT_SCALE, ArmRounds
 from station.envelope import EnvelopeStop, limit_violation, watched_move, within_limits
-from station.batch import BatchOutcome, calibrate, frame_statement
+from station.batch import BatchOutcome, calibrate, outcome_document
+from station.gate import FitQualityError
 from station.lock import FolderLock
-from station.params_file import params_document, read_params, write_params
+from station.params_file import read_params, write_params
 from station.planner import PlannedPose, PlanRequest
 from station.pose_design import design_text
 from station.trace import TraceWriter, read_trace, utc_now
@@ -161,13 +162,14 @@ class Session:
               brings the tool into contact from the approach pose (module docstring).
     station:  more for the trace header's ``station`` field (e.g. ``simulator``: its
               truth file and seed).
+    accept_poor_fit: export a fit that failed the quality gate (recorded in ``fit.quality``).
     """
 
     def __init__(self, config: StationConfig, method: str, out_dir, *,
                  request: PlanRequest | None = None, observer: Observer | None = None,
                  fault_policy: FaultPolicy | None = None, rig=None,
                  nominal: dict | None = None, touch: Touch | None = None,
-                 station: dict | None = None):
+                 station: dict | None = None, accept_poor_fit: bool = False):
         planner.check_method(method)
         mi = METHODS[method]
         robot = get_robot(config.robot_model)     # a built-in or the config's robot file
@@ -186,6 +188,7 @@ class Session:
         self.rig = rig
         self.touch = touch
         self.station_record = dict(station or {})   # more for the header's station field
+        self.accept_poor_fit = accept_poor_fit
         given = dict(nominal or {})
         self.extra = {k: float(given.pop(k)) for k in extra_params(method, robot) if k in given}
         self.nominal = self.robot.params(given, source="nominal")
@@ -894,9 +897,13 @@ class Session:
         return rec
 
     # -- calibration, validation, export ------------------------------------------------------------
-    def calibrate(self, callback=None) -> BatchOutcome:
-        """Calibrate the recorded fit poses (Algorithm 2); ``callback(k, iteration)`` after
-        every iteration (:class:`calibration.solver.Iteration`: live plots)."""
+    def calibrate(self, callback=None, accept_poor_fit: bool | None = None) -> BatchOutcome:
+        """Calibrate the recorded fit poses (Algorithm 2) and pass the fit-quality gate
+        (:mod:`station.gate`; a failed gate raises unless ``accept_poor_fit``, default
+        the session's); ``callback(k, iteration)`` after every iteration
+        (:class:`calibration.solver.Iteration`: live plots)."""
+        if accept_poor_fit is None:
+            accept_poor_fit = self.accept_poor_fit
         if self._writer is not None:
             self._writer.close()
             self._writer = None
@@ -914,7 +921,17 @@ class Session:
             self._event("warning", f"{n_fit} {unit} recorded; eq. 60 recommends at least "
                         f"{self.minimum_count}")
         self._notify("state", "calibrating")
-        self.outcome = calibrate(trace, callback=callback)
+        try:
+            self.outcome = calibrate(trace, callback=callback, accept_poor_fit=accept_poor_fit)
+        except FitQualityError as e:
+            self._event("fit-quality", str(e))
+            raise
+        q = self.outcome.quality
+        for o in q.outliers:
+            self._event("outlier", f"pose {o['pose']} {o['channel']} left out of the fit "
+                        f"(studentized residual {o['t']:.3g} > {o['threshold']:.3g})")
+        if not q.passed:
+            self._event("fit-quality", "accepted by the operator: " + q.summary())
         self._event("calibrated", self.outcome.result.message)
         self._notify("state", "calibrated")
         return self.outcome
@@ -936,7 +953,8 @@ class Session:
         per measured channel."""
         if self.outcome is None:
             raise StationError("calibrate first")
-        self.validation = validation_errors(self.outcome)
+        self.validation = (self.outcome.validation if self.outcome.validation is not None
+                           else validation_errors(self.outcome))
         if self.validation:
             from station.report import validation_headline
 
@@ -950,12 +968,9 @@ class Session:
         if self.validation is None:
             self.validate()
         o = self.outcome
-        notes = list(getattr(o.model, "notes", ()) or ())
-        doc = params_document(o.result, robot=self.robot.name, nominal=o.model.x0,
-                              poses=o.model.n_poses,
-                              trace_path=str(self.trace_path), frame=frame_statement(o.trace),
-                              notes=notes, extra={"robot_file": dict(self.config.spec.source)}
-                              if self.serial else None)
+        doc = outcome_document(o, str(self.trace_path))
+        if self.serial:   # a robot file's calibration keeps it
+            doc["robot_file"] = dict(self.config.spec.source)
         doc = _writing(self.out / PARAMS, write_params, self.out / PARAMS, doc)
         self._event("export", f"parameter file {self.out / PARAMS} ({doc['checksum']})")
         urdf = self._export_urdf(doc) if self.serial else None

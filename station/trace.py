@@ -122,8 +122,24 @@ class Trace:
 
 
 # -- reading ------------------------------------------------------------------------
+# Largest magnitude a number of a trace may have (actuator values in encoder counts
+# stay far below; 1e300 would overflow the model's arithmetic).
+MAX_MAGNITUDE = 1e12
+# Plausible readings: a distance in metres (a draw-wire is zeroed at the reference,
+# so a reading below -1 cm is a wrong scale, sign or Modbus word order), angles in rad.
+DISTANCE_RANGE = (-0.01, 100.0)
+MAX_ANGLE = 4 * math.pi
+
+
 def _num(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    """A finite JSON number of sane magnitude (an integer like 10**400 is refused,
+    not overflowed)."""
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(v) and abs(v) <= MAX_MAGNITUDE
+    except OverflowError:
+        return False
 
 
 def _check_vector(v, n, what, fail):
@@ -131,7 +147,7 @@ def _check_vector(v, n, what, fail):
         fail(f"{what} must be a list of {n} numbers")
     for x in v:
         if not _num(x):
-            fail(f"{what} has a value that is not a finite number: {x!r}")
+            fail(f"{what} has a value that is not a finite number of sane magnitude: {_short(x)}")
 
 
 def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -> Trace:
@@ -156,6 +172,8 @@ def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -
             fail("empty line")
         try:
             rec = json.loads(bline.decode("utf-8"))
+        except RecursionError:
+            fail("the JSON is nested too deeply")
         except (UnicodeDecodeError, json.JSONDecodeError) as e:
             if lineno == len(lines) and not ends_with_newline:
                 warnings.warn(f"{path}:{lineno}: skipped a truncated last line "
@@ -247,7 +265,7 @@ def _check_header(rec, fail, method_override):
         if k not in known:
             fail(f"nominal: unknown parameter {k!r} for {robot}/{method}")
         if not _num(v):
-            fail(f"nominal: {k} must be a finite number, not {v!r}")
+            fail(f"nominal: {k} must be a finite number, not {_short(v)}")
     sigma = rec.get("sigma")
     if sigma is not None:
         if not isinstance(sigma, dict):
@@ -255,7 +273,7 @@ def _check_header(rec, fail, method_override):
         for k, v in sigma.items():
             vals = v if isinstance(v, list) else [v]
             if not vals or not all(_num(x) and x > 0 for x in vals):
-                fail(f"sigma: {k} must be a positive number (or list of them), not {v!r}")
+                fail(f"sigma: {k} must be a positive number (or list of them), not {_short(v)}")
     comps = rec.get("components")
     if comps is not None:
         if (not isinstance(comps, list) or not comps or any(c not in COMPONENTS for c in comps)
@@ -281,7 +299,22 @@ def _check_pose_channels(rec, trace, fail):
         elif ch == "tilt" and (method == "pm-tilt" or not builtin):
             _check_vector(v, 2, "tilt ([roll, pitch])", fail)
         elif not _num(v):
-            fail(f"{ch} must be a finite number, not {v!r}")
+            fail(f"{ch} must be a finite number, not {_short(v)}")
+        if ch == "distance" and not DISTANCE_RANGE[0] <= v <= DISTANCE_RANGE[1]:
+            fail(f"distance {v:.6g} m is not a distance the draw-wire can measure (expected "
+                 f"{DISTANCE_RANGE[0]:g} to {DISTANCE_RANGE[1]:g} m): check the device's scale, "
+                 f"sign and Modbus word order")
+        if ch in ("tilt", "orientation"):
+            vals = v if isinstance(v, list) else [v]
+            if any(abs(x) > MAX_ANGLE for x in vals):
+                fail(f"{ch} {_short(v)} is not an angle in radians (|value| > 4 pi): check the "
+                     f"device's unit")
+
+
+def _short(v) -> str:
+    """A value for a message, at most 60 characters."""
+    text = repr(v)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _check_method_needs(trace):

@@ -62,6 +62,8 @@ class CalibrationView(QWidget):
         lay.addWidget(self.plots)
         self.summary = note("")
         lay.addWidget(self.summary)
+        self.quality = note("")
+        lay.addWidget(self.quality)
         lay.addWidget(heading("Identifiability (report Table 3)"))
         self.strip = _table(1, [])
         self.strip.verticalHeader().setVisible(True)
@@ -84,6 +86,7 @@ class CalibrationView(QWidget):
     def clear(self) -> None:
         self.plots.reset()
         self.summary.setText("Not calibrated yet.")
+        self.quality.setText("")
         self.strip.setColumnCount(0)
         self.params.setRowCount(0)
         self.validation.setRowCount(0)
@@ -109,6 +112,7 @@ class CalibrationView(QWidget):
             f"({'from the trace' if res.sigma_known else 'estimated, eq. 51'}): "
             f"{html.escape(sig)}")
         self.summary.setTextFormat(Qt.TextFormat.RichText)
+        self.show_quality(outcome.quality)
         self._show_strip(res)
         self._show_params(outcome)
         self.show_validation(validation or [])
@@ -116,6 +120,18 @@ class CalibrationView(QWidget):
         if outcome.trace.method == "sm-distance-tilt":
             notes.append("theta0, a0 and q1_off refer to the captured base origin.")
         self.notes.setText("\n".join(f"Note: {n}" for n in notes))
+
+    def show_quality(self, quality) -> None:
+        """One line: the fit-quality gate's verdict, outliers left out, what failed."""
+        if quality is None:
+            self.quality.setText("")
+            return
+        out = ", ".join(f"pose {o['pose']} {o['channel']}" for o in quality.outliers)
+        text = "Fit quality: " + ("passed" if quality.passed else "FAILED: " + quality.summary())
+        if out:
+            text += f" — outliers left out of the fit: {out}"
+        self.quality.setText(text)
+        self.quality.setStyleSheet(f"color: {OK_COLOR if quality.passed else BAD_COLOR};")
 
     def _show_strip(self, res) -> None:
         t = self.strip

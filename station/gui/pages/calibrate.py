@@ -75,6 +75,8 @@ class CalibratePage(Page):
     def _failed(self, e) -> None:
         self.running = False
         self.calibrate_button.setEnabled(True)
+        if getattr(e, "outcome", None) is not None:   # failed the fit-quality gate: show it
+            self.view.show_outcome(e.outcome, e.outcome.validation)
         self.status.setText(f"The calibration failed: {error_text(e)}")
         self.status.setStyleSheet(f"color: {BAD_COLOR};")
         self.completeChanged.emit()

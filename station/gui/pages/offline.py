@@ -120,6 +120,8 @@ class OfflinePage(Page):
         self._buttons()
 
     def _failed(self, e) -> None:
+        if getattr(e, "outcome", None) is not None:   # failed the fit-quality gate: show it
+            self.view.show_outcome(e.outcome, e.outcome.validation)
         self._say(f"The calibration failed: {error_text(e)}", BAD_COLOR)
         self._buttons()
 
@@ -141,18 +143,11 @@ class OfflinePage(Page):
             self.save_report(path)
 
     def save_params(self, path) -> dict | None:
-        from station.batch import frame_statement
-        from station.params_file import params_document, write_params
+        from station.batch import outcome_document
+        from station.params_file import write_params
 
-        o = self.outcome
         try:
-            src = o.trace.header.get("robot_file")   # a robot file's calibration keeps it
-            doc = params_document(o.result, robot=o.trace.robot, nominal=o.model.x0,
-                                  poses=o.model.n_poses, trace_path=str(self.path),
-                                  frame=frame_statement(o.trace),
-                                  notes=list(getattr(o.model, "notes", ()) or ()),
-                                  extra={"robot_file": src} if src else None)
-            doc = write_params(path, doc)
+            doc = write_params(path, outcome_document(self.outcome, str(self.path)))
         except Exception as e:  # noqa: BLE001 - said to the operator
             self._say(f"The parameter file was not written: {error_text(e)}", BAD_COLOR)
             return None

@@ -1,0 +1,180 @@
+"""Fit-quality statistics at a solution: outlier tests, noise consistency, pose spread.
+
+Pure numerics (no I/O); :mod:`station.batch` runs the gate with them.
+
+* Outliers: externally studentized residuals from the hat matrix of the
+  weighted, linearized problem at the solution. For a row ``i`` of channel
+  ``c`` with leverage ``h_i``, ``t_i = r_i / (s_c(i) sqrt(1 - h_i))`` where
+  ``s_c(i)`` is the channel's noise estimated without row ``i``
+  (``(RSS_c - r_i^2 / (1 - h_i)) / (dof_c - 1)``, ``dof_c = n_c - sum h``).
+  Under the model ``t_i`` follows Student's t with ``dof_c - 1`` degrees of
+  freedom; the threshold is Bonferroni-corrected over every row tested, so a
+  clean trace loses a pose with probability below :data:`OUTLIER_ALPHA`.
+  Leaving the row out of the noise estimate keeps a gross reading from hiding
+  itself by inflating the estimated sigma, and it does not trust a stated sigma
+  (that is the consistency test's business).
+* Consistency: per channel with a stated sigma, ``RSS_c / sigma_c^2`` against
+  chi-square with ``dof_c`` degrees of freedom (upper tail).
+* Spread: the number of distinct poses (actuator values).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from calibration.errors import CalibrationError
+
+# Family-wise false-alarm probability of the outlier test on a clean trace.
+OUTLIER_ALPHA = 1e-3
+# Upper-tail probability below which residuals contradict the stated noise.
+CHI2_ALPHA = 1e-3
+# A residual below this (SI units) is round-off of a noise-free trace, not a reading.
+ROUNDOFF = 1e-10
+# Leverage above which a row cannot be tested (its residual is forced to ~0).
+MAX_LEVERAGE = 1 - 1e-6
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """The most significant row: its index, channel, residual, t and threshold."""
+
+    row: int
+    channel: str
+    residual: float
+    t: float
+    threshold: float
+
+
+def leverage(W: np.ndarray, weights: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """Diagonal of the weighted hat matrix ``A (A^T A)^+ A^T``, ``A = sqrt(w) W_R``
+    (columns scaled first; rank from the singular values)."""
+    WA = W[:, active]
+    if WA.shape[1] == 0:
+        return np.zeros(W.shape[0])
+    A = WA * np.sqrt(weights)[:, None]
+    norms = np.linalg.norm(A, axis=0)
+    A = A / np.where(norms > 0, norms, 1.0)
+    U, sv, _ = np.linalg.svd(A, full_matrices=False)
+    keep = sv > sv[0] * 1e-10 if sv.size and sv[0] > 0 else np.zeros(sv.size, bool)
+    U = U[:, keep]
+    return np.einsum("ij,ij->i", U, U)
+
+
+def row_weights(row_channel, channels, sigma: dict) -> np.ndarray:
+    s = np.array([float(sigma.get(ch) or 1.0) for ch in channels])
+    s = np.where(np.isfinite(s) & (s > 0), s, 1.0)
+    return 1.0 / s[np.asarray(row_channel)] ** 2
+
+
+def channel_dof(row_channel, n_channels: int, h: np.ndarray) -> np.ndarray:
+    """Residual degrees of freedom per channel: ``n_c - sum of its leverages``."""
+    rc = np.asarray(row_channel)
+    n_c = np.bincount(rc, minlength=n_channels).astype(float)
+    return n_c - np.bincount(rc, weights=h, minlength=n_channels)
+
+
+def worst_row(r, h, row_channel, channels, *, testable=None,
+              alpha: float = OUTLIER_ALPHA) -> tuple[Outlier | None, int]:
+    """The row with the largest externally studentized residual, if it exceeds the
+    Bonferroni threshold; and the number of rows tested."""
+    r = np.asarray(r, dtype=float)
+    rc = np.asarray(row_channel)
+    dof = channel_dof(rc, len(channels), h)
+    rss = np.bincount(rc, weights=r * r, minlength=len(channels))
+    ok = (h < MAX_LEVERAGE) & (np.abs(r) > ROUNDOFF)
+    if testable is not None:
+        ok &= testable
+    ok &= dof[rc] > 3          # too few degrees of freedom left to estimate the noise
+    n_test = int(ok.sum())
+    if n_test == 0:
+        return None, 0
+    one_h = np.where(ok, 1 - h, 1.0)
+    s2 = (rss[rc] - r * r / one_h) / np.maximum(dof[rc] - 1, 1)
+    s2 = np.maximum(s2, (rss[rc] / np.maximum(dof[rc], 1)) * 1e-12 + 1e-300)
+    t = np.where(ok, np.abs(r) / np.sqrt(s2 * one_h), 0.0)
+    i = int(np.argmax(t))
+    thr = float(stats.t.isf(alpha / (2 * n_test), dof[rc[i]] - 1))
+    if not t[i] > thr:
+        return None, n_test
+    return Outlier(i, channels[rc[i]], float(r[i]), float(t[i]), thr), n_test
+
+
+def chi_square(r, h, row_channel, channels, sigma_stated: dict,
+               alpha: float = CHI2_ALPHA) -> list[dict]:
+    """Per channel with a stated sigma: the residual against that noise."""
+    r = np.asarray(r, dtype=float)
+    rc = np.asarray(row_channel)
+    dof = channel_dof(rc, len(channels), h)
+    rss = np.bincount(rc, weights=r * r, minlength=len(channels))
+    out = []
+    for k, ch in enumerate(channels):
+        s = sigma_stated.get(ch)
+        if not s or dof[k] <= 0.5:
+            continue
+        x2 = float(rss[k] / s ** 2)
+        p = float(stats.chi2.sf(x2, dof[k]))
+        out.append({"channel": ch, "stated_sigma": float(s),
+                    "fitted_sigma": math.sqrt(rss[k] / dof[k]),
+                    "ratio": math.sqrt(x2 / dof[k]), "chi2": x2, "dof": float(dof[k]),
+                    "p": p, "ok": p >= alpha})
+    return out
+
+
+def distinct_poses(qm: np.ndarray) -> int:
+    """Number of distinct rows of actuator values (to 1e-6 of the spread)."""
+    qm = np.atleast_2d(np.asarray(qm, dtype=float))
+    if qm.size == 0:
+        return 0
+    scale = max(float(np.max(np.abs(qm))), 1.0)
+    return len(np.unique(np.round(qm / (scale * 1e-6)), axis=0))
+
+
+def robust_worst_row(model, x0, sigma_stated: dict | None = None, *,
+                     alpha: float = OUTLIER_ALPHA) -> tuple[Outlier | None, np.ndarray | None]:
+    """Where least squares is thrown off by a gross reading (it does not converge),
+    the reading a robust fit rejects: ``scipy.optimize.least_squares`` with the
+    soft-L1 loss from ``x0``, scaled per channel by the stated sigma or the
+    residual's median absolute deviation (refitted once with it). The row with
+    the largest residual in robust sigmas, if beyond the Bonferroni threshold of
+    the normal distribution, else None; and the robust solution (None if the
+    robust fit fails), a start for the refit without that reading."""
+    from scipy.optimize import least_squares
+
+    channels = tuple(model.channels)
+    rc = np.asarray(model.row_channel)
+    stated = sigma_stated or {}
+
+    def scales(r):
+        s = np.ones(len(channels))
+        for k, ch in enumerate(channels):
+            rk = np.abs(r[rc == k])
+            mad = 1.4826 * float(np.median(rk)) if rk.size else 1.0
+            s[k] = float(stated[ch]) if stated.get(ch) else max(mad, ROUNDOFF)
+        return s[rc]
+
+    x = np.asarray(x0, dtype=float)
+    try:
+        r0 = model.evaluate(x)[0]
+        s = scales(r0)
+        for _ in range(2):
+            sol = least_squares(lambda v: model.evaluate(v)[0] / s, x,
+                                jac=lambda v: -model.evaluate(v)[1] / s[:, None],
+                                loss="soft_l1", x_scale="jac", method="trf",
+                                tr_solver="exact", max_nfev=200 * (len(x) + 1))
+            x = sol.x
+            r = model.evaluate(x)[0]
+            if all(stated.get(ch) for ch in channels):
+                break
+            s = scales(r)
+    except (ValueError, np.linalg.LinAlgError, FloatingPointError, CalibrationError):
+        return None, None
+    z = np.abs(r) / s
+    z[np.abs(r) <= ROUNDOFF] = 0.0
+    i = int(np.argmax(z))
+    thr = float(stats.norm.isf(alpha / (2 * len(r))))
+    if not z[i] > thr:
+        return None, x
+    return Outlier(i, channels[rc[i]], float(r[i]), float(z[i]), thr), x

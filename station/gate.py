@@ -1,0 +1,388 @@
+"""The fit-quality gate: every calibration (batch, session, GUI) passes it in
+:func:`station.batch.calibrate` before a parameter file can be written.
+
+1. Outliers: the reading with the largest externally studentized residual
+   (:mod:`calibration.quality`) beyond the Bonferroni threshold is named by its
+   pose index and channel, its pose is left out and the trace refitted; repeated
+   while one is found, up to :func:`max_outliers`.
+2. Noise: per channel with a stated ``sigma`` (trace header), the residual must
+   fit that noise (chi-square, upper tail).
+3. Validation: where the trace holds held-out poses, the calibrated parameters
+   must not predict them worse than the start values did.
+4. Spread: the fit poses must hold enough distinct poses for the identifiable
+   parameters (eq. 60), and the method must identify what a well-spread set of
+   poses identifies (:data:`station.planner.NR_P`).
+
+A failed gate raises :class:`FitQualityError` (with the outcome, so that a GUI
+can still show it) unless the operator accepts the fit explicitly; the result
+goes into the parameter file as ``fit.quality``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibration import identifiability as ident
+from calibration import quality as q
+from calibration.errors import CalibrationError
+
+# The calibrated fit may predict the held-out poses at most this much worse than
+# the start values before the gate calls it worse (noise on an already good start).
+VALIDATION_TOLERANCE = 1.1
+
+
+class FitQualityError(CalibrationError):
+    """The fit failed the quality gate; ``outcome`` holds it (not written)."""
+
+    def __init__(self, message: str, outcome=None):
+        super().__init__(message)
+        self.outcome = outcome
+
+
+class NotConverged(CalibrationError):
+    """The calibration did not converge; ``model`` is the measurement model tried."""
+
+    def __init__(self, message: str, model=None):
+        super().__init__(message)
+        self.model = model
+
+
+@dataclass
+class Quality:
+    """The gate's result (``fit.quality`` of the parameter file)."""
+
+    outliers: list[dict] = field(default_factory=list)
+    checks: list[dict] = field(default_factory=list)
+    accepted: bool = False
+
+    @property
+    def passed(self) -> bool:
+        return all(c["ok"] for c in self.checks)
+
+    @property
+    def failures(self) -> list[str]:
+        return [c["message"] for c in self.checks if not c["ok"]]
+
+    def check(self, name: str, ok: bool, message: str, **figures) -> None:
+        self.checks.append({"check": name, "ok": bool(ok), "message": message, **figures})
+
+    def as_dict(self) -> dict:
+        return {"passed": self.passed, "accepted": self.accepted,
+                "outliers": [dict(o) for o in self.outliers],
+                "checks": [dict(c) for c in self.checks]}
+
+    def lines(self) -> list[str]:
+        """Human-readable lines (CLI table, GUI)."""
+        out = []
+        for o in self.outliers:
+            out.append(f"outlier excluded: pose {o['pose']} {o['channel']} (residual "
+                       f"{o['residual']:.4g}, studentized {o['t']:.3g} > {o['threshold']:.3g})")
+        for c in self.checks:
+            out.append(("ok: " if c["ok"] else "FAILED: ") + c["message"])
+        if not self.passed:
+            out.append("fit quality: FAILED" + (", accepted by the operator (--accept-poor-fit)"
+                                                 if self.accepted else ""))
+        else:
+            out.append("fit quality: passed")
+        return out
+
+    def summary(self) -> str:
+        """One line: what failed, with its figures."""
+        return "; ".join(self.failures) if self.failures else "passed"
+
+
+def max_outliers(n_poses: int) -> int:
+    """At most one pose in ten (at least one) may be excluded as an outlier."""
+    return max(1, n_poses // 10)
+
+
+def row_poses(model) -> np.ndarray | None:
+    """For each residual row, the position of its pose among the model's poses
+    (sm-self-redundancy: the second pose of the pair); None if unknown."""
+    rows = len(model.row_channel)
+    if hasattr(model, "other") and hasattr(model, "n_pose_rows"):
+        return np.repeat(np.asarray(model.other), rows // max(model.n_pose_rows, 1))
+    n = model.n_poses
+    if n and rows % n == 0:
+        return np.repeat(np.arange(n), rows // n)
+    return None
+
+
+def _excluded(trace, indices: set[int]):
+    """A copy of ``trace`` whose poses with these indices are left out of the fit
+    (``use = "outlier"``); sm-self-redundancy also leaves out a pair's lone partner."""
+    poses = [dict(p, use="outlier") if p["index"] in indices else p for p in trace.poses]
+    partners = []
+    if trace.method == "sm-self-redundancy":
+        count: dict = {}
+        for p in poses:
+            if p.get("use", "fit") == "fit":
+                count[p["group"]] = count.get(p["group"], 0) + 1
+        for k, p in enumerate(poses):
+            if p.get("use", "fit") == "fit" and count[p["group"]] < 2:
+                poses[k] = dict(p, use="outlier")
+                partners.append(p["index"])
+    return dataclasses.replace(trace, poses=poses), partners
+
+
+def _entry(trace, model, row: q.Outlier, rows_tested: int | None = None) -> dict:
+    pose = trace.fit_poses[int(row_poses(model)[row.row])]
+    e = {"pose": int(pose["index"]), "channel": row.channel, "residual": row.residual,
+         "t": row.t, "threshold": row.threshold}
+    if rows_tested is not None:
+        e["rows_tested"] = rows_tested
+    return e
+
+
+def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | None):
+    """A fit that did not converge: leave out the readings a robust fit rejects
+    (:func:`calibration.quality.robust_worst_row`), one at a time, until the fit
+    converges. Returns ``(trace, model, result, outliers)``; raises ``error`` (with
+    the suspects named) if that does not help."""
+    outliers: list[dict] = []
+    limit = max_outliers(len(trace.fit_poses))
+    while len(outliers) < limit and row_poses(model) is not None:
+        worst, x_robust = q.robust_worst_row(model, model.x0, stated_sigma)
+        if worst is None:
+            break
+        entry = dict(_entry(trace, model, worst), test="robust fit")
+        excl = {o["pose"] for o in outliers} | {entry["pose"]}
+        for o in outliers:
+            excl |= set(o.get("partners", ()))
+        new_trace, partners = _excluded(trace, excl)
+        if partners:
+            entry["partners"] = partners
+        outliers.append(entry)
+        try:
+            model, result = refit(new_trace, x_robust)
+            return new_trace, model, result, outliers
+        except NotConverged as e:
+            trace, model = new_trace, e.model
+        except CalibrationError:
+            break
+    if outliers:
+        named = ", ".join(f"pose {o['pose']} {o['channel']} ({o['t']:.3g} robust sigmas)"
+                          for o in outliers)
+        raise CalibrationError(f"{error}; readings that do not fit a robust fit: {named}; "
+                               f"check them (the fit does not converge without them either)")
+    raise error
+
+
+def check_spread(trace, model) -> None:
+    """Before fitting: refuse a set of poses with fewer distinct poses than eq. 60
+    asks for the parameters the method identifies (e.g. all poses identical)."""
+    from station.planner import NR_P
+
+    qm = getattr(model, "qm", None)
+    if qm is None or trace.method not in NR_P or "robot_file" in trace.header:
+        return    # NR_P counts AGEBOT's parameters
+    need = min(ident.minimum_poses(NR_P[trace.method][0], model.p), model.n_poses)
+    distinct = q.distinct_poses(qm)
+    if distinct < need:
+        raise FitQualityError(f"the fit failed the quality gate: poses: only {distinct} distinct "
+                              f"of {model.n_poses} poses to fit; {trace.method} needs {need} "
+                              f"distinct poses (eq. 60): the robot did not move between readings")
+
+
+def gated_fit(trace, model, *, first, refit, stated_sigma, validate):
+    """The gate around a calibration: ``first()`` fits ``model`` (raising a
+    :class:`CalibrationError` with ``.model`` if it does not converge),
+    ``refit(trace, start)`` fits a trace copy from ``start``. Returns ``(quality, trace, model, result,
+    validation)`` of the fit that passed, else of the last one tried."""
+    check_spread(trace, model)
+    try:
+        model0, result = first()
+        pre = []
+    except NotConverged as e:
+        trace, model0, result, pre = rescue(trace, model, e, refit=refit, stated_sigma=stated_sigma)
+    got = run_gate(trace, model0, result, refit=refit, stated_sigma=stated_sigma,
+                   validate=validate, outliers=pre)
+    quality, trace1, model1 = got[:3]
+    if quality.passed or len(quality.outliers) >= max_outliers(len(trace.fit_poses)):
+        return got
+    # least squares may spread a gross reading over every residual: ask a robust fit
+    worst, x_robust = q.robust_worst_row(model1, model1.x0, stated_sigma)
+    if worst is None and x_robust is not None:
+        # no gross reading: least squares found a local minimum; start again where
+        # the robust fit ended
+        try:
+            model2, result2 = refit(trace1, x_robust)
+        except CalibrationError:
+            return got
+        got2 = run_gate(trace1, model2, result2, refit=refit, stated_sigma=stated_sigma,
+                        validate=validate, outliers=quality.outliers)
+        if got2[0].passed:
+            got2[0].check("start", True, "start: the fit from the start values ended in a "
+                          "local minimum; refitted from a robust fit's solution")
+            return got2
+        return got
+    if worst is None or row_poses(model1) is None:
+        return got
+    entry = dict(_entry(trace1, model1, worst), test="robust fit")
+    excl = {entry["pose"]}
+    for o in quality.outliers:
+        excl |= {o["pose"], *o.get("partners", ())}
+    new_trace, partners = _excluded(trace1, excl)
+    if partners:
+        entry["partners"] = partners
+    try:
+        model2, result2 = refit(new_trace, x_robust)
+    except CalibrationError:
+        quality.check("outliers", False, f"outliers: pose {entry['pose']} {entry['channel']} does "
+                      f"not fit a robust fit ({worst.t:.3g} robust sigmas) and the fit without it "
+                      "does not converge", next=entry)
+        return got
+    got2 = run_gate(new_trace, model2, result2, refit=refit, stated_sigma=stated_sigma,
+                    validate=validate, outliers=[*quality.outliers, entry])
+    if not got2[0].passed:
+        got2[0].check("outliers", False, f"outliers: pose {entry['pose']} {entry['channel']} "
+                      f"does not fit a robust fit ({worst.t:.3g} robust sigmas), and the fit "
+                      "still fails without it", next=entry)
+    return got2
+
+
+def _statistics(model, result):
+    r, W = model.evaluate(result.x)
+    active = np.array([s.identifiable for s in result.status])
+    w = q.row_weights(model.row_channel, model.channels, result.sigma)
+    h = q.leverage(W, w, active)
+    return r, h
+
+
+def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
+             validate=None, outliers=()):
+    """Run the gate on a converged fit. ``refit(trace, start) -> (model, result)``
+    calibrates a trace copy from the start values ``start`` (the fit's so far); ``validate(trace, model, result)`` gives the held-out rows
+    (:func:`station.validation.validation_errors`). Returns ``(quality, trace,
+    model, result, validation)``, the last four those of the final fit."""
+    quality = Quality(outliers=list(outliers))
+    excluded: set[int] = set()
+    for o in outliers:
+        excluded |= {o["pose"], *o.get("partners", ())}
+    limit = max_outliers(len(trace.fit_poses) + len(excluded))
+    while True:
+        r, h = _statistics(model, result)
+        rp = row_poses(model)
+        if rp is None:
+            break
+        worst, n_test = q.worst_row(r, h, model.row_channel, model.channels)
+        if worst is None:
+            break
+        entry = _entry(trace, model, worst, n_test)
+        if len(quality.outliers) >= limit:
+            named = ", ".join(f"pose {o['pose']} {o['channel']}" for o in quality.outliers)
+            quality.check("outliers", False,
+                          f"outliers: more than {limit} readings do not fit the others "
+                          f"({named + ', ' if named else ''}pose {entry['pose']} "
+                          f"{entry['channel']}: studentized residual {worst.t:.3g} > "
+                          f"{worst.threshold:.3g})", limit=limit, next=entry)
+            break
+        new_trace, partners = _excluded(trace, excluded | {entry["pose"]})
+        try:
+            new_model, new_result = refit(new_trace, result.x)
+        except CalibrationError as e:
+            quality.check("outliers", False,
+                          f"outliers: pose {entry['pose']} {entry['channel']} does not fit "
+                          f"(studentized residual {worst.t:.3g} > {worst.threshold:.3g}) and the "
+                          f"fit without it fails: {e}", next=entry)
+            break
+        if partners:
+            entry["partners"] = partners
+        quality.outliers.append(entry)
+        excluded |= {entry["pose"], *partners}
+        trace, model, result = new_trace, new_model, new_result
+    if quality.outliers:
+        quality.check("outliers", True, f"outliers: {len(quality.outliers)} reading(s) excluded "
+                      "and the trace refitted: " + ", ".join(
+                          f"pose {o['pose']} {o['channel']}" for o in quality.outliers))
+    elif not quality.checks:
+        quality.check("outliers", True, "outliers: none")
+    r, h = _statistics(model, result)
+    for c in q.chi_square(r, h, model.row_channel, model.channels, stated_sigma or {}):
+        verdict = "fit" if c["ok"] else "do not fit"
+        quality.check("noise", c["ok"],
+                      f"noise: {c['channel']} residuals {verdict} the stated sigma "
+                      f"{c['stated_sigma']:.3g} (fitted {c['fitted_sigma']:.3g}, "
+                      f"{c['ratio']:.3g} times; chi-square {c['chi2']:.4g} on {c['dof']:.1f} "
+                      f"degrees of freedom, p = {c['p']:.2g})",
+                      **{k: c[k] for k in ("channel", "stated_sigma", "fitted_sigma", "ratio",
+                                           "chi2", "dof", "p")})
+    _spread(quality, trace, model, result)
+    if "robot_file" not in trace.header:    # AGEBOT's parameters, whose kinds are known
+        _plausible(quality, model, result, trace.method)
+    validation = None
+    if validate is not None and trace.validation_poses:
+        validation = validate(trace, model, result)
+        for v in validation:
+            before, after = v.get("rms_before"), v.get("rms_after")
+            if before is None or after is None or not math.isfinite(after):
+                continue
+            ok = after <= VALIDATION_TOLERANCE * before
+            quality.check("validation", ok,
+                          f"validation: {v['channel']} RMS on {v['n']} held-out rows "
+                          f"{'went' if ok else 'is worse than the start:'} {before:.4g} -> "
+                          f"{after:.4g} {v['unit']}", channel=v["channel"],
+                          rms_before=before, rms_after=after)
+    return quality, trace, model, result, validation
+
+
+def _spread(quality, trace, model, result) -> None:
+    from station.planner import NR_P
+
+    qm = getattr(model, "qm", None)
+    if qm is None:
+        return
+    distinct = q.distinct_poses(qm)
+    n_id = result.n_identifiable
+    need = ident.minimum_poses(n_id, model.p)
+    expected = NR_P.get(trace.method, (n_id,))[0]
+    if "robot_file" in trace.header:
+        expected = n_id    # NR_P counts AGEBOT's parameters
+    if trace.method == "pm-fk" and trace.header.get("components"):
+        expected = n_id    # fewer components may identify fewer parameters
+    ok = distinct >= min(need, model.n_poses) and n_id >= expected
+    why = ""
+    if n_id < expected:
+        why = (f"; only {n_id} of {len(result.names)} parameters are identifiable where a "
+               f"well-spread set of poses identifies {expected}")
+    quality.check("poses", ok, f"poses: {distinct} distinct of {model.n_poses} fitted "
+                  f"(eq. 60 recommends >= {need} for {n_id} identifiable){why}",
+                  distinct=distinct, poses=int(model.n_poses), identifiable=int(n_id),
+                  expected_identifiable=int(expected))
+
+
+# Calibrated gear ratios and lengths must stay within this factor of their start
+# values (a sign flip or a halving is a mis-wired reading, not a robot).
+PLAUSIBLE_FACTOR = 2.0
+
+
+def _plausible(quality, model, result, method) -> None:
+    """The robot's gear ratios (``k*``) and lengths keep their sign and stay within
+    :data:`PLAUSIBLE_FACTOR` of the start; offsets, a method's extra parameters
+    (plane, inclinometer mount) and sm-distance-tilt's frame (``a0``) are free."""
+    frame = ("a0",) if method == "sm-distance-tilt" else ()
+    robot = getattr(model, "robot", None)
+    own = set(robot.param_names) if robot is not None else set()
+    bad = []
+    for j, (name, st) in enumerate(zip(result.names, result.status)):
+        if (not st.identifiable or name.endswith("_off") or name.startswith(("theta", "plane_"))
+                or name in frame or name not in own):
+            continue
+        x0, x = float(model.x0[j]), float(result.x[j])
+        if x0 == 0 or not math.isfinite(x):
+            continue
+        ratio = x / x0
+        if not 1 / PLAUSIBLE_FACTOR <= ratio <= PLAUSIBLE_FACTOR:
+            bad.append((name, x0, x, ratio))
+    if bad:
+        quality.check("plausible", False, "plausible: " + ", ".join(
+            f"{n} went from {a:.4g} to {b:.4g} ({r:.3g} times)" for n, a, b, r in bad)
+            + f"; gear ratios and lengths move by less than a factor {PLAUSIBLE_FACTOR:g} on a "
+            "real robot: a reading's sign, unit or word order is likely wrong",
+            parameters=[{"name": n, "start": a, "calibrated": b} for n, a, b, _ in bad])
+    else:
+        quality.check("plausible", True, "plausible: gear ratios and lengths within a factor "
+                      f"{PLAUSIBLE_FACTOR:g} of the start")
