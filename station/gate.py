@@ -244,6 +244,25 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate):
     return got2
 
 
+# Refits of every pose from a better start that one run of the gate may make.
+MAX_RESTARTS = 3
+
+
+def _confirmed(model, result_without, worst: q.Outlier) -> bool:
+    """Is the suspect reading also an outlier against the fit made without its pose
+    (its prediction error in that fit's noise, against the same threshold)?"""
+    try:
+        r = model.evaluate(result_without.x)[0]
+    except CalibrationError:
+        return True
+    k = list(model.channels).index(worst.channel)
+    rc = np.asarray(model.row_channel)
+    s = result_without.residual_rms.get(worst.channel)
+    if not s or not math.isfinite(s):
+        s = math.sqrt(float(np.mean(r[rc == k] ** 2)))
+    return abs(float(r[worst.row])) > worst.threshold * s
+
+
 def _statistics(model, result):
     r, W = model.evaluate(result.x)
     active = np.array([s.identifiable for s in result.status])
@@ -263,6 +282,7 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
     for o in outliers:
         excluded |= {o["pose"], *o.get("partners", ())}
     limit = max_outliers(len(trace.fit_poses) + len(excluded))
+    restarts = 0
     while True:
         r, h = _statistics(model, result)
         rp = row_poses(model)
@@ -289,11 +309,23 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
                           f"(studentized residual {worst.t:.3g} > {worst.threshold:.3g}) and the "
                           f"fit without it fails: {e}", next=entry)
             break
+        if restarts < MAX_RESTARTS and not _confirmed(model, new_result, worst):
+            # the reading fits the fit made without it: the first fit was in a local
+            # minimum, not thrown off by this reading; refit every pose from there
+            try:
+                model, result = refit(trace, new_result.x)
+            except CalibrationError:
+                pass
+            restarts += 1
+            continue
         if partners:
             entry["partners"] = partners
         quality.outliers.append(entry)
         excluded |= {entry["pose"], *partners}
         trace, model, result = new_trace, new_model, new_result
+    if restarts:
+        quality.check("start", True, f"start: {restarts} local minimum(s) left by refitting "
+                      "from the fit without a suspect reading (which then fitted the others)")
     if quality.outliers:
         quality.check("outliers", True, f"outliers: {len(quality.outliers)} reading(s) excluded "
                       "and the trace refitted: " + ", ".join(
