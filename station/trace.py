@@ -252,7 +252,7 @@ def _check_header(rec, fail, method_override):
     else:
         model = get_robot(robot)
     method = method_override or rec.get("method")
-    if method not in METHODS:
+    if not isinstance(method, str) or method not in METHODS:
         fail(f"unknown method {method!r} (known: {', '.join(METHODS)})")
     if METHODS[method].kind != model.kind:
         fail(f"method {method} needs a {METHODS[method].kind} robot; {robot} is a {model.kind} one")
