@@ -9,8 +9,10 @@ import sys
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+# 8 poses are too few for a fit that passes the fit-quality gate; this test is about
+# reproducibility and resuming, so the poor fit is accepted
 COMMAND = ["run", "--simulate", "--robot", "agebot-sm", "--method", "sm-distance-tilt",
-           "--count", "8"]
+           "--count", "8", "--accept-poor-fit"]
 
 
 def run(out, *extra, timeout=240):
