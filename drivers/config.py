@@ -268,9 +268,6 @@ def load_station_config(path: str | Path) -> StationConfig:
         data = tomllib.loads(decode_text(path.read_bytes(), str(path)))
     except OSError as e:
         raise ConfigError(f"cannot read: {e.strerror or e}", source=str(path)) from e
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"not UTF-8 text ({e.reason} at byte {e.start}): save it as UTF-8",
-                          source=str(path)) from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"not valid TOML: {e}", source=str(path)) from e
     return parse_station_config(data, str(path))

@@ -151,7 +151,7 @@ def test_a_utf16_station_config(tmp_path):
     cfg = tmp_path / "station.toml"
     cfg.write_bytes(open(src, encoding="utf-8").read().encode("utf-16"))
     refused(app("devices", "check", "--config", str(cfg), "--seconds", "0.1"),
-            "station.toml", "not UTF-8")
+            "station.toml", "UTF-8")
 
 
 def test_trace_generate_into_a_missing_folder(tmp_path):
