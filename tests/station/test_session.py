@@ -192,7 +192,7 @@ def test_sigkill_mid_session_resumes_to_the_same_result(tmp_path):
         ep.write_text(json.dumps(sim.endpoints))
         cmd = [sys.executable, str(ROOT / "app.py"), "run", "--robot", "agebot-sm",
                "--method", "sm-distance-tilt", "--config", str(cfg), "--endpoints", str(ep),
-               "--count", "14", "--seed", "5"]
+               "--count", "35", "--seed", "5"]   # eq. 60's minimum: sigma has the dof to be honest
         killed = tmp_path / "killed"
         p = subprocess.Popen(cmd + ["--out", str(killed)], stdout=subprocess.DEVNULL,
                              stderr=subprocess.PIPE)
@@ -218,7 +218,7 @@ def test_sigkill_mid_session_resumes_to_the_same_result(tmp_path):
 
     resumed = read_trace(killed / "trace.jsonl")
     plan_idx = [p["plan_index"] for p in resumed.poses]
-    assert len(plan_idx) == len(set(plan_idx)) == 14 + 3           # nothing measured twice
+    assert len(plan_idx) == len(set(plan_idx)) == 35 + 7           # nothing measured twice
     assert [p["qm"] for p in resumed.poses[:n_before]] == [p["qm"] for p in partial.poses]
     assert any(e["kind"] == "resume" for e in resumed.events)
     a, b = read_params(killed / "params.json"), read_params(tmp_path / "whole" / "params.json")
@@ -226,8 +226,12 @@ def test_sigkill_mid_session_resumes_to_the_same_result(tmp_path):
     again = calibrate(read_trace(killed / "trace.jsonl")).result
     for name, pa in a["parameters"].items():
         assert pa["value"] == pytest.approx(again.value(name), rel=1e-9, abs=1e-12), name
-    # two noisy sessions on the same poses: the same robot within the noise
+    # two noisy sessions on the same poses: the same robot within the noise. Not
+    # distance_off: each session zeroes the draw-wire on its own noisy reading, so its
+    # zero error is the session's, not the robot's (docs/methods.md)
     for name, pa in a["parameters"].items():
+        if name == "distance_off":
+            continue
         pb = b["parameters"][name]
         if pa["std"] is not None and pb["std"] is not None:
             assert abs(pa["value"] - pb["value"]) < 4 * math.hypot(pa["std"], pb["std"]), name
