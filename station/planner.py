@@ -155,7 +155,8 @@ def reference_pose(method: str, nominal) -> tuple[np.ndarray | None, str | None,
 
 def plan_sm(method: str, nominal, reference_qm, req: PlanRequest, *,
             plane=None, box_scale: float = 1.0, accept=None, first_index: int = 0,
-            rnd: int = 0, start_qm=None, box_centre=None) -> list[PlannedPose]:
+            rnd: int = 0, start_qm=None, box_centre=None,
+            design_out: list | None = None) -> list[PlannedPose]:
     """The poses of an SM method (``reference_qm``: the reference; travel starts there or
     at ``start_qm``). sm-plane needs ``plane`` ``(a, b, c)``; sm-self-redundancy counts
     pairs (``req.count`` pairs to fit, ``req.validation`` pairs held out). The distance
@@ -163,12 +164,19 @@ def plan_sm(method: str, nominal, reference_qm, req: PlanRequest, *,
     about the box's middle for sm-distance), sm-distance-tilt's moved to ``box_centre``
     (the reference pose as read there), and ``accept(X, qm)`` filters the poses (the
     envelope's actuator limits); ``first_index``, ``rnd``: the poses' plan indices and
-    round (:mod:`station.arm_rounds`)."""
+    round (:mod:`station.arm_rounds`). With ``req.design == "optimal"`` the distance
+    methods' fit poses are the D-optimal choice of ten times as many candidates
+    (:func:`station.pose_design.choose`); the design's record is appended to
+    ``design_out``."""
     robot = get_robot("agebot-sm")
     rng = np.random.default_rng(req.seed)
     count = req.count or int(np.ceil(req.margin * minimum_count(method)))
     n_val = req.validation if req.validation is not None else max(3, count // 5)
     total = count + n_val
+    from station.pose_design import POOL_FACTOR, choose
+
+    designed = req.design != "random" and method in ("sm-distance", "sm-distance-tilt")
+    draw = POOL_FACTOR * total if designed else total
     if method == "sm-plane":
         return _plane_poses(robot, nominal, plane, count, n_val, rng, reference_qm, accept)
     if method == "sm-self-redundancy":
@@ -180,15 +188,27 @@ def plan_sm(method: str, nominal, reference_qm, req: PlanRequest, *,
         centre = np.zeros(4) if box_centre is None else np.asarray(box_centre, dtype=float)
         bounds = planning.scale_box(box, box_scale, np.zeros(4)) + centre[:, None]
         plan = planning.sample_poses(robot, framed, bounds,
-                                     total, rng, ik_options={"elbow": elbow}, accept=accept)
+                                     draw, rng, ik_options={"elbow": elbow}, accept=accept)
     else:
         off = np.r_[robot.base_offset(nominal), 0.0]
         box = planning.box_array(robot, planning.SM_BOX_7_1, off)
         plan = planning.sample_poses(robot, nominal, planning.scale_box(box, box_scale, box_centre),
-                                     total,
+                                     draw,
                                      rng, accept=accept)
     start = reference_qm if start_qm is None else start_qm
-    return _finish(robot, plan.targets, plan.qm, n_val, rng, start, first_index, rnd)
+    targets, qm, validation = plan.targets, plan.qm, None
+    if designed:
+        fit_idx, design = choose(method, robot, nominal, qm, count, design=req.design, rng=rng,
+                                 reference_qm=reference_qm, distance_zero="reading",
+                                 target=req.target, heldout_qm=qm[:50])
+        rest = np.setdiff1d(np.arange(len(qm)), fit_idx)
+        keep = np.r_[fit_idx, rng.choice(rest, size=n_val, replace=False)].astype(int)
+        targets, qm = targets[keep], qm[keep]
+        validation = np.arange(len(fit_idx), len(keep))
+        if design_out is not None:
+            design_out.append(design.as_record())
+    return _finish(robot, targets, qm, n_val, rng, start, first_index, rnd,
+                   validation=validation)
 
 
 #: the arm's scout step from the reference, per actuator, in joint units under the

@@ -11,6 +11,7 @@ error of the tool on held-out poses (:mod:`calibration.design`).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,11 +54,18 @@ class Design:
     heldout: dict = field(default_factory=dict)
 
     def as_record(self) -> dict:
-        """JSON-ready summary (trace event, parameter file, report)."""
+        """JSON-ready summary (trace event, parameter file, report); a figure the plan
+        cannot give (a parameter it cannot identify) is None."""
         return {"design": self.design, "poses": int(len(self.fit)),
-                "predicted_std": {n: float(s) for n, s in zip(self.names, self.std)},
-                "observability": {k: float(v) for k, v in self.indices.items()},
-                "predicted_heldout": dict(self.heldout)}
+                "predicted_std": {n: _finite(s) for n, s in zip(self.names, self.std)},
+                "observability": {k: _finite(v) for k, v in self.indices.items()},
+                "predicted_heldout": {k: _finite(v) if isinstance(v, float) else v
+                                      for k, v in self.heldout.items()}}
+
+
+def _finite(v) -> float | None:
+    v = float(v)
+    return v if math.isfinite(v) else None
 
 
 def row_noise(method: str, noise: dict | None) -> dict:
@@ -77,7 +85,7 @@ def row_noise(method: str, noise: dict | None) -> dict:
 
 
 def pool_model(method: str, robot, x_plan, qm, *, reference_qm=None, group=None,
-               components=None, mount=(0.0, 0.0), plane=None):
+               components=None, mount=(0.0, 0.0), plane=None, distance_zero="exact"):
     """The measurement model of ``method`` over the candidate poses ``qm``, with the
     readings the planning model ``x_plan`` predicts there (so the model fits them)."""
     mi = METHODS[method]
@@ -94,7 +102,8 @@ def pool_model(method: str, robot, x_plan, qm, *, reference_qm=None, group=None,
         idx = [("alpha", "beta", "gamma").index(c) for c in components]
         channels = {"orientation": channels["orientation"][:, idx]}
     data = MethodData(qm=qm, channels=channels, group=group, reference_qm=reference_qm,
-                      components=tuple(components) if components else None)
+                      components=tuple(components) if components else None,
+                      distance_zero=distance_zero if "distance" in channels else "exact")
     extras = []
     options = {}
     if method == "sm-plane":
@@ -196,7 +205,8 @@ def _target(target, info: dz.PoseInformation, hm):
 
 def choose(method: str, robot, x_plan, candidates, n_fit: int, *, measured=(), design="optimal",
            rng=None, noise=None, reference_qm=None, components=None, mount=(0.0, 0.0),
-           plane=None, target=None, heldout_qm=None) -> tuple[np.ndarray, Design]:
+           plane=None, target=None, heldout_qm=None,
+           distance_zero="exact") -> tuple[np.ndarray, Design]:
     """A session's next poses: ``n_fit`` of the ``candidates`` (actuator values the planner
     drew, reachable and inside the envelope), chosen at the current model ``x_plan`` given
     the poses already ``measured`` (sequential design: each new pose is worth most where
@@ -206,7 +216,8 @@ def choose(method: str, robot, x_plan, candidates, n_fit: int, *, measured=(), d
     measured = np.asarray(measured, dtype=float).reshape(-1, candidates.shape[1])
     pool = np.vstack([measured, candidates])
     model = pool_model(method, robot, x_plan, pool, reference_qm=reference_qm,
-                       components=components, mount=mount, plane=plane)
+                       components=components, mount=mount, plane=plane,
+                       distance_zero=distance_zero)
     info = dz.pose_information(model, model.x0, noise or DEFAULT_NOISE)
     k = len(measured)
     want = k + n_fit
@@ -234,11 +245,14 @@ def design_text(record: dict, units=None) -> str:
     from station.units import MM_DEG
 
     units = units or MM_DEG
-    o = record.get("observability", {})
+    o = {k: (float("nan") if v is None else v) for k, v in
+         (record.get("observability") or {}).items()}
     text = (f"{'D-optimal' if record.get('design') == 'optimal' else 'random'} poses "
             f"(observability O1 {o.get('O1', float('nan')):.3g}, O3 {o.get('O3', float('nan')):.3g})")
     held = record.get("predicted_heldout") or {}
-    if "rms" in held:
+    if held.get("rms") is None and "what" in held:
+        text += f"; the plan cannot predict the held-out {held['what']} error (too few poses)"
+    elif "rms" in held:
         text += (f"; predicted held-out {held['what']} error "
                  f"{units.text(held['rms'], held['unit'], '.3g')} RMS")
     return text

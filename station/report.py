@@ -525,7 +525,7 @@ def _design_view(ctx: _Context, evs, val_rows, units) -> dict | None:
                      "ratio": f"{a / p:.2f}" if _finite(p) and float(p) > 0 else "\u2013"})
     held = design.get("predicted_heldout") or {}
     line = ""
-    if "rms" in held:
+    if held.get("rms") is not None:
         line = (f"predicted held-out {held.get('what')} error of the tool: "
                 f"{units.text(held['rms'], held.get('unit', ''), '.3g')} RMS")
         ach = [v for v in val_rows if _finite(v.get("rms_after"))]

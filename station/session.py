@@ -567,8 +567,13 @@ class Session:
             start = self.reference_qm
             if start is None and self.rig is not None and all(d.is_open for d in self.rig.devices):
                 start = self.qm()
+            designs: list = []
             poses = planner.plan_sm(self.method, self.nominal, start, self.request,
-                                    plane=self.plane, accept=within_limits(self.config.envelope))
+                                    plane=self.plane, accept=within_limits(self.config.envelope),
+                                    design_out=designs)
+            if designs:
+                self._set_plan(poses, replace=True, design=designs[0])
+                return poses
         else:
             found = plausibility.check_wrist(self)      # a flipped sign stops here
             if found:
