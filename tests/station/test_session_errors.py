@@ -42,7 +42,9 @@ def test_a_full_disk_during_a_session_is_one_line_and_the_trace_resumes(tmp_path
         assert "No space left on device" in msg and "\n" not in msg, msg
         assert msg.startswith(str(out / "trace.jsonl")) and "run the session again" in msg
         assert len(read_trace(out / "trace.jsonl").poses) == 3
-        with Session(config, "sm-distance-tilt", out, request=request) as again:
+        # 8 poses: the quality gate refuses the fit, rightly; this test is about the disk
+        with Session(config, "sm-distance-tilt", out, request=request,
+                     accept_poor_fit=True) as again:
             again.run()
     trace = read_trace(out / "trace.jsonl")
     assert sorted(p["plan_index"] for p in trace.poses) == list(range(10))
