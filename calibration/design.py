@@ -158,19 +158,7 @@ def d_optimal(info: PoseInformation, count: int, *, fixed=(), exchange: bool = T
     if count < len(fixed):
         raise CalibrationError("fewer poses asked than are already measured")
     B = info.scaled
-    L = B.shape[2]
-    ridge = RIDGE * np.eye(L)
-    chosen = list(fixed)
-    free = np.ones(info.size, dtype=bool)
-    free[chosen] = False
-    M = ridge + (info.matrix(chosen, scaled=True) if chosen else 0.0)
-    while len(chosen) < count:
-        gains = _gains(B, np.linalg.inv(M))
-        gains[~free] = -np.inf
-        j = int(np.argmax(gains))
-        chosen.append(j)
-        free[j] = False
-        M = M + B[j].T @ B[j]
+    chosen, free, M = _greedy(info, fixed, lambda chosen: len(chosen) >= count)
     if exchange:
         ld = _logdet(M)
         for _ in range(max_sweeps):
@@ -239,28 +227,40 @@ def propagate(J: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(np.einsum("rl,lk,rk->r", J, cov, J), 0.0))
 
 
-def grow_until(info: PoseInformation, met, *, start=(), limit: int | None = None) -> np.ndarray:
-    """Add candidates (each the largest D-gain) to ``start`` until ``met(cov)`` is
-    true for the predicted covariance; returns the chosen candidates. Raises
-    :class:`CalibrationError` when the whole pool (or ``limit``) is not enough."""
-    limit = info.size if limit is None else min(limit, info.size)
-    chosen = [int(i) for i in start]
+def _greedy(info: PoseInformation, start, done):
+    """Add the candidate of largest D-gain to ``start`` until ``done(chosen)``; returns
+    ``(chosen, free, M)``: the list, the mask of unchosen candidates and the scaled
+    information matrix (with the ridge)."""
     B = info.scaled
+    chosen = [int(i) for i in start]
     free = np.ones(info.size, dtype=bool)
     free[chosen] = False
     M = RIDGE * np.eye(B.shape[2]) + (info.matrix(chosen, scaled=True) if chosen else 0.0)
-    while True:
-        if chosen and met(covariance(info, chosen)):
-            return np.array(chosen, dtype=int)
-        if len(chosen) >= limit:
-            raise CalibrationError(f"even {len(chosen)} poses are not predicted to reach the "
-                                   f"asked accuracy; widen the workspace or relax the target")
+    while not done(chosen):
         gains = _gains(B, np.linalg.inv(M))
         gains[~free] = -np.inf
         j = int(np.argmax(gains))
         chosen.append(j)
         free[j] = False
         M = M + B[j].T @ B[j]
+    return chosen, free, M
+
+
+def grow_until(info: PoseInformation, met, *, start=(), limit: int | None = None) -> np.ndarray:
+    """Add candidates (each the largest D-gain) to ``start`` until ``met(cov)`` is
+    true for the predicted covariance; returns the chosen candidates. Raises
+    :class:`CalibrationError` when the whole pool (or ``limit``) is not enough."""
+    limit = info.size if limit is None else min(limit, info.size)
+
+    def done(chosen):
+        if chosen and met(covariance(info, chosen)):
+            return True
+        if len(chosen) >= limit:
+            raise CalibrationError(f"even {len(chosen)} poses are not predicted to reach the "
+                                   f"asked accuracy; widen the workspace or relax the target")
+        return False
+
+    return np.array(_greedy(info, start, done)[0], dtype=int)
 
 
 def fk_jacobian(fk, qm, x, columns, step: float = 1e-7) -> np.ndarray:

@@ -167,6 +167,11 @@ def design_poses(model, count: int, *, design: str = "optimal", rng=None, noise=
     hm = None
     if robot is not None and heldout_qm is not None:
         hm = heldout_map(robot, model, info, heldout_qm)
+    return _predicted(info, chosen, design, target, hm)
+
+
+def _predicted(info: dz.PoseInformation, chosen, design: str, target, hm) -> Design:
+    """Grow ``chosen`` to meet ``target`` (if any) and predict its accuracy."""
     if target is not None:
         chosen = dz.grow_until(info, _target(target, info, hm), start=chosen)
     held = {}
@@ -229,15 +234,8 @@ def choose(method: str, robot, x_plan, candidates, n_fit: int, *, measured=(), d
         rng = rng or np.random.default_rng(0)
         chosen = np.r_[np.arange(k), k + rng.choice(len(candidates), n_fit, replace=False)]
     hm = heldout_map(robot, model, info, heldout_qm) if heldout_qm is not None else None
-    if target is not None:
-        chosen = dz.grow_until(info, _target(target, info, hm), start=chosen)
-    held = {}
-    if hm is not None:
-        J, what, unit = hm
-        held = {"what": what, "unit": unit, "rms": heldout_rms(J, dz.covariance(info, chosen))}
-    new = np.array([c - k for c in chosen if c >= k], dtype=int)
-    return new, Design(info.poses(chosen), design, info.names, dz.cramer_rao(info, chosen),
-                       dz.observability(info, chosen), held)
+    plan = _predicted(info, chosen, design, target, hm)
+    return plan.fit[plan.fit >= k] - k, plan
 
 
 def design_text(record: dict, units=None) -> str:

@@ -298,7 +298,6 @@ def test_sm_distance_session_on_a_robot_file(tmp_path, monkeypatch):
 
 
 def test_the_wizard_says_it_does_not_run_robot_files_yet(tmp_path):
-    pytest.importorskip("PySide6")
     from station.gui.controller import Controller
 
     cfg = _fast_config(tmp_path, HAYATI)
