@@ -154,6 +154,11 @@ class Algorithm2(Weighting, Stepping):
         """Stop calibrating ``mask``; they return to their start values, or stay
         where they are if the model cannot be evaluated there."""
         self._set_active(self.active & ~mask)
+        if self.n_active == 0:
+            raise CalibrationError(
+                "no parameter can be identified at the solution: every column is within "
+                f"kappa = {self.opt.kappa:g} times the residual there (the model does not "
+                "fit the data: a local minimum, or a fixed parameter far from its value)")
         self.r_pred = None
         x = self.x.copy()
         x[mask] = self.x0[mask]

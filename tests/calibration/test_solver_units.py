@@ -1,0 +1,464 @@
+"""Algorithm 2 (calibration.solver) on problems whose answer is known in closed
+form: small linear models (the solution, sigma, covariance and cost are those
+of ordinary or weighted least squares), a tiny nonlinear one (against scipy),
+and the pieces on their own (the damped step, Bartlett's test). Each test
+takes milliseconds, so that the solver's mutation run (bench/mutation.py
+solver) can use them alone (docs/testing.md).
+"""
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+from scipy.optimize import brentq, least_squares
+
+from calibration import identifiability as ident
+from calibration.errors import CalibrationError
+from calibration.model import MeasurementModel
+from calibration.solver import SolverOptions, solve
+from calibration.solver.step import Scaled, masks
+from calibration.solver.weighting import HOMOGENEITY_ALPHA, _homogeneous
+
+
+class Linear(MeasurementModel):
+    """``predicted = A x``: ``r = y - A (x)``, ``W = A``; rows of ``channel``
+    (index per row) into ``channels``."""
+
+    method = "linear"
+
+    def __init__(self, A, y, channel=None, channels=("distance",), x0=None, groups=()):
+        self.A, self.y = np.asarray(A, float), np.asarray(y, float)
+        n = self.A.shape[1]
+        self.names = tuple(f"x{j}" for j in range(n))
+        self.x0 = self.nominal = np.zeros(n) if x0 is None else np.asarray(x0, float)
+        self.channels = channels
+        self.row_channel = (np.zeros(len(y), dtype=int) if channel is None
+                            else np.asarray(channel, dtype=int))
+        self.n_poses = len(y)
+        self.noise_groups = groups
+
+    def evaluate(self, x):
+        return self.y - self.A @ x, self.A.copy()
+
+
+class Exponential(MeasurementModel):
+    """``predicted = a exp(b t)``; outside ``b < 3`` the model cannot be
+    evaluated (a CalibrationError, as a PM that cannot assemble)."""
+
+    method = "exponential"
+    names = ("a", "b")
+    channels = ("distance",)
+
+    def __init__(self, t, y, x0, limit=3.0):
+        self.t, self.y, self.limit = t, y, limit
+        self.x0 = self.nominal = np.asarray(x0, float)
+        self.row_channel = np.zeros(len(t), dtype=int)
+        self.n_poses = len(t)
+
+    def evaluate(self, x):
+        a, b = x
+        if b >= self.limit:
+            raise CalibrationError("outside the model's domain")
+        e = np.exp(b * self.t)
+        return self.y - a * e, np.column_stack([e, a * self.t * e])
+
+
+def _linear(rows=30, n=3, noise=1e-3, seed=0, scales=(1.0, 20.0, 0.05)):
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(rows, n)) * np.asarray(scales[:n])
+    truth = rng.normal(size=n)
+    y = A @ truth + noise * rng.normal(size=rows)
+    return A, y, truth
+
+
+def _ols(A, y):
+    x = np.linalg.lstsq(A, y, rcond=None)[0]
+    r = y - A @ x
+    s2 = float(r @ r) / (len(y) - A.shape[1])
+    return x, r, s2, s2 * np.linalg.inv(A.T @ A)
+
+
+# -- one channel, estimated sigma: ordinary least squares ---------------------------------
+def test_linear_solution_sigma_covariance_and_cost_are_least_squares():
+    A, y, _ = _linear()
+    x, r, s2, cov = _ols(A, y)
+    res = solve(Linear(A, y))
+    assert res.converged and res.message.startswith("converged in ")
+    assert f"in {res.iterations} iterations" in res.message and "< 1e-10" in res.message
+    np.testing.assert_allclose(res.x, x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(res.residual, r, rtol=1e-6, atol=1e-12)
+    assert res.sigma == pytest.approx({"distance": math.sqrt(s2)}, rel=1e-9)  # eq. 51
+    assert not res.sigma_known
+    np.testing.assert_allclose(res.covariance, cov, rtol=1e-8)  # eq. 52
+    np.testing.assert_allclose(res.std, np.sqrt(np.diag(cov)), rtol=1e-8)
+    assert res.residual_rms["distance"] == pytest.approx(math.sqrt(r @ r / len(y)), rel=1e-9)
+    # cost 0.5 r^T L r with L = 1/sigma^2: half the degrees of freedom
+    assert res.cost == pytest.approx(0.5 * (len(y) - 3), rel=1e-9)
+    H = 1 / np.linalg.norm(A, axis=0)
+    assert res.condition_number == pytest.approx(np.linalg.cond(A * H), rel=1e-9)
+    assert res.n_rows == 30 and res.n_identifiable == 3 and res.covariance_names == res.names
+    assert res.nfev == res.iterations and res.wall_time > 0  # start + accepted steps
+    assert [s.label for s in res.status] == [ident.IDENTIFIABLE] * 3
+    assert res.value("x1") == res.x[1] and res.error_of("x2") == res.std[2]
+    np.testing.assert_array_equal(res.x0, np.zeros(3))
+
+
+def test_linear_history_records_each_iteration():
+    A, y, _ = _linear()
+    x, _, s2, cov = _ols(A, y)
+    seen = []
+    res = solve(Linear(A, y), callback=lambda k, it: seen.append((k, it)))
+    assert [k for k, _ in seen] == list(range(1, res.iterations + 1))
+    assert [it for _, it in seen] == list(res.history)
+    last = res.history[-1]
+    assert last.step < 1e-10 and all(h.step >= 1e-10 for h in res.history[:-1])
+    np.testing.assert_allclose(last.x, x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(last.variance, np.diag(cov), rtol=1e-6)
+    assert last.sigma == pytest.approx({"distance": math.sqrt(s2)}, rel=1e-6)
+    assert last.condition_number == pytest.approx(res.condition_number, rel=1e-9)
+    # the first step starts from x0 = 0: cost 0.5 y^T y (L = I in the first iteration)
+    assert res.history[0].cost == pytest.approx(0.5 * float(y @ y), rel=1e-12)
+    assert res.history[0].step == pytest.approx(np.abs(x).max(), rel=1e-3)
+    assert res.iterations <= 4
+
+
+def test_known_sigma_weights_and_scales_the_covariance():
+    A, y, _ = _linear()
+    x, r, _, _ = _ols(A, y)
+    s = 2e-3
+    res = solve(Linear(A, y), SolverOptions(sigma={"distance": s}))
+    assert res.sigma_known and res.sigma == {"distance": s}
+    np.testing.assert_allclose(res.x, x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(res.covariance, s * s * np.linalg.inv(A.T @ A), rtol=1e-8)
+    assert res.cost == pytest.approx(0.5 * float(r @ r) / s ** 2, rel=1e-6)
+    np.testing.assert_allclose(res.history[-1].variance, s * s * np.diag(np.linalg.inv(A.T @ A)),
+                               rtol=1e-6)
+
+
+@pytest.mark.parametrize("opts", [dict(scale_columns=False), dict(weight_errors=False),
+                                  dict(adaptive=False), dict(recheck=False), dict(damping=0.0),
+                                  dict(damping=0.3)])
+def test_options_do_not_change_a_linear_answer(opts):
+    A, y, _ = _linear()
+    x, _, s2, cov = _ols(A, y)
+    res = solve(Linear(A, y), SolverOptions(**opts))
+    assert res.converged, res.message
+    np.testing.assert_allclose(res.x, x, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(res.covariance, cov, rtol=1e-6)
+    if opts == dict(scale_columns=False):
+        assert res.condition_number == pytest.approx(np.linalg.cond(A), rel=1e-9)
+    if opts == dict(damping=0.3):  # a damped step needs more iterations
+        assert res.iterations > solve(Linear(A, y)).iterations
+
+
+def test_damping_defaults_to_the_method_s():
+    A, y, _ = _linear()
+    m = Linear(A, y)
+    m.default_damping = 0.5
+    slow = solve(m)
+    assert slow.iterations == solve(Linear(A, y), SolverOptions(damping=0.5)).iterations
+    assert slow.iterations > solve(Linear(A, y)).iterations
+
+
+def test_epsilon_and_iteration_limit():
+    A, y, _ = _linear()
+    res = solve(Linear(A, y), SolverOptions(max_iter=1))
+    assert not res.converged and res.iterations == 1
+    assert res.message == "no convergence within 1 iterations"
+    x = _ols(A, y)[0]
+    start = x + [1e-4, -2e-4, 5e-5]
+    loose = solve(Linear(A, y, x0=start), SolverOptions(epsilon=3e-4))
+    assert loose.converged and loose.iterations == 1 and "< 0.0003" in loose.message
+    np.testing.assert_array_equal(loose.x, start)  # the step was below epsilon: not taken
+    assert loose.history[0].step == pytest.approx(2e-4, rel=1e-3)
+    tight = solve(Linear(A, y, x0=start), SolverOptions(epsilon=1.9e-4))
+    assert tight.iterations == 2 and np.allclose(tight.x, x, rtol=1e-6)
+
+
+def test_nothing_identifiable_at_the_solution_is_refused():
+    """Stopped far from the solution (epsilon 10), the residual dwarfs every
+    column: nothing is identifiable there, which is a refusal, not a crash."""
+    A, y, _ = _linear()
+    with pytest.raises(CalibrationError, match="no parameter can be identified at the solution"):
+        solve(Linear(A, y), SolverOptions(epsilon=10.0))
+
+
+# -- identifiable-set selection ----------------------------------------------------------
+def test_dependent_and_zero_columns_and_fixed_parameters():
+    rng = np.random.default_rng(1)
+    c0, c1, c3 = rng.normal(size=(3, 25))
+    A = np.column_stack([c0, c1, 2 * c0 - c1, np.zeros(25), c3])
+    truth = np.array([0.4, -0.7, 0.0, 0.0, 0.0])
+    y = A @ truth + 1e-3 * rng.normal(size=25)
+    x0 = np.array([0.0, 0.0, 0.25, -0.5, 0.0])
+    res = solve(Linear(A, y, x0=x0))
+    assert res.converged, res.message
+    assert [s.label for s in res.status] == [ident.IDENTIFIABLE, ident.IDENTIFIABLE,
+                                             ident.INFLUENCES, ident.NO_INFLUENCE,
+                                             ident.IDENTIFIABLE]
+    keep = [0, 1, 4]
+    x, _, s2, cov = _ols(A[:, keep], y - A[:, 2] * 0.25)
+    np.testing.assert_allclose(res.x[keep], x, rtol=1e-9)
+    assert res.x[2] == 0.25 and res.x[3] == -0.5  # left at their start values
+    assert np.isnan(res.std[[2, 3]]).all() and res.covariance.shape == (3, 3)
+    np.testing.assert_allclose(res.covariance, cov, rtol=1e-8)
+    assert res.covariance_names == ("x0", "x1", "x4") and res.n_identifiable == 3
+    assert np.isnan(res.history[-1].variance[[2, 3]]).all()
+    # fixed: kept at the start value, not calibrated, the others fitted without it
+    fx = solve(Linear(A, y, x0=x0), SolverOptions(fixed=("x4",)))
+    assert fx.converged, fx.message
+    assert fx.x[4] == 0.0 and not fx.status[4].identifiable and fx.n_identifiable == 2
+    np.testing.assert_allclose(fx.x[:2], _ols(A[:, :2], y - A[:, 2] * 0.25)[0], rtol=1e-9)
+
+
+def test_parameter_dropped_at_the_solution_returns_to_its_start():
+    """A column at 1.5 times the residual norm is calibrated from the structural
+    check, then judged zero at the solution (kappa = 3): it goes back to x0
+    and the others are refitted without it."""
+    rng = np.random.default_rng(2)
+    Q, _ = np.linalg.qr(rng.normal(size=(40, 4)))
+    strong = rng.normal(size=(40, 2))
+    strong -= Q[:, 2:] @ (Q[:, 2:].T @ strong)
+    A = np.column_stack([strong, 1.5e-3 * Q[:, 2]])
+    y = A @ np.array([0.3, -0.2, 0.0]) + 1e-3 * Q[:, 3] + 2e-3 * Q[:, 2]
+    res = solve(Linear(A, y, x0=[0.0, 0.0, 0.1]))
+    assert res.status[2].label == ident.NO_INFLUENCE and res.x[2] == 0.1
+    np.testing.assert_allclose(res.x[:2], [0.3, -0.2], atol=1e-9)
+    assert solve(Linear(A, y, x0=[0.0, 0.0, 0.1]), SolverOptions(recheck=False)).status[2].identifiable
+
+
+def test_refusals_name_the_problem():
+    A, y, _ = _linear(rows=3)
+    with pytest.raises(CalibrationError, match=r"3 poses give 3 equations for up to 3 "
+                                               r"parameters; at least 4 poses .*recommended 15"):
+        solve(Linear(A, y))
+    A, y, _ = _linear(rows=4)
+    assert solve(Linear(A, y)).converged  # one degree of freedom is enough
+    with pytest.raises(CalibrationError, match="no parameter can be identified"):
+        solve(Linear(np.zeros((5, 2)), np.ones(5)))
+    with pytest.raises(CalibrationError, match=r"unknown channel\(s\) \['tilt'\]"):
+        solve(Linear(A, y), SolverOptions(sigma={"tilt": 1.0}))
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(CalibrationError, match="must be a positive number"):
+            solve(Linear(A, y), SolverOptions(sigma={"distance": bad}))
+    yb = y.copy()
+    yb[1] = np.nan
+    with pytest.raises(CalibrationError, match="non-finite values at the start"):
+        solve(Linear(A, yb))
+
+
+# -- two channels: per-channel weights (eq. 51 per channel) --------------------------------
+def _two_channels(s0=1e-3, s1=3e-2, rows=(40, 30), seed=3, groups=()):
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(sum(rows), 3)) * [1.0, 5.0, 0.2]
+    ch = np.repeat([0, 1], rows)
+    y = A @ np.array([0.5, -0.1, 2.0]) + np.where(ch == 0, s0, s1) * rng.normal(size=len(ch))
+    return Linear(A, y, channel=ch, channels=("distance", "tilt"), groups=groups), A, y, ch
+
+
+def _wls(A, y, w):
+    Aw = A * np.sqrt(w)[:, None]
+    x = np.linalg.lstsq(Aw, y * np.sqrt(w), rcond=None)[0]
+    return x, np.linalg.inv(A.T @ (A * w[:, None]))
+
+
+def test_per_channel_weights_are_the_channels_sigmas():
+    model, A, y, ch = _two_channels()
+    res = solve(model)
+    assert res.converged, res.message
+    used = res.history[-1].sigma  # the weights of the last round
+    w_used = 1 / np.array([used["distance"], used["tilt"]])[ch] ** 2
+    x, _ = _wls(A, y, w_used)
+    np.testing.assert_allclose(res.x, x, rtol=1e-9)
+    # final sigma: each channel's residual over its degrees of freedom, which are its
+    # rows less the leverages its rows hold in the weighted fit
+    r = y - A @ res.x
+    Aw = A * np.sqrt(w_used)[:, None]
+    lev = np.einsum("ij,ij->i", Aw @ np.linalg.inv(Aw.T @ Aw), Aw)
+    for c, name in enumerate(model.channels):
+        m = ch == c
+        want = math.sqrt(float(r[m] @ r[m]) / (m.sum() - lev[m].sum()))
+        assert res.sigma[name] == pytest.approx(want, rel=1e-9)
+        assert res.residual_rms[name] == pytest.approx(math.sqrt(r[m] @ r[m] / m.sum()), rel=1e-9)
+        assert abs(res.sigma[name] / used[name] - 1) <= 0.05  # no material change left
+    w = 1 / np.array([res.sigma["distance"], res.sigma["tilt"]])[ch] ** 2
+    np.testing.assert_allclose(res.covariance, np.linalg.inv(A.T @ (A * w[:, None])), rtol=1e-8)
+    assert res.cost == pytest.approx(0.5 * float(r @ (w * r)), rel=1e-9)
+    # the sigmas differ thirtyfold; the pooled fit would be a different (worse) answer
+    assert 10 < res.sigma["tilt"] / res.sigma["distance"] < 100
+    assert not np.allclose(res.x, _ols(A, y)[0], rtol=1e-6)
+    s0 = res.history[0].sigma  # pooled: one sigma (eq. 51) for all rows until the solution
+    assert s0["distance"] == s0["tilt"] and 1e-3 < s0["tilt"] < 3e-2
+    var_last = np.diag(np.linalg.inv(A.T @ (A * w_used[:, None])))
+    np.testing.assert_allclose(res.history[-1].variance, var_last, rtol=1e-6)
+
+
+def test_known_sigma_per_channel():
+    model, A, y, ch = _two_channels()
+    sig = {"distance": 1e-3, "tilt": 3e-2}
+    res = solve(model, SolverOptions(sigma=sig))
+    w = 1 / np.array([1e-3, 3e-2])[ch] ** 2
+    x, cov = _wls(A, y, w)
+    assert res.sigma == sig and res.sigma_known
+    np.testing.assert_allclose(res.x, x, rtol=1e-9)
+    np.testing.assert_allclose(res.covariance, cov, rtol=1e-8)
+    assert all(h.sigma == sig for h in res.history)
+    # one channel known, the other estimated
+    part = solve(model, SolverOptions(sigma={"distance": 1e-3}))
+    assert part.sigma["distance"] == 1e-3 and not part.sigma_known
+    assert part.sigma["tilt"] == pytest.approx(3e-2, rel=0.3)
+
+
+def test_unweighted_two_channels_is_ordinary_least_squares():
+    model, A, y, ch = _two_channels()
+    res = solve(model, SolverOptions(weight_errors=False))
+    x, r, s2, _ = _ols(A, y)
+    np.testing.assert_allclose(res.x, x, rtol=1e-9)
+    assert all(set(h.sigma.values()) == {h.sigma["distance"]} for h in res.history)
+    assert res.history[-1].sigma["distance"] == pytest.approx(math.sqrt(s2), rel=1e-6)
+
+
+def test_channels_of_one_sensor_share_a_sigma_unless_bartlett_tells_them_apart():
+    same, A, y, ch = _two_channels(s0=1e-3, s1=1e-3, groups=(("distance", "tilt"),))
+    res = solve(same)
+    assert res.sigma["distance"] == res.sigma["tilt"]
+    x, r, s2, cov = _ols(A, y)
+    np.testing.assert_allclose(res.x, x, rtol=1e-9)
+    assert res.sigma["distance"] == pytest.approx(math.sqrt(s2), rel=1e-9)
+    np.testing.assert_allclose(res.covariance, cov, rtol=1e-8)
+    apart = solve(Linear(A, y, channel=ch, channels=("distance", "tilt")))
+    assert apart.sigma["distance"] != apart.sigma["tilt"]
+    differ, *_ = _two_channels(groups=(("distance", "tilt"),))
+    d = solve(differ)
+    assert d.sigma["tilt"] / d.sigma["distance"] > 10
+
+
+def _bartlett_inputs(scale, sizes, seed=0):
+    rng = np.random.default_rng(seed)
+    samples = [rng.normal(size=n) * (scale if i == 0 else 1.0) for i, n in enumerate(sizes)]
+    rss_dof = [(float(((s - s.mean()) ** 2).sum()), len(s) - 1) for s in samples]
+    return samples, rss_dof
+
+
+def _bartlett_p(scale, sizes):
+    return stats.bartlett(*_bartlett_inputs(scale, sizes)[0]).pvalue
+
+
+@pytest.mark.parametrize("sizes", [(12, 9, 15), (20, 14)])
+def test_homogeneity_is_bartlett_s_test_at_its_threshold(sizes):
+    """Against scipy's Bartlett test on the same samples, just either side of
+    alpha = 0.01 (the scale of one group where scipy's p crosses it)."""
+    assert HOMOGENEITY_ALPHA == 0.01
+    cross = brentq(lambda s: _bartlett_p(s, sizes) - HOMOGENEITY_ALPHA, 1.0, 6.0, xtol=1e-9)
+    for s in (cross * (1 - 1e-5), cross * (1 + 1e-5), 1.0, 6.0):
+        pv = _bartlett_p(s, sizes)
+        assert _homogeneous(_bartlett_inputs(s, sizes)[1]) is bool(pv > HOMOGENEITY_ALPHA), (s, pv)
+
+
+def test_homogeneity_needs_two_usable_groups():
+    assert not _homogeneous([(1.0, 10)])
+    assert not _homogeneous([(1.0, 10), (0.0, 10)])  # no scatter: not a usable group
+    assert not _homogeneous([(1.0, 10), (1.0, 0.5)])  # half a degree of freedom: not usable
+    assert _homogeneous([(1.0, 10), (1.1, 11), (0.0, 5)])
+    assert _homogeneous([(1.0, 10), (0.3, 0.6)]) is bool(
+        stats.chi2.sf(_bartlett_t([(1.0, 10), (0.3, 0.6)]), 1) > 0.01)
+
+
+def _bartlett_t(rd):
+    nu = sum(d for _, d in rd)
+    sp = sum(rc for rc, _ in rd) / nu
+    t = nu * math.log(sp) - sum(d * math.log(rc / d) for rc, d in rd)
+    return t / (1 + (sum(1 / d for _, d in rd) - 1 / nu) / (3 * (len(rd) - 1)))
+
+
+# -- nonlinear: against scipy ----------------------------------------------------------------
+def _exp_data(noise=1e-3, seed=4):
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 1.0, 25)
+    return t, 1.5 * np.exp(-0.8 * t) + noise * rng.normal(size=t.size)
+
+
+def test_nonlinear_matches_scipy_least_squares():
+    t, y = _exp_data()
+    res = solve(Exponential(t, y, [1.0, 0.0]))
+    ref = least_squares(lambda p: y - p[0] * np.exp(p[1] * t), [1.0, 0.0], xtol=1e-15,
+                        ftol=1e-15, gtol=1e-15)
+    assert res.converged, res.message
+    np.testing.assert_allclose(res.x, ref.x, rtol=1e-9)
+    J = ref.jac
+    s2 = float(ref.fun @ ref.fun) / (t.size - 2)
+    np.testing.assert_allclose(res.covariance, s2 * np.linalg.inv(J.T @ J), rtol=1e-6)
+    assert 2 < res.iterations < 30
+    steps = [h.step for h in res.history]
+    assert steps[-1] < 1e-10 and steps[-2] < 1e-4  # quadratic convergence at the end
+
+
+def test_noise_free_nonlinear_recovers_the_truth():
+    t = np.linspace(0.0, 1.0, 25)
+    res = solve(Exponential(t, 1.5 * np.exp(-0.8 * t), [1.0, 0.0]))
+    assert res.converged
+    np.testing.assert_allclose(res.x, [1.5, -0.8], atol=1e-12)
+
+
+def test_adaptive_damping_rejects_a_step_that_leaves_the_domain():
+    """For b = 2 from b0 = 1 the Gauss-Newton step crosses b = 3, where the model
+    cannot be evaluated: the adaptive solver damps it and converges; the plain
+    Algorithm 2 (adaptive=False) stops with a message."""
+    t = np.linspace(0.0, 1.0, 25)
+    y = 1.5 * np.exp(2.0 * t)
+    good = solve(Exponential(t, y, [1.0, 1.0]))
+    assert good.converged, good.message
+    np.testing.assert_allclose(good.x, [1.5, 2.0], atol=1e-9)
+    plain = solve(Exponential(t, y, [1.0, 1.0]), SolverOptions(adaptive=False))
+    assert not plain.converged
+    assert plain.message.startswith("the step left the model's domain at iteration ")
+
+
+# -- the scaled problem and its damped step (eqs. 47-49, 52) ---------------------------------
+@pytest.mark.parametrize("rows", [12, 3, 2])
+@pytest.mark.parametrize("per_row", [False, True])
+def test_scaled_step_variance_and_condition(rows, per_row):
+    rng = np.random.default_rng(rows)
+    WA = rng.normal(size=(rows, 3)) * [1.0, 50.0, 0.01]
+    r = rng.normal(size=rows)
+    h = 1 / np.linalg.norm(WA, axis=0)
+    g = rng.uniform(0.5, 2.0, size=rows) if per_row else 1.7
+    G = np.broadcast_to(g, (rows,))
+    A, b = WA * h * G[:, None], r * G
+    F = Scaled(WA, {"distance": 1.0}, WA, h, g, r)
+    assert F.cost == pytest.approx(0.5 * float(b @ b), rel=1e-12)
+    sv = np.linalg.svd(A, compute_uv=False)
+    assert F.s0 == pytest.approx(sv[0], rel=1e-10) and F.smin == pytest.approx(sv[-1], rel=1e-10)
+    assert F.cond == pytest.approx(sv[0] / sv[-1], rel=1e-9)
+    for lam2 in (0.0, 1e-4, 0.3):
+        want = np.linalg.lstsq(np.vstack([A, math.sqrt(lam2) * np.eye(3)]),
+                               np.r_[b, np.zeros(3)], rcond=None)[0]
+        np.testing.assert_allclose(F.step(lam2), want, rtol=1e-8, atol=1e-12)
+    z = rng.normal(size=3)
+    assert F.scaled_norm(z) == pytest.approx(np.linalg.norm(A @ z), rel=1e-10)
+    np.testing.assert_allclose(F.variance_scaled(), np.diag(np.linalg.pinv(A.T @ A)),
+                               rtol=1e-7)
+
+
+def test_scaled_singular_uses_the_pseudo_inverse():
+    rng = np.random.default_rng(7)
+    c = rng.normal(size=(10, 2))
+    WA = np.column_stack([c[:, 0], c[:, 1], c[:, 0] + c[:, 1]])
+    r = rng.normal(size=10)
+    h = 1 / np.linalg.norm(WA, axis=0)
+    F = Scaled(WA, {}, WA, h, 1.0, r)
+    A = WA * h
+    assert F.svd is not None and F.cond > 1e14
+    np.testing.assert_allclose(F.step(0.0), np.linalg.pinv(A) @ r, rtol=1e-7, atol=1e-10)
+    np.testing.assert_allclose(F.variance_scaled(), np.diag(np.linalg.pinv(A.T @ A, rcond=1e-15)),
+                               rtol=1e-6)
+    assert F.scaled_norm(np.ones(3)) == pytest.approx(np.linalg.norm(A @ np.ones(3)), rel=1e-8)
+
+
+def test_masks():
+    tri, aug = masks(3)
+    np.testing.assert_array_equal(tri, np.triu(np.ones((3, 4))))
+    want = np.zeros((6, 4))
+    want[3:, :3] = np.eye(3)
+    np.testing.assert_array_equal(aug, want)
+    assert masks(3)[0] is tri and tri.flags.f_contiguous and aug.flags.f_contiguous
