@@ -22,13 +22,11 @@ SIGMA_CHANGE = 0.05
 class Weighting:
     """Sigma and weights (mixin of :class:`calibration.solver.rounds.Algorithm2`)."""
 
-    def channel_sigma(self, r, n_active, pooled=False):
+    def channel_sigma(self, r, n_active):
         """Sigma of one row per channel (eq. 51): known values where given; else
-        estimated from the residual, pooled over all rows (the report's single
-        sigma) or per channel with its share of the degrees of freedom."""
+        estimated from the residual per channel with its share of the degrees of
+        freedom (the pooled sigma of the first round: :meth:`_pooled_sigma`)."""
         n = len(r)
-        if pooled:
-            return self._pooled_sigma(float(r @ r), n, n_active)
         memo = self._sigma_memo
         if memo[0] is r and memo[1] == n_active:
             return dict(memo[2])

@@ -16,6 +16,7 @@ from calibration import identifiability as ident
 from calibration.errors import CalibrationError
 from calibration.model import MeasurementModel
 from calibration.solver import SolverOptions, solve
+from calibration.solver import step
 from calibration.solver.step import Scaled, masks
 from calibration.solver.weighting import HOMOGENEITY_ALPHA, _homogeneous
 
@@ -179,7 +180,11 @@ def test_nothing_identifiable_at_the_solution_is_refused():
     """Stopped far from the solution (epsilon 10), the residual dwarfs every
     column: nothing is identifiable there, which is a refusal, not a crash."""
     A, y, _ = _linear()
-    with pytest.raises(CalibrationError, match="no parameter can be identified at the solution"):
+    with pytest.raises(CalibrationError, match=r"^no parameter can be identified at the solution: "
+                                               r"every column is within kappa = 3 times the "
+                                               r"residual there \(the model does not fit the "
+                                               r"data: a local minimum, or a fixed parameter far "
+                                               r"from its value\)$"):
         solve(Linear(A, y), SolverOptions(epsilon=10.0))
 
 
@@ -234,7 +239,8 @@ def test_refusals_name_the_problem():
         solve(Linear(A, y))
     A, y, _ = _linear(rows=4)
     assert solve(Linear(A, y)).converged  # one degree of freedom is enough
-    with pytest.raises(CalibrationError, match="no parameter can be identified"):
+    with pytest.raises(CalibrationError,
+                       match="^no parameter can be identified from these measurements$"):
         solve(Linear(np.zeros((5, 2)), np.ones(5)))
     with pytest.raises(CalibrationError, match=r"unknown channel\(s\) \['tilt'\]"):
         solve(Linear(A, y), SolverOptions(sigma={"tilt": 1.0}))
@@ -243,7 +249,7 @@ def test_refusals_name_the_problem():
             solve(Linear(A, y), SolverOptions(sigma={"distance": bad}))
     yb = y.copy()
     yb[1] = np.nan
-    with pytest.raises(CalibrationError, match="non-finite values at the start"):
+    with pytest.raises(CalibrationError, match="^the model gives non-finite values at the start"):
         solve(Linear(A, yb))
 
 
@@ -455,10 +461,183 @@ def test_scaled_singular_uses_the_pseudo_inverse():
     assert F.scaled_norm(np.ones(3)) == pytest.approx(np.linalg.norm(A @ np.ones(3)), rel=1e-8)
 
 
-def test_masks():
+def test_masks(monkeypatch):
+    monkeypatch.setattr(step, "_MASKS", {})  # (filled by earlier tests: made anew here)
     tri, aug = masks(3)
     np.testing.assert_array_equal(tri, np.triu(np.ones((3, 4))))
     want = np.zeros((6, 4))
     want[3:, :3] = np.eye(3)
     np.testing.assert_array_equal(aug, want)
     assert masks(3)[0] is tri and tri.flags.f_contiguous and aug.flags.f_contiguous
+
+
+# -- the final statistics' other paths -------------------------------------------------------
+def test_ill_conditioned_columns_take_the_normal_matrix_pseudo_inverse():
+    """Columns whose norms differ by 1e7: past the QR's safe range the covariance
+    is the pseudo-inverse of the normal matrix (eq. 52 as written); it still is
+    the covariance, and the condition number is that of the scaled matrix."""
+    rng = np.random.default_rng(8)
+    A = rng.normal(size=(30, 3)) * [1.0, 1e-7, 1e-3]
+    y = A @ np.array([0.2, 3.0, -1.0]) + 1e-10 * rng.normal(size=30)
+    res = solve(Linear(A, y))
+    assert res.converged and res.n_identifiable == 3, res.message
+    H = 1 / np.linalg.norm(A, axis=0)
+    x, r, s2, _ = _ols(A * H, y)
+    np.testing.assert_allclose(res.x, x * H, rtol=1e-7)
+    cov = s2 * np.outer(H, H) * np.linalg.inv((A * H).T @ (A * H))
+    np.testing.assert_allclose(res.covariance, cov, rtol=1e-4)
+    np.testing.assert_allclose(res.std, np.sqrt(np.diag(cov)), rtol=1e-4)
+    assert res.condition_number == pytest.approx(np.linalg.cond(A * H), rel=1e-6)
+
+
+@pytest.mark.parametrize("opts", [dict(recheck=False), dict(scale_columns=False),
+                                  dict(recheck=False, scale_columns=False)])
+def test_per_channel_covariance_without_a_factor_to_reuse(opts):
+    """Without the recheck's triangle (or with unscaled columns) the final
+    covariance is a QR of its own: the same (W^T L W)^-1, L from the final sigma."""
+    model, A, y, ch = _two_channels()
+    res = solve(model, SolverOptions(**opts))
+    assert res.converged, res.message
+    w = 1 / np.array([res.sigma["distance"], res.sigma["tilt"]])[ch] ** 2
+    np.testing.assert_allclose(res.covariance, np.linalg.inv(A.T @ (A * w[:, None])), rtol=1e-8)
+    H = 1 / np.linalg.norm(A, axis=0) if opts.get("scale_columns", True) else np.ones(3)
+    assert res.condition_number == pytest.approx(np.linalg.cond(A * H * np.sqrt(w)[:, None]),
+                                                  rel=1e-8)
+
+
+def test_status_carries_the_columns_figures():
+    """Each status names its parameter and carries |R[j, j]| of the unit, weighted
+    columns and the weighted column norm, identifiable or not."""
+    rng = np.random.default_rng(1)
+    c0, c1, c3 = rng.normal(size=(3, 25))
+    A = np.column_stack([c0, c1, 2 * c0 - c1, np.zeros(25), 10 * c3])
+    y = A @ np.array([0.4, -0.7, 0.0, 0.0, 0.05]) + 1e-3 * rng.normal(size=25)
+    res = solve(Linear(A, y))
+    s = res.sigma["distance"]
+    norms = np.linalg.norm(A, axis=0) / s
+    assert [st.name for st in res.status] == list(res.names)
+    np.testing.assert_allclose([st.column_norm for st in res.status], norms, rtol=1e-9)
+    keep = [0, 1, 4]
+    d = np.abs(np.diag(np.linalg.qr(A[:, keep] / np.linalg.norm(A[:, keep], axis=0))[1]))
+    np.testing.assert_allclose([res.status[j].r_diag for j in keep], d, rtol=1e-9)
+    assert res.status[2].r_diag < 1e-8 and res.status[3].r_diag == 0.0
+    assert [st.influences_model for st in res.status] == [False, False, True, False, False]
+    assert res.method == "linear"
+    # unweighted (weight_errors=False): the same figures without the 1/sigma
+    un = solve(Linear(A, y), SolverOptions(weight_errors=False))
+    np.testing.assert_allclose([st.column_norm for st in un.status], norms * s, rtol=1e-9)
+
+
+def test_channel_without_rows():
+    """A channel of the method that this data set has no rows of: no RMS, no
+    weight, the other channel's answer unchanged."""
+    A, y, _ = _linear()
+    res = solve(Linear(A, y, channels=("distance", "tilt")))
+    x, r, s2, cov = _ols(A, y)
+    np.testing.assert_allclose(res.x, x, rtol=1e-9)
+    assert math.isnan(res.residual_rms["tilt"])
+    assert res.residual_rms["distance"] == pytest.approx(math.sqrt(r @ r / 30), rel=1e-9)
+    assert res.sigma["distance"] == pytest.approx(math.sqrt(s2), rel=1e-9)
+
+
+def test_wall_time_is_the_solve_s():
+    import time
+
+    A, y, _ = _linear()
+    t0 = time.perf_counter()
+    res = solve(Linear(A, y))
+    assert 0 < res.wall_time <= time.perf_counter() - t0
+
+
+def test_history_variance_and_cost_of_every_iteration():
+    """Iteration 1 runs with L = I and records the pooled sigma of its step's
+    residual (eq. 51): variance sigma_1^2 (W^T W)^-1; without error weighting
+    L = I throughout."""
+    A, y, _ = _linear()
+    res = solve(Linear(A, y))
+    h0 = res.history[0]
+    np.testing.assert_allclose(h0.variance, h0.sigma["distance"] ** 2
+                               * np.diag(np.linalg.inv(A.T @ A)), rtol=1e-9)
+    assert all(isinstance(h.cost, float) for h in res.history)
+    r1 = y - A @ res.history[-2].x
+    assert res.history[-1].cost == pytest.approx(0.5 * float(r1 @ r1)
+                                                 / res.history[-2].sigma["distance"] ** 2,
+                                                 rel=1e-9)
+    model, A2, y2, ch = _two_channels()
+    un = solve(model, SolverOptions(weight_errors=False))
+    for h, x_before in zip(un.history, [np.zeros(3)] + [h.x for h in un.history[:-1]]):
+        rb = y2 - A2 @ x_before
+        assert h.cost == pytest.approx(0.5 * float(rb @ rb), rel=1e-9)
+    last = un.history[-1]
+    np.testing.assert_allclose(last.variance, last.sigma["distance"] ** 2
+                               * np.diag(np.linalg.inv(A2.T @ A2)), rtol=1e-9)
+
+
+def test_known_sigma_far_from_the_data_is_still_used():
+    """Known sigmas are the trace's: never re-estimated, even where the residual
+    disagrees tenfold."""
+    model, A, y, ch = _two_channels()
+    sig = {"distance": 1e-3, "tilt": 0.3}
+    res = solve(model, SolverOptions(sigma=sig))
+    w = 1 / np.array([1e-3, 0.3])[ch] ** 2
+    x, cov = _wls(A, y, w)
+    np.testing.assert_allclose(res.x, x, rtol=1e-10)
+    np.testing.assert_allclose(res.covariance, cov, rtol=1e-8)
+    assert all(h.sigma == sig for h in res.history)
+
+
+def test_two_channel_rounds():
+    """The per-channel rounds stop when the weights settle (no channel's sigma
+    changes by 5 %), well before the limit of six rounds."""
+    model, A, y, ch = _two_channels()
+    res = solve(model)
+    rounds = [h for h in res.history if h.step < 1e-10]  # each round ends on a converged step
+    assert 1 <= len(rounds) < 5, [h.step for h in res.history]
+
+
+def test_start_values_given_as_integers():
+    A, y, _ = _linear()
+    m = Linear(A, y)
+    m.x0 = [0, 0, 0]
+    res = solve(m)
+    np.testing.assert_allclose(res.x, _ols(A, y)[0], rtol=1e-9)
+    assert res.x0.dtype == float
+
+
+def test_observation_matrix_not_finite_at_the_start():
+    A, y, _ = _linear()
+    Ab = A.copy()
+    Ab[3, 1] = np.inf
+    with np.errstate(invalid="ignore"), pytest.raises(CalibrationError,
+                       match="^the model gives non-finite values at the start parameters$"):
+        solve(Linear(Ab, y))
+
+
+def test_too_few_rows_counts_rows_per_pose():
+    A, y, _ = _linear(rows=2)
+    m = Linear(A, y)
+    m.n_poses = 1  # two rows per pose
+    with pytest.raises(CalibrationError, match=r"^1 poses give 2 equations for up to 3 parameters; "
+                                               r"at least 2 poses are needed \(recommended 8, eq. 60\)$"):
+        solve(m)
+
+
+def test_dependent_column_dropped_at_the_solution_refits_the_others():
+    """A column that is a strong column plus a part below kappa times the residual:
+    dependent at the solution, back to its start value, and the others refitted
+    with it there (two channels of equal noise: one sigma, as one channel)."""
+    rng = np.random.default_rng(9)
+    Q, _ = np.linalg.qr(rng.normal(size=(40, 4)))
+    strong = rng.normal(size=(40, 2))
+    strong -= Q[:, 2:] @ (Q[:, 2:].T @ strong)
+    A = np.column_stack([strong, 0.5 * strong[:, 0] + 1.5e-3 * Q[:, 2]])
+    y = A @ np.array([0.3, -0.2, 0.0]) + 1e-3 * Q[:, 3]
+    ch = np.arange(40) % 2
+    for model in (Linear(A, y, x0=[0.0, 0.0, 0.1]),
+                  Linear(A, y, x0=[0.0, 0.0, 0.1], channel=ch, channels=("distance", "tilt"))):
+        res = solve(model)
+        assert res.converged, res.message
+        assert res.status[2].label == ident.INFLUENCES and res.x[2] == 0.1
+        used = res.history[-1].sigma
+        w = 1 / np.array([used[c] for c in model.channels])[model.row_channel] ** 2
+        np.testing.assert_allclose(res.x[:2], _wls(A[:, :2], y - 0.1 * A[:, 2], w)[0], rtol=1e-9)
