@@ -262,6 +262,15 @@ def _two_channels(s0=1e-3, s1=3e-2, rows=(40, 30), seed=3, groups=()):
     return Linear(A, y, channel=ch, channels=("distance", "tilt"), groups=groups), A, y, ch
 
 
+def _channel_sigmas(A, r, ch, w):
+    """Each channel's sigma: its residual over its rows less its leverages in the
+    fit weighted by ``w``."""
+    Aw = A * np.sqrt(w)[:, None]
+    lev = np.einsum("ij,ij->i", Aw @ np.linalg.inv(Aw.T @ Aw), Aw)
+    return [math.sqrt(float(r[ch == c] @ r[ch == c]) / ((ch == c).sum() - lev[ch == c].sum()))
+            for c in range(ch.max() + 1)]
+
+
 def _wls(A, y, w):
     Aw = A * np.sqrt(w)[:, None]
     x = np.linalg.lstsq(Aw, y * np.sqrt(w), rcond=None)[0]
@@ -641,3 +650,36 @@ def test_dependent_column_dropped_at_the_solution_refits_the_others():
         used = res.history[-1].sigma
         w = 1 / np.array([used[c] for c in model.channels])[model.row_channel] ** 2
         np.testing.assert_allclose(res.x[:2], _wls(A[:, :2], y - 0.1 * A[:, 2], w)[0], rtol=1e-9)
+        # sigma per channel: the leverages of the calibrated columns only
+        r = y - A @ res.x
+        for c, want in enumerate(_channel_sigmas(A[:, :2], r, model.row_channel, w)):
+            assert res.sigma[model.channels[c]] == pytest.approx(want, rel=1e-9)
+
+
+def test_fixed_parameter_stays_without_the_recheck():
+    A, y, truth = _linear()
+    res = solve(Linear(A, y, x0=[0.0, 0.0, 0.5]), SolverOptions(fixed=("x2",), recheck=False))
+    assert res.x[2] == 0.5 and not res.status[2].identifiable and np.isnan(res.std[2])
+    np.testing.assert_allclose(res.x[:2], _ols(A[:, :2], y - 0.5 * A[:, 2])[0], rtol=1e-9)
+
+
+class Twinned(Linear):
+    """A model whose rows are constraints among predictions (as self-calibration):
+    its structural identifiability is judged on a twin whose data the start
+    values explain exactly, where x2's column is zero."""
+
+    def consistent_twin(self, x):
+        B = self.A.copy()
+        B[:, 2] = 0.0
+        return Linear(B, B @ np.asarray(x, float))
+
+
+def test_structural_check_on_the_consistent_twin():
+    A, y, _ = _linear()
+    res = solve(Twinned(A, y, x0=[0.0, 0.0, 0.25]))
+    assert res.converged, res.message
+    assert not res.status[2].identifiable and res.x[2] == 0.25
+    np.testing.assert_allclose(res.x[:2], _ols(A[:, :2], y - 0.25 * A[:, 2])[0], rtol=1e-9)
+    assert res.nfev == res.iterations + 1  # the twin's evaluation counts
+    fx = solve(Twinned(A, y), SolverOptions(fixed=("x0",), recheck=False))
+    assert [s.identifiable for s in fx.status] == [False, True, False] and fx.x[0] == 0.0
