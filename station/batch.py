@@ -216,10 +216,22 @@ def outcome_document(outcome: BatchOutcome, trace_path: str | None,
                          f"parameters; eq. 60 recommends at least {need}")
     quality = outcome.quality.as_dict() if outcome.quality is not None else None
     src = outcome.trace.header.get("robot_file")
+    extra = {"robot_file": src} if src else {}
+    unseen = not_identified(outcome)
+    if unseen:
+        extra["not_identified"] = unseen
     return params_document(outcome.result, robot=outcome.trace.robot,
                            nominal=outcome.model.x0, trace_path=trace_path,
                            poses=outcome.model.n_poses, frame=frame_statement(outcome.trace), notes=notes, quality=quality,
-                           extra={"robot_file": src} if src else None)
+                           extra=extra or None)
+
+
+def not_identified(outcome: BatchOutcome) -> list[dict]:
+    """Directions the method does not identify although every parameter is
+    (``method.unidentified_directions``, e.g. pm-tilt's heading), each with the
+    std the fit gives it; empty for most methods."""
+    hook = getattr(outcome.model, "unidentified_directions", None)
+    return hook(outcome.result) if callable(hook) and outcome.result.converged else []
 
 
 def _from_staged_start(trace: Trace, model, opts, callback):
@@ -268,6 +280,11 @@ def format_table(outcome: BatchOutcome) -> str:
     rms = ", ".join(f"{k} {v:.4g}" for k, v in res.residual_rms.items())
     lines.append(f"sigma ({'from the trace' if res.sigma_known else 'estimated, eq. 51'}): {sig}")
     lines.append(f"residual RMS: {rms}")
+    for d in not_identified(outcome):
+        lines.append(f"not identified: {d['direction']} ({d['statement']}): std "
+                     f"{math.degrees(d['std_rad']):.3g} deg over +-{d['box_deg']:g} deg, "
+                     f"{d['ik_std']:.3g} actuator units of the IK; the IK without it "
+                     f"{d['ik_std_modulo_heading']:.3g} units")
     for note in getattr(model, "notes", ()) or ():
         lines.append(f"note: {note}")
     if outcome.trace.method == "sm-distance-tilt" and "robot_file" not in outcome.trace.header:

@@ -145,6 +145,10 @@ SCHEMA = {
         "frame": {"type": "object"},
         "robot_file": {"type": "object"},
         "notes": {"type": "array", "items": {"type": "string"}},
+        "not_identified": {"type": "array", "items": {
+            "type": "object", "required": ["direction", "statement", "std_rad"],
+            "properties": {"direction": {"type": "string"}, "statement": {"type": "string"},
+                           "std_rad": {"type": "number", "minimum": 0}}}},
     },
 }
 

@@ -6,6 +6,9 @@ from the report's nominal, and the score: q3_off and k3 are compensated (eqs.
 112-113), so the calibrated parameters are not compared with the truth's; the
 calibrated IK is, on the +-15 deg grid, in actuator units (*actuator
 equivalence*), together with the largest orientation the session recorded.
+pm-tilt does not identify the heading about the vertical: its IK is judged
+with each orientation's heading taken out, and the heading error against the
+std the parameter file states for it.
 Used by ``bench/bench_wrist_sessions.py`` and the slow session test; nothing here
 is used by a real station (it needs the simulator).
 """
@@ -19,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.methods.pm_tilt import heading_grid, ik_modulo_heading
 from calibration.robots import get_robot
 from drivers.sim.truth import SimTruth, draw_truth, save_truth
 
@@ -37,20 +41,31 @@ def wrist_truth(seed: int) -> SimTruth:
 def ik_error(x, truth_xi, box_deg: float = GRID_DEG) -> float:
     """Worst |calibrated IK - true IK| (actuator units) over a 7^3 grid of +-``box_deg``."""
     robot = get_robot("agebot-pm")
-    g = np.radians(np.linspace(-box_deg, box_deg, 7))
-    grid = np.array(np.meshgrid(g, g, g)).reshape(3, -1).T
+    grid = heading_grid(box_deg)
     n = robot.n_params
     return float(np.abs(robot.ik_actuators(grid, np.asarray(x)[:n])
                         - robot.ik_actuators(grid, truth_xi)).max())
 
 
-def max_orientation_deg(poses, method: str) -> float:
-    """Largest |angle| (deg) the session recorded (orientation, or tilt for pm-tilt)."""
-    ch = "tilt" if method == "pm-tilt" else "orientation"
-    vals = [np.abs(p[ch]).max() for p in poses if ch in p]
-    return float(np.degrees(max(vals))) if vals else 0.0
+def tilt_ik_error(x, truth_xi, box_deg: float = GRID_DEG) -> tuple[float, float]:
+    """pm-tilt's judge: ``(worst actuator error of the calibrated IK over the grid with
+    each orientation's heading taken out, worst |heading| (deg) taken out)``; the
+    heading about the vertical is what pm-tilt does not identify
+    (:func:`calibration.methods.pm_tilt.ik_modulo_heading`)."""
+    robot = get_robot("agebot-pm")
+    err, phi = ik_modulo_heading(robot, heading_grid(box_deg), np.asarray(x)[:robot.n_params],
+                                 truth_xi)
+    return float(err.max()), float(np.degrees(np.abs(phi).max()))
 
 
+def max_orientation_deg(poses, truth_xi) -> float:
+    """Largest |Euler angle| (deg) of the true wrist at the recorded poses (its FK at
+    the recorded actuator values: the inclinometer's roll and pitch are not the
+    angles of the box)."""
+    if not poses:
+        return 0.0
+    X = get_robot("agebot-pm").fk(np.array([p["qm"] for p in poses], dtype=float), truth_xi)
+    return float(np.degrees(np.abs(X).max()))
 @dataclass
 class WristScore:
     seed: int
@@ -58,6 +73,8 @@ class WristScore:
     completed: bool
     error: str = ""
     ik_error: float = float("nan")
+    heading_deg: float = float("nan")      # pm-tilt: worst heading error taken out of ik_error
+    heading_std_deg: float = float("nan")  # pm-tilt: the std the fit states for it
     max_deg: float = 0.0
     poses: int = 0
     dropped: int = 0
@@ -66,8 +83,16 @@ class WristScore:
     events: dict = field(default_factory=dict)
 
     @property
+    def heading_z(self) -> float:
+        """pm-tilt: heading error / its stated std (NaN for the other methods)."""
+        return self.heading_deg / self.heading_std_deg
+
+    @property
     def ok(self) -> bool:
-        return self.completed and self.ik_error < 1.0 and self.max_deg < 25.0
+        """Complete, IK within 1 unit (pm-tilt: without the heading, whose error must lie
+        within 4 of its stated std), nothing recorded beyond 25 deg."""
+        heading_ok = self.method != "pm-tilt" or self.heading_z < 4.0
+        return self.completed and self.ik_error < 1.0 and self.max_deg < 25.0 and heading_ok
 
 
 def fast_config(folder: Path, speed: float = 4.0) -> Path:
@@ -122,7 +147,13 @@ def run_wrist_session(truth: SimTruth, folder, *, method: str = "pm-fk", seed: i
     score.dropped = score.events.get("envelope", 0)
     if s.trace_path.exists():
         poses = read_trace(s.trace_path).poses
-        score.poses, score.max_deg = len(poses), max_orientation_deg(poses, method)
+        score.poses, score.max_deg = len(poses), max_orientation_deg(poses, truth.xi())
     if score.completed:
-        score.ik_error = ik_error(s.outcome.result.x, truth.xi())
+        x = s.outcome.result.x
+        if method == "pm-tilt":
+            score.ik_error, score.heading_deg = tilt_ik_error(x, truth.xi())
+            (d,) = (d for d in s.outcome.document["not_identified"] if d["direction"] == "heading")
+            score.heading_std_deg = float(np.degrees(d["std_rad"]))
+        else:
+            score.ik_error = ik_error(x, truth.xi())
     return score

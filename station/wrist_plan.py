@@ -185,8 +185,9 @@ class WristPlanner:
                                f"{self.trips} times in a row (tolerance {TOLERANCE_DEG:g} deg); "
                                "stopped before driving further: " + ADVICE)
         X = self.fit(records)
+        heading = self.home_heading()
         grow = 1.0 + (GROW - 1.0) / 2 ** self.trips
-        box = min(BOX_DEG, grow * reach_deg(X))
+        box = min(BOX_DEG, grow * reach_deg(X - [0.0, 0.0, heading]))
         final = box >= BOX_DEG
         rng = np.random.default_rng(self.request.seed + 1 + self.rounds)
         req = self.request
@@ -199,6 +200,7 @@ class WristPlanner:
         else:
             n_fit, n_val = ROUND_COUNT, 0
         bounds = np.radians(box) * np.array([[-1.0, 1.0]] * 3)
+        bounds[2] += heading
         pool = n_fit + n_val if req.design == "random" else POOL_FACTOR * (n_fit + n_val)
         try:
             plan = planning.sample_poses(self.robot, self.xi, bounds, pool, rng,
@@ -222,12 +224,27 @@ class WristPlanner:
                         self.rounds, validation=None if design is None else n_val_idx)
         rec = {"round": self.rounds, "box_deg": round(box, 3), "final": final,
                "model": self.xi.tolist(), "mount": self.mount.tolist(),
-               "reach_deg": round(reach_deg(X), 3)}
+               "reach_deg": round(reach_deg(X - [0.0, 0.0, heading]), 3)}
+        if self.method == "pm-tilt":
+            rec["home_heading_deg"] = round(math.degrees(heading), 4)
         if design is not None:
             rec["design"] = design.as_record()
         self.rounds += 1
         self.final, self.replan = final, False
         return poses, rec
+
+    def home_heading(self) -> float:
+        """pm-tilt: the current model's heading (gamma, rad) at the home actuators, less
+        the home's (taken as read, its gamma a guess), else 0. The inclinometer does not
+        see the heading, and a model fitted near home gets it wrong by up to ~12 deg
+        (the truth's shape fixes it only weakly) while its changes from home are right
+        within ~2 deg: pm-tilt's box is centred on the home's heading, and its reach
+        measured from there, so that the wrist's true heading stays in the box."""
+        if self.method != "pm-tilt" or self.home is None or self.xi is None:
+            return 0.0
+        home_qm, home_X = self.home
+        X = self.predicted(home_qm, np.asarray(home_X, dtype=float))
+        return 0.0 if X is None else float(X[2] - np.asarray(home_X, dtype=float)[2])
 
     # -- while executing ------------------------------------------------------------------------
     def predicted(self, qm, guess) -> np.ndarray | None:

@@ -46,6 +46,15 @@ def rot_xyz(X) -> np.ndarray:
     return R
 
 
+def euler_xyz(R) -> np.ndarray:
+    """``X = [alpha, beta, gamma] (m, 3)`` of rotations ``R (m, 3, 3)`` (the inverse of
+    :func:`rot_xyz` for ``|beta| < 90 deg``)."""
+    R = np.asarray(R, dtype=float).reshape(-1, 3, 3)
+    return np.stack([np.arctan2(-R[:, 1, 2], R[:, 2, 2]),
+                     np.arcsin(np.clip(R[:, 0, 2], -1.0, 1.0)),
+                     np.arctan2(-R[:, 0, 1], R[:, 0, 0])], axis=-1)
+
+
 def euler_rates(X) -> np.ndarray:
     """``H(X) (m, 3, 3)`` of eq. 118: angular velocity = H * d[alpha, beta, gamma]."""
     X = np.atleast_2d(np.asarray(X, dtype=float))

@@ -17,11 +17,12 @@ from calibration.methods import MethodData, build
 from calibration.methods.pm_common import COMPENSATION_NOTE, compensation_note, parse_components
 from calibration.methods.pm_fk import ForwardKinematics
 from calibration.methods.pm_ik import InverseKinematics
-from calibration.methods.pm_tilt import Tilt
+from calibration.methods.pm_tilt import (HEADING_NOTE, Tilt, heading_grid, heading_uncertainty,
+                                         ik_modulo_heading)
 from calibration.planning import PM_BOX, box_array, sample_poses
 from calibration.pm_start import robust_start
-from calibration.robots.agebot_pm import (NOMINAL, TRUE, AgebotPM, gravity_tilt, rot_xyz,
-                                          tilt_jacobian)
+from calibration.robots.agebot_pm import (NOMINAL, TRUE, AgebotPM, euler_xyz, gravity_tilt,
+                                          rot_xyz, tilt_jacobian)
 from calibration.solver import solve
 from tests.calibration.helpers import assert_columns_close
 
@@ -207,8 +208,9 @@ def test_different_nominal_q3_off_k3_give_the_same_actuators():
 
 
 def test_operator_note_names_the_compensated_parameters():
-    for cls in (InverseKinematics, ForwardKinematics, Tilt):
+    for cls in (InverseKinematics, ForwardKinematics):
         assert cls.notes == (COMPENSATION_NOTE,)
+    assert Tilt.notes == (COMPENSATION_NOTE, HEADING_NOTE)
     note = compensation_note(0.0, 1e-4)
     assert "q3_off" in note and "k3" in note and "correct actuator values" in note
     assert "1/10000" in note
@@ -264,3 +266,83 @@ def test_per_column_check_catches_a_three_percent_error_in_one_column():
     assert_columns_close(W, num, names=model.names)
     with pytest.raises(AssertionError, match="a1"):
         assert_columns_close(bad, num, names=model.names)
+
+
+# -- pm-tilt does not identify the heading (docs/methods.md) --------------------------------
+def _rz(phi):
+    c, s = math.cos(phi), math.sin(phi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def test_the_inclinometer_does_not_see_the_heading():
+    R = rot_xyz(GRID[::23])
+    np.testing.assert_allclose(euler_xyz(R), GRID[::23], atol=1e-14)
+    for phi in (0.2, -0.5):
+        np.testing.assert_allclose(gravity_tilt(_rz(phi) @ R, MOUNT), gravity_tilt(R, MOUNT),
+                                   rtol=0, atol=1e-14)
+        assert np.abs(ROBOT.ik_actuators(euler_xyz(_rz(phi) @ R), TRUE)
+                      - ROBOT.ik_actuators(GRID[::23], TRUE)).max() > 100  # ... the IK does
+
+
+def test_ik_modulo_heading_takes_out_the_best_rotation_about_the_vertical():
+    from scipy.optimize import minimize_scalar
+
+    x = TRUE.copy()
+    x[[0, 4]] += (1e-3, 2e-3)
+    X = heading_grid()[::41]
+    err, phi = ik_modulo_heading(ROBOT, X, x, TRUE)
+    assert np.all(np.abs(phi) > 1e-4)
+    q = ROBOT.ik_actuators(X, x)
+    for i in range(len(X)):
+        def gap(p):
+            return ROBOT.ik_actuators(euler_xyz(_rz(p) @ rot_xyz(X[i])), TRUE)[0] - q[i]
+        best = minimize_scalar(lambda p: np.sum(gap(p) ** 2), bounds=(-0.2, 0.2),
+                               method="bounded", options={"xatol": 1e-12})
+        assert abs(best.x - phi[i]) < 1e-8
+        assert abs(np.abs(gap(best.x)).max() - err[i]) < 1e-6
+    err0, phi0 = ik_modulo_heading(ROBOT, X, TRUE, TRUE)
+    assert np.abs(err0).max() < 1e-9 and np.abs(phi0).max() < 1e-12
+
+
+def test_heading_uncertainty_propagates_the_covariance():
+    """The stated stds against finite differences of the IK and of the heading."""
+    names = ("a1", "a2", "l", "v", "q1_off", "q2_off", "k1", "k2", "mount_x", "mount_y")
+    scale = np.array([1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-9, 1e-9, 1e-4, 1e-4])
+    A = np.random.default_rng(3).normal(size=(10, 10))
+    C = (A @ A.T + np.eye(10)) * np.outer(scale, scale)
+    box = 15.0
+    u = heading_uncertainty(ROBOT, TRUE, C, names, box_deg=box)
+    X = heading_grid(box)
+    J, Jh = np.zeros((len(X), 3, 10)), np.zeros((len(X), 10))
+    for j, n in enumerate(names[:8]):
+        h = 1e-3 * scale[j]
+        xp, xm = TRUE.copy(), TRUE.copy()
+        xp[ROBOT.index(n)] += h
+        xm[ROBOT.index(n)] -= h
+        J[..., j] = (ROBOT.ik_actuators(X, xp) - ROBOT.ik_actuators(X, xm)) / (2 * h)
+        Jh[:, j] = (ik_modulo_heading(ROBOT, X, xp, TRUE)[1]
+                    - ik_modulo_heading(ROBOT, X, xm, TRUE)[1]) / (2 * h)
+    ik_std = np.sqrt(np.einsum("mak,kl,mal->ma", J, C, J)).max()
+    heading_std = np.sqrt(np.einsum("mk,kl,ml->m", Jh, C, Jh)).max()
+    assert u["ik_std"] == pytest.approx(ik_std, rel=1e-5)
+    assert u["heading_std"] == pytest.approx(heading_std, rel=1e-4)
+    assert u["ik_std_modulo_heading"] < 0.5 * u["ik_std"]
+
+
+def test_pm_tilt_states_the_heading_as_not_identified():
+    """A noisy pm-tilt fit: every parameter identifiable, the heading named with a
+    std that covers the error of the calibrated IK's heading, the IK without it
+    much closer than with it."""
+    data = tilt_data(24, 31)
+    rng = np.random.default_rng(8)
+    data = MethodData(data.qm, {"tilt": data.channels["tilt"] + rng.normal(0, 7.6e-5, (24, 2))})
+    model = build("pm-tilt", ROBOT, data, np.r_[NOMINAL, 0.0, 0.0])
+    res = solve(model)
+    assert res.converged and all(s.identifiable for s in res.status
+                                 if s.name not in ("q3_off", "k3"))
+    (d,) = model.unidentified_directions(res)
+    assert d["direction"] == "heading" and d["box_deg"] == 15.0
+    assert 1e-5 < d["std_rad"] < 0.05
+    err, phi = ik_modulo_heading(ROBOT, heading_grid(), res.x[:10], TRUE)
+    assert np.abs(phi).max() < 4 * d["std_rad"]
+    assert err.max() < 4 * d["ik_std_modulo_heading"] < d["ik_std"]
