@@ -8,7 +8,7 @@ import pytest
 
 from calibration.errors import CalibrationError, TraceFormatError
 from station.batch import calibrate_trace
-from station.params_file import read_params, write_params
+from station.params_file import checksum, read_params, write_params
 from station.trace import TraceWriter, TruncatedLineWarning, read_trace
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -157,3 +157,28 @@ def test_fit_poses_counts_poses_not_rows(tmp_path, name):
            if r.get("record") == "pose" and r.get("use", "fit") == "fit"]
     assert doc["fit"]["poses"] == len(fit)
     assert doc["fit"]["rows"] == 2 * len(fit)
+
+
+def test_pm_tilt_parameter_file_names_the_heading_as_not_identified(tmp_path):
+    """pm-tilt identifies every parameter but not the heading about the vertical: the
+    file states it with its std (read back through the schema), the table says it;
+    pm-fk, which reads the heading, states nothing."""
+    from station.batch import format_table
+
+    out = tmp_path / "tilt.json"
+    outcome = calibrate_trace(os.path.join(ROOT, "fixtures", "traces", "pm-tilt.jsonl"),
+                              out=str(out))
+    doc = read_params(out)
+    (d,) = doc["not_identified"]
+    assert d["direction"] == "heading" and d["box_deg"] == 15.0
+    assert 0 < d["std_rad"] < 0.05 and d["ik_std_modulo_heading"] < d["ik_std"]
+    assert any("heading" in n for n in doc["notes"])
+    assert "not identified: heading" in format_table(outcome)
+    fk = tmp_path / "fk.json"
+    calibrate_trace(os.path.join(ROOT, "fixtures", "traces", "pm-fk.jsonl"), out=str(fk))
+    assert "not_identified" not in read_params(fk)
+    bad = dict(doc, not_identified=[{"direction": "heading", "statement": "x", "std_rad": -1}])
+    bad["checksum"] = checksum(bad)
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(TraceFormatError, match="not_identified"):
+        read_params(tmp_path / "bad.json")
