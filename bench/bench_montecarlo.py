@@ -11,7 +11,9 @@ noise: a local minimum the fit-quality check refuses), the pooled RMS of
 error / reported std (1 when the std is honest), the share of errors within 2
 std (95.4 % for a normal error), and the median reported std / Cramer-Rao
 bound at the truth (1 when sigma is estimated well and the model is linear
-enough).
+enough). pm-tilt adds its heading, which it does not identify: per run the
+calibrated IK's worst heading error over +-15 deg / the std the parameter file
+states for it (docs/methods.md).
 """
 from __future__ import annotations
 
@@ -47,6 +49,10 @@ def main(argv=None) -> int:
               f"{f.std_over_crb:8.3f} {time.perf_counter() - t0:5.0f}s   {noise}", flush=True)
         print(f"{'':18s} {'':5s} {'':7s} {'+-':>6s} {f.rms_se:11.3f} {100 * f.coverage2_se:11.1f}%"
               f"   (standard errors, runs as samples)")
+        if f.heading.size:
+            print(f"{'':18s} {'heading':>5s} {'':7s} {f.heading.size:6d} {f.heading_rms:11.3f} "
+                  f"{100 * f.heading_coverage2:11.1f}%   (pm-tilt's heading, not identified: "
+                  f"error / stated std; +- {f.heading_rms_se:.3f})")
         if a.detail:
             for name, (rms, cov, ratio) in f.per_parameter().items():
                 print(f"    {name:14s} {'':13s} {rms:11.3f} {100 * cov:11.1f}% {ratio:8.3f}")

@@ -413,6 +413,11 @@ def _notes(ctx: _Context) -> list[str]:
         notes += list(op(ctx.x)) if callable(op) else list(getattr(model, "notes", ()) or ())
     except Exception:  # noqa: BLE001
         notes += list(getattr(model, "notes", ()) or ())
+    for d in (ctx.outcome.document or {}).get("not_identified") or ():
+        notes.append(f"not identified: {d['direction']} ({d['statement']}); std "
+                     f"{math.degrees(d['std_rad']):.3g} deg over +-{d.get('box_deg', 15):g} deg"
+                     + (f", {d['ik_std']:.3g} actuator units of the IK (without it "
+                        f"{d['ik_std_modulo_heading']:.3g})" if "ik_std" in d else ""))
     doc_notes = (ctx.outcome.document or {}).get("notes") or ()
     base = set(getattr(model, "notes", ()) or ())
     notes += [n for n in doc_notes if n not in base]

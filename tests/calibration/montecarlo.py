@@ -13,6 +13,7 @@ Cramer-Rao bound at the truth for the noise actually applied.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -20,6 +21,7 @@ import numpy as np
 
 from calibration.errors import CalibrationError
 from calibration.methods import METHODS, MethodData, build
+from calibration.methods.pm_tilt import heading_grid, ik_modulo_heading
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import BUILTIN, get_robot
 from calibration.solver import solve
@@ -49,6 +51,22 @@ class Figures:
     z: np.ndarray  # (runs, N) normalized errors, NaN where not calibrated
     ratio: np.ndarray  # (runs, N) reported std / Cramer-Rao bound
     names: tuple
+    # pm-tilt: per run the calibrated IK's worst heading error over +-15 deg / the
+    # std the parameter file states for it (not_identified), NaN for other methods
+    heading: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def heading_rms(self) -> float:
+        return float(np.sqrt(np.mean(self.heading ** 2))) if self.heading.size else math.nan
+
+    @property
+    def heading_rms_se(self) -> float:
+        h2 = self.heading ** 2
+        return float(np.std(h2, ddof=1) / math.sqrt(h2.size) / (2 * self.heading_rms))
+
+    @property
+    def heading_coverage2(self) -> float:
+        return float(np.mean(np.abs(self.heading) < 2)) if self.heading.size else math.nan
 
     def _flat(self, a):
         return a[np.isfinite(a)]
@@ -110,8 +128,9 @@ def pm_equivalent(xi, q3_off, k3):
 
 
 def one_run(method: str, seed: int, noise: dict | None = None):
-    """(names, identifiable mask, x, std, truth vector, CRB) of one drawn robot,
-    or None where the calibration did not converge."""
+    """(names, identifiable mask, x, std, truth vector, CRB, heading z) of one drawn
+    robot, or None where the calibration did not converge. heading z (pm-tilt, else
+    NaN): worst heading error of the calibrated IK over +-15 deg / its stated std."""
     mi = METHODS[method]
     name = BUILTIN[mi.kind]
     robot = get_robot(name)
@@ -170,7 +189,12 @@ def one_run(method: str, seed: int, noise: dict | None = None):
     Wa = W[:, ok] / sig[:, None]
     crb = np.full(len(tv), np.nan)
     crb[ok] = np.sqrt(np.diag(np.linalg.inv(Wa.T @ Wa)))
-    return res.names, ok, x, res.std, tv, crb
+    heading = math.nan
+    if method == "pm-tilt":
+        (d,) = model.unidentified_directions(res)
+        _, phi = ik_modulo_heading(robot, heading_grid(d["box_deg"]), x[:robot.n_params], truth)
+        heading = float(np.abs(phi).max() / d["std_rad"])
+    return res.names, ok, x, res.std, tv, crb, heading
 
 
 # Sign flips of the SM's lengths with half-turn offsets, and half turns of the
@@ -226,15 +250,18 @@ def _row_sigma(model, noise) -> np.ndarray:
 
 
 def monte_carlo(method: str, runs: int, seed: int = 0, noise: dict | None = None) -> Figures:
-    z_rows, r_rows, names, failed = [], [], None, 0
+    z_rows, r_rows, h_rows, names, failed = [], [], [], None, 0
     for k in range(runs):
         out = one_run(method, seed * 100003 + 7919 * k, noise)
         if out is None:
             failed += 1
             continue
-        nm, ok, x, std, tv, crb = out
+        nm, ok, x, std, tv, crb, heading = out
         names = nm
+        if math.isfinite(heading):
+            h_rows.append(heading)
         z = np.where(ok, _wrap_angle(x - tv) / std, np.nan)  # angles: a turn away is the same
         z_rows.append(z)
         r_rows.append(np.where(ok, std / crb, np.nan))
-    return Figures(method, runs, failed, np.array(z_rows), np.array(r_rows), tuple(names or ()))
+    return Figures(method, runs, failed, np.array(z_rows), np.array(r_rows), tuple(names or ()),
+                   np.array(h_rows))

@@ -163,7 +163,7 @@ def test_pm_tilt_parameter_file_names_the_heading_as_not_identified(tmp_path):
     """pm-tilt identifies every parameter but not the heading about the vertical: the
     file states it with its std (read back through the schema), the table says it;
     pm-fk, which reads the heading, states nothing."""
-    from station.batch import format_table
+    from station.batch import format_table, write_outputs
 
     out = tmp_path / "tilt.json"
     outcome = calibrate_trace(os.path.join(ROOT, "fixtures", "traces", "pm-tilt.jsonl"),
@@ -174,6 +174,8 @@ def test_pm_tilt_parameter_file_names_the_heading_as_not_identified(tmp_path):
     assert 0 < d["std_rad"] < 0.05 and d["ik_std_modulo_heading"] < d["ik_std"]
     assert any("heading" in n for n in doc["notes"])
     assert "not identified: heading" in format_table(outcome)
+    write_outputs(outcome, outcome.trace.path, tmp_path / "again.json", report=tmp_path / "r.html")
+    assert "not identified: heading" in (tmp_path / "r.html").read_text()
     fk = tmp_path / "fk.json"
     calibrate_trace(os.path.join(ROOT, "fixtures", "traces", "pm-fk.jsonl"), out=str(fk))
     assert "not_identified" not in read_params(fk)
