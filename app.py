@@ -274,6 +274,10 @@ def build_parser() -> argparse.ArgumentParser:
     gui = sub.add_parser("gui", help="the operator's Qt wizard")
     gui.add_argument("--simulate", action="store_true")
     gui.add_argument("--config")
+    gui.add_argument("--robot", help="preselect the robot: agebot-sm, agebot-pm or a robot "
+                                     "file (TOML)")
+    gui.add_argument("--truth", help="with --simulate and a robot file: the simulated arm's "
+                                     "truth file")
     gui.add_argument("--check", action="store_true",
                      help="only check that the wizard can run here (system libraries, "
                           "display) and say what to install")

@@ -85,7 +85,7 @@ def main(args: argparse.Namespace) -> int:
             raise ConfigError(f"--nominal {item!r}: expected NAME=VALUE with a number") from None
     if args.simulate:
         from drivers.sim.serial_robot import is_robot_file
-        from drivers.sim.server import SimulatorProcess, default_truth_path, load_sim_config
+        from drivers.sim.server import SimulatorProcess, load_sim_config
 
         config = load_sim_config(args.robot, args.config)
         if not is_robot_file(args.robot) and config.robot != args.robot:
@@ -94,15 +94,11 @@ def main(args: argparse.Namespace) -> int:
         measured = {}
         if args.method in TOUCH_METHODS:
             measured = engineer_measurements(args.robot, args.method, args.truth, nominal)
-        if is_robot_file(args.robot) and not args.truth:
-            raise ConfigError(f"a simulated {args.robot} needs --truth: a truth file of the "
-                              "robot file (what the simulated arm really is)")
-        truth = args.truth or str(default_truth_path(args.robot))
-        seed = simulator_seed(truth, getattr(args, "sim_seed", None))
+        truth, seed, record = simulated_station(args.robot, args.truth,
+                                                getattr(args, "sim_seed", None))
         print(f"starting the simulated {args.robot} (truth: {truth}; seed {seed}, readings "
               "repeatable: the same command gives the same values; --sim-seed N for other "
               "noise) ...", flush=True)
-        record = {"simulator": {"truth": truth, "seed": seed, "pose_noise": True}}
         with SimulatorProcess(args.robot, truth=args.truth, config=args.config,
                               seed=seed, pose_noise=True) as sim:
             config = with_endpoints(config, sim.endpoints, source="simulator")
@@ -126,6 +122,22 @@ def main(args: argparse.Namespace) -> int:
     if getattr(args, "endpoints", None):
         config = with_endpoints(config, load_endpoints(args.endpoints), source=args.endpoints)
     return _run(config, args.method, out, request, nominal, accept=accept)
+
+
+def simulated_station(robot: str, truth: str | None, sim_seed: int | None):
+    """``(truth, seed, record)`` of a simulated station (the headless run's and the
+    wizard's): the truth file (a built-in robot's fixture by default; a robot file
+    needs one), the simulator's seed (:func:`simulator_seed`) and the trace header's
+    ``station`` record of them."""
+    from drivers.sim.serial_robot import is_robot_file
+    from drivers.sim.server import default_truth_path
+
+    if is_robot_file(robot) and not truth:
+        raise ConfigError(f"a simulated {robot} needs --truth: a truth file of the "
+                          "robot file (what the simulated arm really is)")
+    truth = str(truth or default_truth_path(robot))
+    seed = simulator_seed(truth, sim_seed)
+    return truth, seed, {"simulator": {"truth": truth, "seed": seed, "pose_noise": True}}
 
 
 def simulator_seed(truth: str, given: int | None) -> int:

@@ -30,6 +30,7 @@ FLOOR_MARGIN = 0.10   # m: planned tool origins this far above the floor z = 0
 PATH_MARGIN = 0.03    # m: and every motion between them this far
 WIRE_MIN, WIRE_RANGE = 0.10, 1.5   # m: draw-wire lengths the plan uses (cable range)
 POOL = 600            # candidates drawn per plan
+SPARE = (1.3, 2.0, 3.0)   # fit candidates per fit pose asked, tried in turn
 ROWS = {"sm-distance": 1, "sm-distance-tilt": 3}   # rows per pose (eq. 60's p)
 REFERENCE_TEXT = (
     "Jog the tool to the reference point (the planned pose is the middle of the safe "
@@ -131,15 +132,38 @@ def plan(method: str, robot, xi, reference_qm, req, *, qm_range=None, start_qm=N
     n_min = minimum_poses(len(_free(robot, info.names)), ROWS[method])
     count = req.count or int(np.ceil(req.margin * n_min))
     n_val = req.validation if req.validation is not None else max(3, count // 5)
-    spare = int(np.ceil(1.3 * count))      # some ways there come near the floor
-    if 2 * (spare + 4 * n_val) > len(pool):     # a pool that leaves the design a choice
-        draws = int(POOL * 2 * (spare + 4 * n_val) / len(pool)) + 1
-        pool = safe_pool(robot, xi, rng, count=draws, qm_range=qm_range, anchor=anchor)
-        model = pose_design.pool_model(method, robot, xi, pool, reference_qm=ref)
-        info = dz.pose_information(model, model.x0, pose_design.DEFAULT_NOISE)
     if req.design not in pose_design.DESIGNS:
         raise CalibrationError(f"unknown design {req.design!r} (known: "
                                f"{', '.join(pose_design.DESIGNS)})")
+    for extra in SPARE:          # some ways there come near the floor: more to choose from
+        spare = int(np.ceil(extra * count))
+        if 2 * (spare + 4 * n_val) > len(pool):     # a pool that leaves the design a choice
+            draws = int(POOL * 2 * (spare + 4 * n_val) / len(pool)) + 1
+            pool = safe_pool(robot, xi, rng, count=draws, qm_range=qm_range, anchor=anchor)
+            model = pose_design.pool_model(method, robot, xi, pool, reference_qm=ref)
+            info = dz.pose_information(model, model.x0, pose_design.DEFAULT_NOISE)
+        out_q, out_use, n = _visit(robot, xi, pool, info, req, rng, spare, n_val, count, ref,
+                                   start_qm)
+        if n == {"fit": count, "validation": n_val}:
+            break
+    else:
+        raise CalibrationError(f"only {n['fit']} of {count} poses to fit and {n['validation']} "
+                               f"of {n_val} held out of {robot.name} can be reached without the "
+                               "tool coming near the floor")
+    qm = np.array(out_q)
+    kept = [int(np.flatnonzero(np.all(pool == q, axis=1))[0]) for q in qm]
+    fit_idx = np.array([i for i, u in zip(kept, out_use) if u == "fit"])
+    val_qm = qm[[u == "validation" for u in out_use]]
+    return robot.fk(qm, xi), qm, out_use, _design_record(req.design, robot, model, info,
+                                                         fit_idx, val_qm)
+
+
+def _visit(robot, xi, pool, info, req, rng, spare, n_val, count, ref, start_qm):
+    """``spare`` fit candidates (D-optimal or random) and ``4 n_val`` held-out ones from
+    ``pool``, visited in the travel order, a blocked way skipped for the next clear one,
+    until ``count`` and ``n_val`` are reached: ``(qm list, use list, counts)``."""
+    from calibration import design as dz
+
     fit = list(dz.d_optimal(info, spare) if req.design == "optimal"
                else rng.choice(len(pool), size=spare, replace=False))
     rest = np.setdiff1d(np.arange(len(pool)), fit)
@@ -160,16 +184,7 @@ def plan(method: str, robot, xi, reference_qm, req, *, qm_range=None, start_qm=N
         out_q.append(here)
         out_use.append(use[k])
         n[use[k]] += 1
-    if n != want:
-        raise CalibrationError(f"only {n['fit']} of {count} poses to fit and {n['validation']} "
-                               f"of {n_val} held out of {robot.name} can be reached without the "
-                               "tool coming near the floor")
-    qm = np.array(out_q)
-    kept = [int(np.flatnonzero(np.all(pool == q, axis=1))[0]) for q in qm]
-    fit_idx = np.array([i for i, u in zip(kept, out_use) if u == "fit"])
-    val_qm = qm[[u == "validation" for u in out_use]]
-    return robot.fk(qm, xi), qm, out_use, _design_record(req.design, robot, model, info,
-                                                         fit_idx, val_qm)
+    return out_q, out_use, n
 
 
 def _design_record(design: str, robot, model, info, fit_idx, val_qm) -> dict:

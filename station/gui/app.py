@@ -4,21 +4,33 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 from calibration.errors import ConfigError
 
 
-def create(simulate: bool = False, config: str | None = None, settings=None):
-    """The controller and main window (the Qt application must exist)."""
+def create(simulate: bool = False, config: str | None = None, settings=None,
+           robot: str | None = None, truth: str | None = None):
+    """The controller and main window (the Qt application must exist); ``robot``
+    preselected on the setup page (a built-in name or a robot file)."""
     from PySide6.QtCore import QSettings
 
     from station.gui.controller import Controller
+    from station.gui.pages import PageId
     from station.gui.window import MainWindow
 
     if settings is None:
         settings = QSettings("calstation", "station")
-    controller = Controller(simulate=simulate, config_path=config, settings=settings)
-    return MainWindow(controller)
+    controller = Controller(simulate=simulate, config_path=config, settings=settings,
+                            truth_path=truth)
+    window = MainWindow(controller)
+    if robot:
+        setup = window.page(PageId.SETUP)
+        setup.set_choice(robot, "")
+        if setup.robot_key is None or (setup.robot_key != robot and not setup.robot_file):
+            raise ConfigError(f"--robot {robot}: not a robot the wizard knows (agebot-sm, "
+                              "agebot-pm or a robot file)")
+    return window
 
 
 def main(args: argparse.Namespace) -> int:
@@ -47,14 +59,16 @@ def main(args: argparse.Namespace) -> int:
         return 0
     config = getattr(args, "config", None)
     if config:
-        from pathlib import Path
-
         if not Path(config).is_file():
             raise ConfigError(f"no such station config: {config}", source=config)
     app = QApplication.instance() or QApplication(sys.argv[:1])
     app.setApplicationName("Calibration station")
     app.setOrganizationName("calstation")
-    window = create(bool(getattr(args, "simulate", False)), config)
+    robot = getattr(args, "robot", None)
+    if robot and robot.endswith(".toml") and not Path(robot).is_file():
+        raise ConfigError(f"no such robot file: {robot}", source=robot)
+    window = create(bool(getattr(args, "simulate", False)), config,
+                    robot=robot, truth=getattr(args, "truth", None))
     window.show_fitted()
     QTimer.singleShot(0, window.offer_resume)
     return int(app.exec())

@@ -39,6 +39,8 @@ class TraceSummary:
     planned: int
     exported: bool
     error: str | None = None
+    robot_file: dict | None = None   # a robot file's session: the header's robot_file
+    truth: str | None = None         # a simulated session: its simulator's truth file
 
     @property
     def unfinished(self) -> bool:
@@ -70,8 +72,10 @@ def summarize_folder(folder) -> TraceSummary | None:
     planned = {p.index for p in plan}
     exported = any(ev.get("kind") == "export" for ev in tr.events)
     pending = len(planned - set(measured) - skipped)
+    sim = (tr.header.get("station") or {}).get("simulator") or {}
     return TraceSummary(folder, tr.robot, tr.method, len(measured), len(skipped), pending,
-                        len(planned), exported)
+                        len(planned), exported, robot_file=tr.header.get("robot_file"),
+                        truth=sim.get("truth"))
 
 
 def iteration_sink(signal):
@@ -85,7 +89,12 @@ class Controller(QObject):
     """Owns the simulator, the session and the workers of one GUI.
 
     simulate: start the simulated devices (``app.py simulate``) for the chosen robot.
-    config_path: the station config (default with ``simulate``: the fixture of the robot).
+    config_path: the station config (default with ``simulate``: the fixture of the robot,
+                 or a robot file's default station).
+    truth_path: with ``simulate``, the simulator's truth file (a built-in robot's fixture
+                by default; a robot file needs one, as ``app.py run --simulate``).
+
+    A robot is a built-in name (:data:`ROBOTS`) or the path of a robot file.
     """
 
     progressed = Signal(object)        # station.session.Progress
@@ -100,8 +109,10 @@ class Controller(QObject):
 
     def __init__(self, *, simulate: bool = False, config_path: str | None = None,
                  endpoints_path: str | None = None, sim_seed: int | None = None,
-                 settings=None, parent: QObject | None = None):
+                 settings=None, truth_path: str | None = None,
+                 parent: QObject | None = None):
         super().__init__(parent)
+        self.truth_path = truth_path
         self.settings = settings        # QSettings: the last session folder
         self.simulate = simulate
         self.config_path = config_path
@@ -144,16 +155,16 @@ class Controller(QObject):
                     and all(d.is_open for d in s.rig.devices))
 
     def robot_of_config(self, path) -> str:
+        """The robot of the station config ``path``: a built-in name, or the path of the
+        robot file it names (``robot_file``)."""
+        import tomllib
+
         from drivers.config import load_station_config
 
         config = load_station_config(path)
-        if config.spec is not None:     # the wizard's pages know the built-in robots only
-            from calibration.errors import ConfigError
-
-            raise ConfigError(f"a robot file's station ({config.spec.name}): the wizard does "
-                              "not run robot files yet; run the session headless with python "
-                              "app.py run --robot FILE (docs/robot-files.md)",
-                              source=config.source, key="robot_file")
+        if config.spec is not None:      # read already: the path as the config gives it
+            with open(path, "rb") as f:
+                return str(Path(path).parent / tomllib.load(f)["robot_file"])
         return config.robot
 
     def open_session(self, *, robot: str, method: str, out_dir, request,
@@ -192,23 +203,21 @@ class Controller(QObject):
         from drivers.rig import Rig
         from station.session import Session
 
-        station = None
-        if self.simulate:
-            from drivers.sim.server import SimulatorProcess
+        from drivers.sim.serial_robot import is_robot_file
 
-            if self.sim is not None and self.sim_robot != robot:
+        station = None
+        if self.simulate:       # as app.py run --simulate (station.headless)
+            from drivers.sim.server import SimulatorProcess
+            from station.headless import simulated_station
+
+            truth, seed, station = simulated_station(robot, self.truth_path, self.sim_seed)
+            if self.sim is not None and self.sim_robot != (robot, truth):
                 self.sim.stop()
                 self.sim = None
-            from drivers.sim.server import default_truth_path
-            from station.headless import simulator_seed
-
-            truth = str(default_truth_path(robot))
-            seed = simulator_seed(truth, self.sim_seed)
-            station = {"simulator": {"truth": truth, "seed": seed, "pose_noise": True}}
             if self.sim is None:
-                self.sim = SimulatorProcess(robot, config=self.config_path, seed=seed,
-                                            pose_noise=True)
-                self.sim_robot = robot
+                self.sim = SimulatorProcess(robot, truth=truth, config=self.config_path,
+                                            seed=seed, pose_noise=True)
+                self.sim_robot = (robot, truth)
             config = self.sim.station_config()
         else:
             from calibration.errors import ConfigError
@@ -220,7 +229,16 @@ class Controller(QObject):
             if self.endpoints_path:
                 config = with_endpoints(config, load_endpoints(self.endpoints_path),
                                         source=self.endpoints_path)
-        if config.robot != robot:
+        if is_robot_file(robot):
+            from drivers.robot_file import load_robot_file
+
+            spec = load_robot_file(robot)
+            if config.spec is None or config.spec.source["sha256"] != spec.source["sha256"]:
+                from calibration.errors import ConfigError
+
+                raise ConfigError(f"the station config is for {config.robot}, not the robot "
+                                  f"file {robot}", source=config.source, key="robot_file")
+        elif config.robot != robot:
             from calibration.errors import ConfigError
 
             raise ConfigError(f"the station config is for {config.robot}, not {robot}",

@@ -51,12 +51,18 @@ class _Picture(QWidget):
             y += br.height() + 4
 
 
-class ArmPicture(_Picture):
-    """Side view of the serial arm; ``set_state`` with the readings."""
+class ReferenceSteps:
+    """What the reference step's pictures of an arm share: the steps to the reference
+    and where the arm is on them, from the model's tool position. ``set_state`` with
+    the readings; :meth:`_changed` repaints."""
 
-    def __init__(self, robot, nominal, parent=None, target_label: str = "base origin",
-                 units=MM_DEG):
-        super().__init__(parent)
+    STEPS = [("Jog the end effector to the orange mark (or use \u2018Go to the "
+              "suggested point\u2019)."),
+             "Attach the draw-wire cable's end to the end effector there.",
+             ("Press Capture: the draw-wire is zeroed and the actuator values "
+              "recorded.")]
+
+    def _init_steps(self, robot, nominal, target_label: str, units) -> None:
         self.robot, self.xi = robot, np.asarray(nominal, dtype=float)
         self.target_label = target_label
         self.qm = None
@@ -66,24 +72,8 @@ class ArmPicture(_Picture):
         self.capture_offset = None
         self.distance_to_target = None
         self.units = units
-        self.steps = [("Jog the end effector to the orange mark (or use \u2018Go to the "
-                       "suggested point\u2019)."),
-                      "Attach the draw-wire cable's end to the end effector there.",
-                      ("Press Capture: the draw-wire is zeroed and the actuator values "
-                       "recorded.")]
-
-    def points(self, qm):
-        """Joint points of the arm in its plane (m) and the rail position z (m)."""
-        q = self.robot.chain.joints(np.atleast_2d(np.asarray(qm, dtype=float)), self.xi)[0]
-        x0, y0, _ = self.robot.base_offset(self.xi)
-        L2, L3, L4 = (self.xi[self.robot.index(n)] for n in ("L2", "L3", "L4"))
-        pts = [(x0, y0)]
-        a = math.pi / 2
-        for length, dq in ((L2, q[1]), (L3, q[2]), (L4, q[3])):
-            a += dq
-            x, y = pts[-1]
-            pts.append((x + length * math.cos(a), y + length * math.sin(a)))
-        return pts, float(q[0])
+        self.steps = list(self.STEPS)
+        self.step, self.done, self.warned = 0, set(), set()
 
     def _distance(self, qm) -> float | None:
         if qm is None or self.target_qm is None:
@@ -114,7 +104,46 @@ class ArmPicture(_Picture):
             self.done, self.step = {0}, 1
         else:
             self.done, self.step = set(), 0
+        self._changed()
+
+    def _changed(self) -> None:
         self.update()
+
+    def headline(self) -> tuple[str, str] | None:
+        """``(text, colour)`` of the line over the picture (None: none)."""
+        u = self.units
+        if self.distance_to_target is not None and not self.captured:
+            d = round(self.distance_to_target, 6)
+            return (f"end effector \u2248 {u.text(d, 'm', '.4g')} from the mark (nominal model)",
+                    INK)
+        if self.captured and self.warned:
+            return (f"\u26a0 reference captured {u.text(self.capture_offset, 'm', '.4g')} from "
+                    "the mark", BAD)
+        if self.captured:
+            return "\u2713 reference captured", OK
+        return None
+
+
+class ArmPicture(ReferenceSteps, _Picture):
+    """Side view of the serial arm; ``set_state`` with the readings."""
+
+    def __init__(self, robot, nominal, parent=None, target_label: str = "base origin",
+                 units=MM_DEG):
+        _Picture.__init__(self, parent)
+        self._init_steps(robot, nominal, target_label, units)
+
+    def points(self, qm):
+        """Joint points of the arm in its plane (m) and the rail position z (m)."""
+        q = self.robot.chain.joints(np.atleast_2d(np.asarray(qm, dtype=float)), self.xi)[0]
+        x0, y0, _ = self.robot.base_offset(self.xi)
+        L2, L3, L4 = (self.xi[self.robot.index(n)] for n in ("L2", "L3", "L4"))
+        pts = [(x0, y0)]
+        a = math.pi / 2
+        for length, dq in ((L2, q[1]), (L3, q[2]), (L4, q[3])):
+            a += dq
+            x, y = pts[-1]
+            pts.append((x + length * math.cos(a), y + length * math.sin(a)))
+        return pts, float(q[0])
 
     def paintEvent(self, _event) -> None:
         p = QPainter(self)
@@ -188,20 +217,10 @@ class ArmPicture(_Picture):
                 _label(p, target, self.target_label, t_dir, TARGET, view, gap=22)
         elif target is not None:
             _label(p, target, self.target_label, QPointF(0.7, -0.7), TARGET, view, gap=22)
-        p.setPen(QColor(INK))
-        u = self.units
-        if self.distance_to_target is not None and not self.captured:
-            d = round(self.distance_to_target, 6)
-            p.drawText(QPointF(view.left(), view.top() + 14),
-                       f"end effector \u2248 {u.text(d, 'm', '.4g')} from the mark (nominal model)")
-        elif self.captured and self.warned:
-            p.setPen(QColor(BAD))
-            p.drawText(QPointF(view.left(), view.top() + 14),
-                       f"\u26a0 reference captured {u.text(self.capture_offset, 'm', '.4g')} from "
-                       "the mark")
-        elif self.captured:
-            p.setPen(QColor(OK))
-            p.drawText(QPointF(view.left(), view.top() + 14), "\u2713 reference captured")
+        head = self.headline()
+        if head is not None:
+            p.setPen(QColor(head[1]))
+            p.drawText(QPointF(view.left(), view.top() + 14), head[0])
         self._steps(p, QRectF(10, h - text_h, w - 20, text_h))
         p.end()
 

@@ -139,11 +139,34 @@ class ConvergencePlots(Canvas):
 class WorkspacePlot(Canvas):
     """The planned poses in the workspace: SM end-effector positions, PM wrist
     orientations, in the display units (mm, degrees); fit and held-out poses,
-    measured filled."""
+    measured filled. A robot file's arm: its tool positions with the arm at the
+    reference and the floor (:meth:`show_arm_plan`)."""
 
     def __init__(self, parent=None):
         super().__init__(260, parent)
         self.count = 0
+
+    def _poses(self, ax, poses, measured, scale: float) -> None:
+        measured = set(measured)
+        for use, color, name in (("fit", "#1f77b4", "fit"), ("validation", "#ff7f0e", "held out")):
+            for done in (False, True):
+                P = np.array([p.target[:3] for p in poses
+                              if p.use == use and (p.index in measured) == done], dtype=float)
+                if P.size == 0:
+                    continue
+                P = P * scale
+                ax.scatter(P[:, 0], P[:, 1], P[:, 2], s=28, color=color if done else "none",
+                           edgecolors=color, linewidths=1.2,
+                           label=f"{name} ({'measured' if done else 'to measure'})")
+        if len(poses) > 1:
+            T = np.array([p.target[:3] for p in poses], dtype=float) * scale
+            ax.plot(T[:, 0], T[:, 1], T[:, 2], color="#999", lw=0.6, alpha=0.7)
+
+    @staticmethod
+    def _reference(ax, reference, scale: float) -> None:
+        r = np.asarray(reference, dtype=float)[:3] * scale
+        ax.scatter([r[0]], [r[1]], [r[2]], marker="*", s=120, color="#2ca02c",
+                   label="reference", depthshade=False)
 
     def show_plan(self, poses, robot: str, measured=(), reference=None) -> None:
         fig = self.figure
@@ -159,28 +182,41 @@ class WorkspacePlot(Canvas):
         else:
             unit, scale = u.unit("rad")
             labels = (f"alpha [{unit}]", f"beta [{unit}]", f"gamma [{unit}]")
-        measured = set(measured)
-        for use, color, name in (("fit", "#1f77b4", "fit"), ("validation", "#ff7f0e", "held out")):
-            for done in (False, True):
-                P = np.array([p.target[:3] for p in poses
-                              if p.use == use and (p.index in measured) == done], dtype=float)
-                if P.size == 0:
-                    continue
-                P = P * scale
-                ax.scatter(P[:, 0], P[:, 1], P[:, 2], s=28, color=color if done else "none",
-                           edgecolors=color, linewidths=1.2,
-                           label=f"{name} ({'measured' if done else 'to measure'})")
+        self._poses(ax, poses, measured, scale)
         if reference is not None:
-            r = np.asarray(reference, dtype=float)[:3] * scale
-            ax.scatter([r[0]], [r[1]], [r[2]], marker="*", s=120, color="#2ca02c",
-                       label="reference")
-        if len(poses) > 1:
-            T = np.array([p.target[:3] for p in poses], dtype=float) * scale
-            ax.plot(T[:, 0], T[:, 1], T[:, 2], color="#999", lw=0.6, alpha=0.7)
+            self._reference(ax, reference, scale)
         for setter, lab in zip((ax.set_xlabel, ax.set_ylabel, ax.set_zlabel), labels):
             setter(lab, fontsize=8)
         ax.tick_params(labelsize=7)
         ax.set_title("planned poses in the workspace (line: order of travel)", fontsize=9)
+        if poses:
+            ax.legend(fontsize=7, loc="upper left", frameon=False)
+        self.draw_idle()
+
+    def show_arm_plan(self, poses, robot, xi, reference_qm=None, measured=()) -> None:
+        """A robot file's plan: the tool origins of the poses (model ``xi``, base frame),
+        the reference point with the arm there (grey) and the floor ``z = 0``."""
+        from station.gui.arm3d import draw_arm, draw_floor, setup_axes, stick, view_box
+        from station.gui.widgets import display_units
+
+        fig = self.figure
+        fig.clear()
+        ax = fig.add_subplot(projection="3d")
+        ax.view_init(elev=22, azim=-60)
+        self.count = len(poses)
+        unit, scale = display_units().unit("m")
+        at = reference_qm if reference_qm is not None else (poses[0].qm if poses else None)
+        if at is not None:
+            lo, hi = view_box(robot, xi, at)
+            draw_floor(ax, lo, hi, scale)
+            arm = stick(robot, at, xi)
+            draw_arm(ax, arm, scale, color="#9e9e9e", alpha=0.8, lw=3.0,
+                     label="arm at the reference" if reference_qm is not None else None)
+            if reference_qm is not None:
+                self._reference(ax, arm.tool[:3, 3], scale)
+            setup_axes(ax, lo, hi, scale, unit)
+        self._poses(ax, poses, measured, scale)
+        ax.set_title("planned tool positions (line: order of travel)", fontsize=9)
         if poses:
             ax.legend(fontsize=7, loc="upper left", frameon=False)
         self.draw_idle()

@@ -29,6 +29,17 @@ def display_units():
     return _UNITS[0]
 
 
+def target_coords(robot) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """``(names, SI units)`` of a planned pose's target for ``robot``'s model: AGEBOT's
+    arm x, y, z, phi; a robot file's tool x, y, z, roll, pitch, yaw; the wrist's
+    orientation alpha, beta, gamma."""
+    if robot.name == "agebot-sm":
+        return ("x", "y", "z", "phi"), ("m", "m", "m", "rad")
+    if robot.kind == "serial":
+        return tuple(robot.coords), ("m", "m", "m", "rad", "rad", "rad")
+    return ("alpha", "beta", "gamma"), ("rad",) * 3
+
+
 def channel_text(channel: str, value: float, units=None) -> tuple[str, str]:
     """A reading as the operator reads it: ``(value, unit)`` in the display units
     (:mod:`station.units`: distance in mm, angles in degrees by default; actuator

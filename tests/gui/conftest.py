@@ -42,8 +42,9 @@ def open_window(qtbot, settings, answers):
 
     made = []
 
-    def make():
-        controller = Controller(simulate=True, settings=settings, sim_seed=7)
+    def make(**kwargs):
+        controller = Controller(simulate=True, settings=settings,
+                                **{"sim_seed": 7, **kwargs})
         win = MainWindow(controller)
         qtbot.addWidget(win)
         win.resize(*SCREEN)

@@ -297,9 +297,24 @@ def test_sm_distance_session_on_a_robot_file(tmp_path, monkeypatch):
     assert nominal > 1e-3 and calibrated < 1e-4, (nominal, calibrated)
 
 
-def test_the_wizard_says_it_does_not_run_robot_files_yet(tmp_path):
+def test_the_wizard_takes_a_robot_files_station(tmp_path):
     from station.gui.controller import Controller
 
     cfg = _fast_config(tmp_path, HAYATI)
-    with pytest.raises(ConfigError, match="app.py run --robot FILE"):
-        Controller.robot_of_config(None, cfg)
+    assert Path(Controller.robot_of_config(None, cfg)).resolve() == HAYATI.resolve()
+
+
+def test_plan_chooses_from_more_candidates_where_ways_are_blocked():
+    """Seed 0, 30 poses: the D-optimal 1.3 x 30 candidates leave too few with a clear
+    way there; the plan chooses again from more instead of giving up."""
+    from calibration.robots import get_robot
+
+    robot = get_robot(load_robot_file(HAYATI))
+    ref = serial_plan.reference_pose(robot, robot.nominal)
+    _, qm, use, _ = serial_plan.plan("sm-distance-tilt", robot, robot.nominal, ref,
+                                     PlanRequest(count=30, seed=0))
+    assert use.count("fit") == 30 and use.count("validation") == 6
+    here = ref
+    for q in qm:
+        assert serial_plan.path_clear(robot, robot.nominal, here, q)
+        here = q

@@ -11,7 +11,8 @@ from PySide6.QtWidgets import (QGroupBox, QHBoxLayout, QListWidget, QListWidgetI
                                QMessageBox, QProgressBar, QPushButton, QVBoxLayout)
 
 from station.gui.pages.base import Page, error_text
-from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, ReadingsPanel, note
+from station.gui.widgets import (BAD_COLOR, OK_COLOR, WARN_COLOR, ReadingsPanel, note,
+                                 target_coords)
 
 EVENT_COLOR = {"fault": BAD_COLOR, "abort": BAD_COLOR, "skip": WARN_COLOR, "retry": WARN_COLOR,
                "warning": WARN_COLOR}
@@ -84,6 +85,8 @@ class ExecutePage(Page):
 
     @staticmethod
     def _channels(s):
+        if s.serial:
+            return (("roll", "pitch") if "tilt" in s.info.channels else ()) + ("distance",)
         if s.robot.name == "agebot-sm":
             return ("tilt", "distance")
         return ("roll", "pitch", "yaw")
@@ -215,8 +218,7 @@ class ExecutePage(Page):
             self.progress.setFormat("%v of %m poses")
         if p.pose is not None:
             s = self.session
-            sm = s is not None and s.robot.name == "agebot-sm"
-            sis = ("m", "m", "m", "rad") if sm else ("rad",) * 3
+            sis = target_coords(s.robot)[1] if s is not None else ("rad",) * 3
             u = self.controller.units
             target = ", ".join(u.text(v, si, ".4g") for v, si in zip(p.pose.target, sis))
             use = "held out" if p.pose.use == "validation" else "fit"

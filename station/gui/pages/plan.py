@@ -15,7 +15,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QHBoxLayout, QHeade
 from station.gui.pages.base import Page
 from station.pose_design import design_text
 from station.gui.plots import WorkspacePlot
-from station.gui.widgets import BAD_COLOR, OK_COLOR, note
+from station.gui.widgets import BAD_COLOR, OK_COLOR, note, target_coords
 from station.planner import PM_SCOUT_COUNT
 
 
@@ -141,9 +141,7 @@ class PlanPage(Page):
         poses = s.plan_poses
         n = s.robot.n_actuators
         u = self.controller.units
-        sis = ("m", "m", "m", "rad") if s.robot.name == "agebot-sm" else ("rad",) * 3
-        names = ("x", "y", "z", "phi") if s.robot.name == "agebot-sm" \
-            else ("alpha", "beta", "gamma")
+        names, sis = target_coords(s.robot)
         coords = tuple(f"{k} [{u.label(si)}]" for k, si in zip(names, sis))
         heads = ["#", "use", "round", "state"] + [f"qm{i + 1}" for i in range(n)] + list(coords)
         t = self.table
@@ -171,7 +169,10 @@ class PlanPage(Page):
             ref = [0.0, 0.0, 0.0]       # the targets are planned in the base-origin frame
         elif s.reference_qm is not None and s.robot.name == "agebot-sm":
             ref = s.robot.fk(s.reference_qm, s.nominal)[0]
-        self.plot.show_plan(poses, s.robot.name, s.measured.keys(), ref)
+        if s.serial:        # the tool's targets in the robot file's base frame, the arm
+            self.plot.show_arm_plan(poses, s.robot, s.nominal, s.reference_qm, s.measured.keys())
+        else:
+            self.plot.show_plan(poses, s.robot.name, s.measured.keys(), ref)
         n_fit = sum(p.use == "fit" for p in poses)
         n_val = len(poses) - n_fit
         need = s.minimum_count

@@ -9,7 +9,8 @@ from PySide6.QtWidgets import (QButtonGroup, QCheckBox, QDoubleSpinBox, QFormLay
                                QRadioButton, QVBoxLayout, QWidget)
 
 from station.gui.pages.base import Page
-from station.gui.pictures import FAR_M, ArmPicture, LevelPicture
+from station.gui.arm3d import ArmFigure
+from station.gui.pictures import FAR_M, ArmPicture, LevelPicture, ReferenceSteps
 from station.gui.widgets import OK_COLOR, WARN_COLOR, ReadingsPanel, channel_text, note
 
 
@@ -130,18 +131,25 @@ class ReferencePage(Page):
         if len(vel) == 1:
             vel = vel * n
         sm = session.robot.name == "agebot-sm"
-        self.jog = JogPanel(self, n, vel, 1.0 if sm else 10.0)
+        serial = session.serial                 # a robot file's arm
+        self.jog = JogPanel(self, n, vel, 0.05 if serial else 1.0 if sm else 10.0)
         left.addWidget(self.jog)
         box = QGroupBox("Live readings")
-        QVBoxLayout(box).addWidget(ReadingsPanel(("distance", "tilt") if sm
-                                                 else ("roll", "pitch", "yaw")))
+        channels = (("distance", "roll", "pitch") if serial else ("distance", "tilt") if sm
+                    else ("roll", "pitch", "yaw"))
+        QVBoxLayout(box).addWidget(ReadingsPanel(channels))
         self.readings = box.findChild(ReadingsPanel)
         left.addWidget(box)
         left.addStretch(1)
         lay.addLayout(left, 0)
         right = QVBoxLayout()
         _, _, text = session.reference_target()
-        if sm:
+        if serial:
+            _, role, _ = session.reference_target()
+            self.picture = ArmFigure(session.robot, session.nominal,
+                                     target_label=(role or "reference").replace("-", " "),
+                                     units=self.controller.units)
+        elif sm:
             _, role, _ = session.reference_target()
             self.picture = ArmPicture(session.robot, session.nominal,
                                       target_label=(role or "reference").replace("-", " "),
@@ -181,7 +189,7 @@ class ReferencePage(Page):
             return
         if self._built_for != id(s):
             self._build(s)
-        if isinstance(self.picture, ArmPicture):
+        if isinstance(self.picture, ReferenceSteps):
             qm, _, _ = s.reference_target()
             self.picture.set_state(target_qm=qm, captured=s.reference_qm is not None,
                                    captured_qm=s.reference_qm)
@@ -261,13 +269,15 @@ class ReferencePage(Page):
                             lambda e: self.show_error("The reference was not captured", e))
 
     def _captured(self, qm) -> None:
-        if isinstance(self.picture, ArmPicture):
+        if isinstance(self.picture, ReferenceSteps):
             self.picture.set_state(captured=True, captured_qm=qm)
         self._refresh()
 
     @property
     def role_note(self) -> str:
         s = self.session
+        if s is not None and s.method == "sm-distance-tilt" and s.serial:
+            return "The calibrated base frame's origin will be this point."
         if s is not None and s.method == "sm-distance-tilt":
             return "theta0, a0 and q1_off will refer to this point."
         return "Distances will be measured from this point."
@@ -293,8 +303,10 @@ class ReferencePage(Page):
         self.readings.set_values(values)
         n = len(self.jog.values)
         qm = [values.get(f"qm{i + 1}") for i in range(n)]
-        if isinstance(self.picture, ArmPicture) and None not in qm:
+        if isinstance(self.picture, ReferenceSteps) and None not in qm:
             self.picture.set_state(qm=qm)
+            if isinstance(self.picture, ArmFigure) and "roll" in values:
+                self.picture.set_tilt(values["roll"], values.get("pitch", 0.0))
         elif isinstance(self.picture, LevelPicture) and "roll" in values:
             was = self.picture.level
             self.picture.set_angles(values["roll"], values.get("pitch", 0.0))

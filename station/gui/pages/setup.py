@@ -10,6 +10,7 @@ from PySide6.QtWidgets import (QComboBox, QFileDialog, QFormLayout, QGroupBox, Q
 
 from calibration.methods import METHODS
 from calibration.robots import get_robot
+from drivers.sim.serial_robot import is_robot_file
 from station.gui.controller import ROBOTS, summarize_folder
 from station.gui.pages.base import Page, error_text
 from station.gui.widgets import BAD_COLOR, OK_COLOR, DeviceTable, note
@@ -23,6 +24,39 @@ METHOD_TEXT = {
     "pm-ik": "wrist orientation from the inclinometer, inverse kinematics (report 10.1)",
     "pm-tilt": "wrist roll and pitch only (10.2 with a physical inclinometer)",
 }
+
+
+ROBOT_FILES = Path(__file__).resolve().parents[3] / "fixtures" / "robots"
+
+
+def robot_model(robot: str):
+    """The model of a robot choice: a built-in name or a robot file's path."""
+    if is_robot_file(robot):
+        from drivers.robot_file import load_robot_file
+
+        return get_robot(load_robot_file(robot))
+    return get_robot(robot)
+
+
+def draw_truth_file(robot_file: str, folder: Path, seed: int) -> Path:
+    """A simulated arm of ``robot_file`` that is not its nominal
+    (:func:`drivers.sim.serial_robot.draw_serial_truth`, the devices' noise of
+    :data:`station.sim_sessions.DEVICE_NOISE`, an inclinometer mounted up to 1 deg off),
+    saved as ``folder/sim-truth.json``."""
+    import numpy as np
+
+    from drivers.sim.serial_robot import draw_serial_truth
+    from drivers.sim.truth import save_truth
+    from station.sim_sessions import DEVICE_NOISE
+
+    rng = np.random.default_rng(seed)
+    mount = tuple(float(v) for v in rng.uniform(-0.017, 0.017, 2))
+    t = draw_serial_truth(robot_file, rng, noise=DEVICE_NOISE["agebot-sm"], seed=seed,
+                          inclinometer_mount=mount)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "sim-truth.json"
+    save_truth(t, path)
+    return path
 
 
 def default_folder() -> str:
@@ -52,9 +86,14 @@ class SetupPage(Page):
         self.robot = QComboBox()
         for key, text in ROBOTS.items():
             self.robot.addItem(text, key)
+        for path in sorted(ROBOT_FILES.glob("*.toml")):
+            self.add_robot_file(str(path))
+        browse_robot = QPushButton("Robot fi&le\u2026")
+        browse_robot.setToolTip("any serial arm described by a robot file (docs/robot-files.md)")
+        browse_robot.clicked.connect(self.browse_robot_file)
         self.method = QComboBox()
         self.method_text = note("")
-        form.addRow("&Robot:", self.robot)
+        form.addRow("&Robot:", _row(self.robot, browse_robot))
         form.addRow("&Method:", self.method)
         form.addRow("", self.method_text)
         self.layout_.addWidget(box)
@@ -69,9 +108,20 @@ class SetupPage(Page):
         self.endpoints.setPlaceholderText("optional: a running simulator's endpoints file")
         browse_ep = QPushButton("Browse\u2026")
         browse_ep.clicked.connect(self.browse_endpoints)
+        self.truth = QLineEdit(c.truth_path or "")
+        self.truth.setPlaceholderText("what the simulated arm really is (a truth file of "
+                                      "the robot file)")
+        browse_truth = QPushButton("Browse\u2026")
+        browse_truth.clicked.connect(self.browse_truth)
+        self.draw_truth_button = QPushButton("Dra&w one")
+        self.draw_truth_button.setToolTip("a simulated arm drawn around the robot file's "
+                                          "nominal, saved in the session folder")
+        self.draw_truth_button.clicked.connect(self.draw_truth)
+        self.truth_row = _row(self.truth, browse_truth, self.draw_truth_button)
         if c.simulate:
             form.addRow("Devices:", note("simulated: the simulator starts in its own process "
                                          "when you connect (app.py simulate)"))
+            form.addRow("Simulated tr&uth:", self.truth_row)
             if c.config_path:
                 form.addRow("Station conf&ig:", self.config)
             self.config.setReadOnly(True)
@@ -114,6 +164,7 @@ class SetupPage(Page):
         self.robot.currentIndexChanged.connect(self._robot_changed)
         self.method.currentIndexChanged.connect(self._method_changed)
         self.folder.textChanged.connect(self.update_missing)
+        self.truth.textChanged.connect(self.update_missing)
         self.config.textChanged.connect(self.update_missing)
         c.polled.connect(self._polled)
         c.sessionChanged.connect(self._session_changed)
@@ -121,6 +172,7 @@ class SetupPage(Page):
         self._connecting = False
         self._checked = None            # the session whose devices all answered once
         self._error: str | None = None
+        self._robot_error: str | None = None
         if c.config_path and not c.simulate:
             self._robot_from_config(c.config_path)
         self._robot_changed()
@@ -136,15 +188,52 @@ class SetupPage(Page):
         return self.method.currentData()
 
     def set_choice(self, robot: str, method: str) -> None:
+        """Choose ``robot`` (a built-in name or a robot file's path) and ``method``."""
+        if is_robot_file(robot):
+            robot = self.add_robot_file(robot)
         self.robot.setCurrentIndex(self.robot.findData(robot))
-        self.method.setCurrentIndex(self.method.findData(method))
+        if method:
+            self.method.setCurrentIndex(self.method.findData(method))
+
+    def add_robot_file(self, path: str) -> str:
+        """List the robot file ``path`` (once); its key (the absolute path)."""
+        key = str(Path(path).expanduser().resolve())
+        if self.robot.findData(key) < 0:
+            self.robot.addItem(f"robot file: {Path(path).name}", key)
+        return key
+
+    def robot_file_of(self, source: dict) -> str | None:
+        """The listed robot file whose text is ``source`` (a trace's ``robot_file``)."""
+        from drivers.robot_file import load_robot_file
+
+        for i in range(self.robot.count()):
+            key = self.robot.itemData(i)
+            if is_robot_file(key):
+                try:
+                    if load_robot_file(key).source["sha256"] == source.get("sha256"):
+                        return key
+                except Exception:  # noqa: BLE001 - a listed file that went bad: not it
+                    continue
+        return None
+
+    @property
+    def robot_file(self) -> bool:
+        return bool(self.robot_key) and is_robot_file(self.robot_key)
 
     def _robot_changed(self, *_):
         self.method.clear()
+        self._robot_error = None
+        try:
+            kind = robot_model(self.robot_key).kind
+        except Exception as e:  # noqa: BLE001 - said below
+            self._robot_error = f"The robot file cannot be read: {error_text(e)}"
+            kind = None
         for m in SESSION_METHODS:
-            if METHODS[m].kind == get_robot(self.robot_key).kind:
+            if METHODS[m].kind == kind:
                 self.method.addItem(f"{m} (report {METHODS[m].section})", m)
+        self.truth_row.setEnabled(self.robot_file)
         self._method_changed()
+        self.update_missing()
 
     def _method_changed(self, *_):
         self.method_text.setText(METHOD_TEXT.get(self.method_name or "", ""))
@@ -155,6 +244,8 @@ class SetupPage(Page):
         except Exception as e:  # noqa: BLE001 - said below
             self._error = f"The station config cannot be read: {error_text(e)}"
             return
+        if is_robot_file(robot):
+            robot = self.add_robot_file(robot)
         self.robot.setCurrentIndex(self.robot.findData(robot))
         self.robot.setEnabled(False)
 
@@ -167,6 +258,34 @@ class SetupPage(Page):
             self._error = None
             self._robot_from_config(path)
             self.update_missing()
+
+    def browse_robot_file(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Robot file", str(ROBOT_FILES),
+                                              "Robot file (*.toml);;All files (*)")
+        if path:
+            self.robot.setCurrentIndex(self.robot.findData(self.add_robot_file(path)))
+
+    def browse_truth(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Simulated truth", self.truth.text(),
+                                              "Truth file (*.json);;All files (*)")
+        if path:
+            self.truth.setText(path)
+
+    def draw_truth(self) -> None:
+        """Draw a simulated arm of the chosen robot file into the session folder."""
+        folder = self.folder.text().strip()
+        if not self.robot_file or not folder:
+            self.update_missing()
+            return
+        seed = self.controller.sim_seed if self.controller.sim_seed is not None \
+            else int(time.time()) % 100000
+        try:
+            path = draw_truth_file(self.robot_key, Path(folder).expanduser(), seed)
+        except Exception as e:  # noqa: BLE001 - said to the operator
+            self._error = f"No truth drawn: {error_text(e)}"
+            self.update_missing()
+            return
+        self.truth.setText(str(path))
 
     def browse_endpoints(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Simulator endpoints", "",
@@ -188,8 +307,12 @@ class SetupPage(Page):
         if not self.folder.text().strip():
             out.append("No session folder: choose where the trace, the parameter file and "
                        "the report go (Browse\u2026 next to Session folder).")
-        if self._error:
-            out.append(self._error)
+        if c.simulate and self.robot_file and not self.truth.text().strip():
+            out.append("No truth for the simulated arm: choose a truth file of the robot file "
+                       "(Browse\u2026 next to Simulated truth), or press Draw one.")
+        for error in (self._robot_error, self._error):
+            if error:
+                out.append(error)
         if c.session is None and not self._connecting and not out:
             out.append("Not connected: press Connect.")
         for name, ok in self.devices.states.items():
@@ -235,6 +358,9 @@ class SetupPage(Page):
                                                and not self.config.text().strip()):
             self.update_missing()
             return
+        if self.controller.simulate and self.robot_file and not self.truth.text().strip():
+            self.update_missing()
+            return
         folder = Path(self.folder.text().strip()).expanduser()
         summary = summarize_folder(folder)
         if summary is not None:
@@ -247,8 +373,21 @@ class SetupPage(Page):
                                "another folder for a new session.")
                 self.update_missing()
                 return
-            self.set_choice(summary.robot, summary.method)
-        if not self.controller.simulate:
+            robot = summary.robot
+            if summary.robot_file:          # a robot file's session: the same file
+                robot = self.robot_file_of(summary.robot_file)
+                if robot is None:
+                    self._error = (f"{folder} holds a session of the robot file "
+                                   f"{summary.robot_file.get('name')}: choose that file "
+                                   "(Robot file\u2026) first.")
+                    self.update_missing()
+                    return
+                if summary.truth and self.controller.simulate:
+                    self.truth.setText(summary.truth)
+            self.set_choice(robot, summary.method)
+        if self.controller.simulate:
+            self.controller.truth_path = self.truth.text().strip() if self.robot_file else None
+        else:
             self.controller.config_path = self.config.text().strip()
             self.controller.endpoints_path = self.endpoints.text().strip() or None
         request = PlanRequest(count=self.count.value() or None)

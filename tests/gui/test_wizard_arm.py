@@ -1,0 +1,148 @@
+"""The wizard over a robot file's arm (UR5-like, in Hayati form, a drawn truth): setup
+with the robot file and its truth, the reference with the arm's live 3D stick figure,
+the plan in 3D (fast); and a whole session on to execute, calibrate (validation
+improved) and export (parameter file, URDF, report), the calibrated model's
+point-to-point error against the truth small (slow)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PySide6.QtCore import Qt
+
+from drivers.sim.truth import load_truth
+from station import serial_plan
+from station.export import calibrated_model
+from station.gui.arm3d import ArmFigure, stick
+from station.gui.pages import PageId
+from station.params_file import read_params
+from station.trace import read_trace
+from station.gui.pictures import CABLE
+from tests.gui.helpers import ROOT, screenshot, wait_idle
+from tests.station.test_serial_session import _fast_config, _truth_file
+
+HAYATI = ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml"
+TIMEOUT = 60000
+
+
+def _open(open_window, tmp_path, seed):
+    truth = _truth_file(tmp_path, HAYATI, seed)
+    cfg = _fast_config(tmp_path, HAYATI)
+    cfg.write_text(cfg.read_text().replace("samples = 5", "samples = 2"))
+    return open_window(config_path=str(cfg), truth_path=None), truth
+
+
+def _to_plan(open_window, qtbot, tmp_path, count, seed=8713, shots=False):
+    """Setup, reference and plan of a UR5-like session with ``count`` poses to fit."""
+    win, truth_path = _open(open_window, tmp_path, seed=seed)
+    c = win.controller
+    folder = tmp_path / "arm"
+
+    # 1 setup: the robot file is listed; without a truth the setup says so
+    setup = win.page(PageId.SETUP)
+    setup.folder.setText(str(folder))
+    setup.set_choice(str(HAYATI), "sm-distance-tilt")
+    assert setup.robot_file and setup.method_name == "sm-distance-tilt"
+    assert [setup.method.itemData(i) for i in range(setup.method.count())] == \
+        ["sm-distance", "sm-distance-tilt"]
+    assert any("No truth for the simulated arm" in t for t in setup.missing_items())
+    setup.truth.setText(str(truth_path))
+    setup.count.setValue(count)
+    qtbot.mouseClick(setup.connect_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(setup.is_complete, timeout=TIMEOUT)
+    assert setup.devices.rowCount() == 3 and all(setup.devices.states.values())
+    assert c.session.serial and c.session.robot.name == "ur5-like-hayati"
+    if shots:
+        screenshot(win, "arm-01-setup")
+
+    # 2 reference: the 3D stick figure follows the encoders; go to the mark, capture
+    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
+    ref = win.page(PageId.REFERENCE)
+    assert isinstance(ref.picture, ArmFigure)
+    qtbot.mouseClick(ref.goto_button, Qt.MouseButton.LeftButton)
+    wait_idle(qtbot, c)
+    qtbot.waitUntil(lambda: ref.picture.step == 1, timeout=5000)     # "attach the cable"
+    s = c.session
+    qm = s.qm()
+    fig = ref.picture
+    qtbot.waitUntil(lambda: fig.qm is not None and np.allclose(fig.qm, qm, atol=1e-3)
+                    and fig.roll is not None, timeout=5000)
+    qtbot.waitUntil(lambda: fig.draws >= 1 and fig._drawn_key == fig._key(), timeout=5000)
+    # the figure is the model's forward kinematics at the readings: its tool is the FK's
+    arm = stick(s.robot, fig.qm, s.nominal)
+    assert np.allclose(arm.tool[:3, 3], s.robot.fk(fig.qm, s.nominal)[0, :3])
+    assert len(arm.joints) == 6
+    assert any(ln.get_color() == CABLE for ln in fig.ax.get_lines())   # the draw-wire
+    if shots:
+        screenshot(win, "arm-02-reference")
+    qtbot.mouseClick(ref.capture_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(ref.is_complete, timeout=TIMEOUT)
+    wait_idle(qtbot, c)
+
+    # 3 plan: the planned tool positions in 3D, with the arm at the reference
+    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
+    plan = win.page(PageId.PLAN)
+
+    def planned():
+        err = getattr(plan, "last_error", None)
+        assert err is None, err.text()
+        return plan.table.rowCount() > count
+
+    qtbot.waitUntil(planned, timeout=TIMEOUT)
+    wait_idle(qtbot, c)
+    n_val = sum(p.use == "validation" for p in s.plan_poses)
+    assert plan.table.rowCount() == count + n_val and n_val >= 3
+    assert plan.plot.count == count + n_val
+    heads = [plan.table.horizontalHeaderItem(k).text() for k in range(plan.table.columnCount())]
+    assert "qm6" in heads and any(h.startswith("roll") for h in heads)
+    assert f"{count} poses to fit + {n_val} held out" in plan.counts.text()
+    # the tool's targets are the model's forward kinematics (mm in the table)
+    p0 = s.plan_poses[0]
+    x = float(plan.table.item(0, heads.index("x [mm]")).text())
+    assert abs(x - 1e3 * s.robot.fk(p0.qm, s.nominal)[0, 0]) < 1e-3
+    if shots:
+        screenshot(win, "arm-03-plan")
+    return win, truth_path, folder
+
+
+def test_ur5_like_setup_reference_and_plan(open_window, qtbot, tmp_path):
+    _to_plan(open_window, qtbot, tmp_path, count=12)
+
+
+@pytest.mark.slow
+def test_ur5_like_session_in_the_wizard(open_window, qtbot, tmp_path):
+    win, truth_path, folder = _to_plan(open_window, qtbot, tmp_path, count=30, shots=True)
+    c = win.controller
+    s = c.session
+
+    # 4 execute
+    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
+    ex = win.page(PageId.EXECUTE)
+    qtbot.mouseClick(ex.start_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(ex.is_complete, timeout=120000)
+    assert len(s.measured) + len(s.skipped) == len(s.plan_poses)
+    screenshot(win, "arm-04-execute")
+
+    # 5 calibrate: validation improved
+    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
+    cal = win.page(PageId.CALIBRATE)
+    qtbot.waitUntil(lambda: not cal.running, timeout=TIMEOUT)
+    assert cal.is_complete(), cal.status.text()
+    val = {v["channel"]: v for v in s.validation}
+    assert val["distance"]["rms_after"] < val["distance"]["rms_before"] / 10
+    screenshot(win, "arm-05-calibrate")
+
+    # 6 export: parameter file, URDF, report; the calibrated arm point to point
+    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
+    exp = win.page(PageId.EXPORT)
+    qtbot.waitUntil(exp.is_complete, timeout=TIMEOUT)
+    doc = read_params(folder / "params.json")
+    assert exp.checksum.text() == doc["checksum"] and "checksum OK" in exp.verified.text()
+    assert (folder / "calibrated.urdf").stat().st_size > 500
+    assert (folder / "report.html").stat().st_size > 1000
+    assert read_trace(folder / "trace.jsonl").header["robot_file"]["name"] == HAYATI.name
+    screenshot(win, "arm-06-export")
+    robot, xi = calibrated_model(doc)
+    truth = load_truth(truth_path)
+    nominal = serial_plan.point_to_point_rms(robot, robot.nominal, truth.xi(), seed=4)
+    calibrated = serial_plan.point_to_point_rms(robot, xi, truth.xi(), seed=4)
+    assert nominal > 1e-3 and calibrated < 5e-5, (nominal, calibrated)
