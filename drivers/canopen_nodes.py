@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
+import socket
 import threading
 import time
 from collections.abc import Sequence
@@ -127,6 +128,7 @@ class CanopenNodes(Device):
         self._last_hb.clear(), self._hb_state.clear(), self._emcy.clear()
         network = canopen.Network()
         try:
+            self._server_answers()
             network.connect(**self.bus_config)
         except (can.CanError, OSError, ValueError, ImportError) as e:
             raise DeviceError(f"cannot open CAN bus {self.bus_config}: {e}", device=self.name) from e
@@ -147,6 +149,15 @@ class CanopenNodes(Device):
         except BaseException:
             self._close_internal()
             raise
+
+    def _server_answers(self) -> None:
+        """A socketcand server that refuses the connection (not running, the cable or
+        the simulator gone) is an OSError at once: python-can's socketcand interface
+        would retry a refused connection for 10 s in a busy loop."""
+        cfg = self.bus_config
+        if cfg.get("interface") == "socketcand" and cfg.get("host") and cfg.get("port"):
+            socket.create_connection((cfg["host"], int(cfg["port"])),
+                                     timeout=self.timeout).close()
 
     def _configure(self, nid: int) -> None:
         node = self.remote[nid]

@@ -26,7 +26,8 @@ from drivers.sim.truth import load_truth, save_truth
 from station.planner import PlanRequest
 from station.session import Session
 from station.trace import read_trace
-from tests.station.test_session import FIX, _session_config, fast_config
+from tests.simconfig import quick_config
+from tests.station.test_session import FIX, _session_config
 
 @pytest.fixture(autouse=True)
 def _no_figures(monkeypatch):
@@ -66,12 +67,7 @@ def _truth(tmp_path: Path, robot: str) -> str:
 
 def _config(tmp_path: Path, robot: str) -> Path:
     """:func:`fast_config` with two samples a pose (shorter tests)."""
-    path = fast_config(tmp_path, robot)
-    text = path.read_text()
-    fast = text.replace("samples = 5", "samples = 2")
-    assert fast != text
-    path.write_text(fast)
-    return path
+    return quick_config(tmp_path, robot, samples=2)
 
 
 def _uninterrupted(tmp_path, sim, cfg, method, request, nominal) -> Case:

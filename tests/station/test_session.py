@@ -16,7 +16,6 @@ import signal
 import subprocess
 import sys
 import time
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -33,30 +32,16 @@ from station.params_file import read_params
 from station.planner import PlanRequest
 from station.session import Session
 from station.trace import read_trace
+from tests.simconfig import quick_config
 
 ROOT = Path(__file__).resolve().parents[2]
 FIX = ROOT / "fixtures"
 
 
 def fast_config(tmp_path: Path, robot: str) -> Path:
-    """The simulated station's config with 4x faster moves (same devices, shorter tests)."""
-    name = "sim-sm.toml" if robot == "agebot-sm" else "sim-pm.toml"
-    text = (FIX / "stations" / name).read_text()
-    data = tomllib.loads(text)
-    vel = data["canopen"]["profile_velocity"]
-    acc = data["canopen"]["profile_acceleration"]
-    scale = lambda v, f: [x * f for x in v] if isinstance(v, list) else v * f  # noqa: E731
-    out = text.replace(f"profile_velocity = {_toml(vel)}", f"profile_velocity = {_toml(scale(vel, 4))}")
-    out = out.replace(f"profile_acceleration = {_toml(acc)}",
-                      f"profile_acceleration = {_toml(scale(acc, 16))}")
-    assert out != text
-    path = tmp_path / name
-    path.write_text(out)
-    return path
-
-
-def _toml(v) -> str:
-    return "[" + ", ".join(repr(float(x)) for x in v) + "]" if isinstance(v, list) else repr(float(v))
+    """The simulated station's config with faster moves and a shorter snapshot
+    (:func:`tests.simconfig.quick_config`: the same devices, shorter tests)."""
+    return quick_config(tmp_path, robot)
 
 
 def _session_config(sim: SimulatorProcess, cfg_path: Path):

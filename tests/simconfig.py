@@ -1,0 +1,67 @@
+"""Station configs of the simulated stations for tests: the same devices and wire
+protocols as the fixtures (``fixtures/stations/sim-*.toml``), but moves ``speed``
+times faster, a shorter snapshot settle and sample period and shorter timeouts.
+
+The simulated axes stop exactly at their target and every simulated reading is
+computed from the axes' positions when it is sent, so a settle of a few ms is as
+good as the fixtures' 50 ms; the snapshot still discards every frame from before
+the settle and each of its samples still waits for a fresh frame (the simulated
+inclinometer sends 100 per second: a period of 10 ms is one frame). The devices
+answer over 127.0.0.1 within milliseconds, so a lost SDO or Modbus answer (the
+fault tests drop frames on purpose) is declared lost after ``timeout`` s instead of
+the fixtures' 0.5 and 1 s. The snapshot's read timeout stays: within it the CANopen
+reading sends SYNC after SYNC while TPDOs are lost, and the inclinometer waits for
+its next good frame. The speed is at most 4 for the SM: its acceleration goes with the square
+of the speed and the drives take it in increments/s^2 as a 32-bit number (object
+0x6083). The fixtures, which the demos and the documentation use, keep their values.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+#: what the tests' simulated stations use unless a test asks for other values
+SPEED, SETTLE, PERIOD, TIMEOUT = 4.0, 0.01, 0.01, 0.3
+
+
+def set_keys(text: str, table: str, **values) -> str:
+    """``text`` (a station config) with the keys ``values`` of ``[table]`` replaced
+    (a value None: the key is kept); ValueError where the table or a key is not there."""
+    m = re.search(rf"^\[{re.escape(table)}\]\n(.*?)(?=^\[|\Z)", text, re.M | re.S)
+    if m is None:
+        raise ValueError(f"the station config has no [{table}] table")
+    body = m.group(1)
+    for key, value in values.items():
+        if value is None:
+            continue
+        body, n = re.subn(rf"^{key} = [^#\n]*", f"{key} = {value!r} ", body, count=1,
+                          flags=re.M)
+        if n != 1:
+            raise ValueError(f"[{table}] has no {key} to replace")
+    return text[:m.start(1)] + body + text[m.end(1):]
+
+
+def quick_text(text: str, *, settle: float | None = SETTLE, period: float | None = PERIOD,
+               samples: int | None = None, timeout: float | None = TIMEOUT) -> str:
+    """A station config's text with the test timing: the snapshot's ``settle``,
+    ``period`` and ``samples``, and ``timeout`` for one CANopen SDO answer and one
+    draw-wire answer (where the config has a draw-wire)."""
+    text = set_keys(text, "snapshot", settle=settle, period=period, samples=samples)
+    if timeout is not None:
+        text = set_keys(text, "canopen", sdo_timeout=timeout)
+        if re.search(r"^\[drawwire\]$", text, re.M):
+            text = set_keys(text, "drawwire", timeout=timeout)
+    return text
+
+
+def quick_config(folder: Path, robot: str, *, speed: float = SPEED, truth=None,
+                 **timing) -> Path:
+    """The simulated ``robot``'s station config (agebot-sm, agebot-pm) with moves
+    ``speed`` times faster (:func:`station.sim_sessions.fast_config`; with ``truth``
+    the envelope of that robot) and the test timing of :func:`quick_text`, written
+    into ``folder``."""
+    from station.sim_sessions import fast_config
+
+    path = fast_config(robot, Path(folder), speed, truth)
+    path.write_text(quick_text(path.read_text(), **timing))
+    return path
