@@ -1,6 +1,8 @@
 import os
 import sys
 
+import pytest
+
 # small matrices: multithreaded BLAS only adds overhead on the 2-core CI machine
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -9,3 +11,16 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+
+
+
+@pytest.fixture
+def quick_retries(monkeypatch):
+    """The session's pauses before it retries a failed pose
+    (:data:`station.device_loss.BACKOFF_S`, 0.25 to 2 s for a real outage to pass) ten
+    times shorter: for tests of faults that a pause does not cure (a drive at its
+    limit, a device gone, frames lost at random). test_device_loss's short outage
+    keeps the real pauses."""
+    from station import device_loss
+
+    monkeypatch.setattr(device_loss, "BACKOFF_S", tuple(p / 10 for p in device_loss.BACKOFF_S))

@@ -62,6 +62,7 @@ def quick_config(folder: Path, robot: str, *, speed: float = SPEED, truth=None,
     into ``folder``."""
     from station.sim_sessions import fast_config
 
+    Path(folder).mkdir(parents=True, exist_ok=True)
     path = fast_config(robot, Path(folder), speed, truth)
     path.write_text(quick_text(path.read_text(), **timing))
     return path

@@ -12,15 +12,19 @@ import pytest
 
 from station.headless import parse_target
 from calibration.errors import ConfigError
+from tests.simconfig import quick_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 
 
 def _run(out, *extra):
+    """``app.py run --simulate`` of the wrist on the tests' quick simulated station."""
+    cfg = quick_config(out.parent / "station", "agebot-pm")
     return subprocess.run([sys.executable, os.path.join(ROOT, "app.py"), "run", "--simulate",
-                           "--robot", "agebot-pm", "--method", "pm-fk", "--out", str(out),
-                           *extra], capture_output=True, text=True, timeout=600, env=ENV)
+                           "--robot", "agebot-pm", "--method", "pm-fk", "--config", str(cfg),
+                           "--out", str(out), *extra],
+                          capture_output=True, text=True, timeout=600, env=ENV)
 
 
 def _plans(out):

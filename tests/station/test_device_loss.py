@@ -37,7 +37,7 @@ def _inject_after(ctl, n: int, faults: dict, done: list):
     ({"inclinometer_silent": True}, "inclinometer", "check the serial cable"),
 ])
 def test_a_lost_device_stops_the_session_and_the_resume_finishes_it(tmp_path, faults, device,
-                                                                     check):
+                                                                     check, quick_retries):
     cfg = fast_config(tmp_path, "agebot-sm")
     out = tmp_path / "run"
     with SimulatorProcess("agebot-sm", config=str(cfg), seed=9) as sim:
@@ -67,7 +67,7 @@ def test_a_lost_device_stops_the_session_and_the_resume_finishes_it(tmp_path, fa
     assert idx == list(range(10)) and again.outcome.result.converged
 
 
-def test_a_killed_simulator_stops_the_session_and_a_new_one_resumes_it(tmp_path):
+def test_a_killed_simulator_stops_the_session_and_a_new_one_resumes_it(tmp_path, quick_retries):
     cfg = fast_config(tmp_path, "agebot-sm")
     out = tmp_path / "run"
     with SimulatorProcess("agebot-sm", config=str(cfg), seed=9) as sim:

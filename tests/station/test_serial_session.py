@@ -23,6 +23,7 @@ from station.params_file import read_params
 from station.planner import PlanRequest
 from station.session import Session
 from station.trace import read_trace
+from tests.simconfig import quick_text
 
 ROOT = Path(__file__).resolve().parents[2]
 HAYATI = ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml"
@@ -46,9 +47,11 @@ def _truth_file(tmp_path, robot_file, seed) -> Path:
     return path
 
 
-def _fast_config(tmp_path, robot_file) -> Path:
-    """A station config naming the robot file (``robot_file``), moves 3x faster."""
-    data = sim_config_data(load_robot_file(robot_file), velocity=6.0, acceleration=60.0)
+def _fast_config(tmp_path, robot_file, samples: int | None = None) -> Path:
+    """A station config naming the robot file (``robot_file``), axis speeds 12 times
+    the default simulated station's (accelerations 96 times), the tests' snapshot timing
+    and timeouts (:func:`tests.simconfig.quick_text`)."""
+    data = sim_config_data(load_robot_file(robot_file), velocity=24.0, acceleration=960.0)
     lines = [f'robot_file = "{robot_file}"']
 
     def emit(prefix, table):
@@ -62,7 +65,7 @@ def _fast_config(tmp_path, robot_file) -> Path:
     for key in ("canopen", "inclinometer", "drawwire", "snapshot"):
         emit(key, data[key])
     path = tmp_path / "station.toml"
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text(quick_text("\n".join(lines) + "\n", samples=samples))
     return path
 
 
@@ -182,8 +185,7 @@ def test_robot_file_session_resumes_exactly_after_a_kill(tmp_path, monkeypatch):
     monkeypatch.setattr(station.report, "write_report",
                         lambda path, *a, **k: Path(path).write_text("report\n"))
     truth_path = _truth_file(tmp_path, HAYATI, seed=8203)
-    cfg = _fast_config(tmp_path, HAYATI)
-    cfg.write_text(cfg.read_text().replace("samples = 5", "samples = 2"))
+    cfg = _fast_config(tmp_path, HAYATI, samples=2)
     request = PlanRequest(count=16, validation=2, seed=5)
     with SimulatorProcess(str(HAYATI), truth=str(truth_path), config=str(cfg), seed=21,
                           pose_noise=True) as sim:
@@ -203,7 +205,7 @@ def test_robot_file_session_resumes_exactly_after_a_kill(tmp_path, monkeypatch):
             assert _check_same(case, k, records, x) < 1e-6
 
 
-def test_a_pose_below_the_real_floor_faults_and_is_skipped(tmp_path, monkeypatch):
+def test_a_pose_below_the_real_floor_faults_and_is_skipped(tmp_path, monkeypatch, quick_retries):
     """The engineer's start value puts the arm's base 25 cm higher than it is, so some
     planned poses are below the real floor: the simulated drive faults naming the floor
     (EMCY manufacturer bytes), the session retries, skips, and completes with the rest
@@ -213,8 +215,7 @@ def test_a_pose_below_the_real_floor_faults_and_is_skipped(tmp_path, monkeypatch
     monkeypatch.setattr(station.report, "write_report",
                         lambda path, *a, **k: Path(path).write_text("report\n"))
     truth_path = _truth_file(tmp_path, HAYATI, seed=8305)
-    cfg = _fast_config(tmp_path, HAYATI)
-    cfg.write_text(cfg.read_text().replace("samples = 5", "samples = 2"))
+    cfg = _fast_config(tmp_path, HAYATI, samples=2)
     from drivers.sim.truth import load_truth
 
     truth = load_truth(truth_path)
@@ -280,8 +281,7 @@ def test_sm_distance_session_on_a_robot_file(tmp_path, monkeypatch):
     monkeypatch.setattr(station.report, "write_report",
                         lambda path, *a, **k: Path(path).write_text("report\n"))
     truth_path = _truth_file(tmp_path, HAYATI, seed=8611)
-    cfg = _fast_config(tmp_path, HAYATI)
-    cfg.write_text(cfg.read_text().replace("samples = 5", "samples = 2"))
+    cfg = _fast_config(tmp_path, HAYATI, samples=2)
     from drivers.sim.truth import load_truth
 
     truth = load_truth(truth_path)
