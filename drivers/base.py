@@ -24,7 +24,11 @@ log = logging.getLogger("drivers")
 class Sample:
     """One reading of a device: ``values`` channel -> value, taken at ``t``
     (``time.monotonic()`` of reception); ``seq`` increases with every fresh datum
-    from the device, so that a repeated (stale) datum can be told from a new one."""
+    from the device, so that a repeated (stale) datum can be told from a new one.
+    ``info["since"]`` where the driver knows it: the earliest time the values can have
+    been sampled (a polled device: when the request went out; CANopen: the SYNC), so
+    that they were sampled in ``[since, t]``. A streaming device (the inclinometer)
+    does not know it: its frames are up to a known latency old when received."""
 
     t: float
     values: dict[str, float]

@@ -90,6 +90,7 @@ class CanopenNodes(Device):
         self._hb_state: dict[int, int] = {}
         self._emcy: dict[int, canopen.emcy.EmcyError | None] = {}
         self._sync_no = 0
+        self._sync_t = 0.0
         self._pending: set[int] = set()
         self._fresh: dict[int, tuple] = {}
         self.unsolicited_tpdos = 0        # TPDOs that came outside a SYNC window (late or extra)
@@ -281,6 +282,7 @@ class CanopenNodes(Device):
         with self._cv:
             self._sync_no += 1
             self._pending, self._fresh = set(self.nodes), {}
+            self._sync_t = time.monotonic()   # the drives latch their positions at this SYNC
         try:
             self.network.sync.transmit()
         except (can.CanError, OSError) as e:
@@ -335,6 +337,7 @@ class CanopenNodes(Device):
             raise DeviceError("device is not open", device=self.name)
         self.check_health()
         raw = {}
+        since = time.monotonic()
         for nid in self.nodes:
             self.remote[nid].sdo.RESPONSE_TIMEOUT = self.timeout if timeout is None else float(timeout)
             try:
@@ -343,11 +346,14 @@ class CanopenNodes(Device):
                 self.remote[nid].sdo.RESPONSE_TIMEOUT = self.timeout
         values = {ch: self._to_units(i, self._decode(raw[n])) for i, (ch, n) in enumerate(zip(self.channels, self.nodes))}
         self._sync_no += 1
-        return Sample(time.monotonic(), values, seq=self._sync_no, info={"source": "sdo", "increments": raw})
+        return Sample(time.monotonic(), values, seq=self._sync_no,
+                      info={"source": "sdo", "increments": raw, "since": since})
 
     def _decode(self, raw: int) -> int:
         return raw
 
     def _info(self, fresh: dict[int, tuple], source: str) -> dict:
         pos = [o for o, _ in self.tpdo_objects].index(self.position_object)
-        return {"source": source, "sync": self._sync_no, "increments": {n: v[pos] for n, v in fresh.items()}}
+        # "since": the SYNC's time; the values were latched between it and the sample's t
+        return {"source": source, "sync": self._sync_no, "since": self._sync_t,
+                "increments": {n: v[pos] for n, v in fresh.items()}}

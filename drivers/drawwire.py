@@ -130,6 +130,7 @@ class DrawWire(Device):
         self._client.close()
 
     def _read_internal(self, timeout: float) -> Sample:
+        since = time.monotonic()     # the sensor reads its count between the request and t
         regs = self._request("read_holding_registers", REG_COUNT, timeout=timeout, count=3)
         count = combine_words(regs[:2], self.word_order)
         if count >= 1 << 31:        # below the zero point (module docstring)
@@ -137,7 +138,7 @@ class DrawWire(Device):
         distance = count * self.metres_per_count + self.offset_m
         self._seq += 1
         return Sample(time.monotonic(), {"distance": distance}, self._seq,
-                      {"count": count, "turns": regs[2]})
+                      {"count": count, "turns": regs[2], "since": since})
 
     # -- one request with recovery --------------------------------------------------------
     def _request(self, method: str, address: int, *args, timeout: float, **kw) -> list[int]:

@@ -100,6 +100,27 @@ class Rig:
             values.update(d.read().values)
         return values
 
+    def read_timed(self, actuators_only: bool = False) -> dict[str, tuple[float, float, float]]:
+        """One fresh reading of every channel with the interval it was sampled in:
+        channel -> ``(value, since, until)`` (``time.monotonic()``). A polled device's
+        values were sampled between its request and its answer, the actuators' at the
+        SYNC they answered; a streaming device's frame (the inclinometer) up to the
+        ``[envelope] latency`` before it was received (its output period, filter and
+        transmission). With ``actuators_only``, only the actuators."""
+        out: dict[str, tuple[float, float, float]] = {}
+        for d in ([self.actuators] if actuators_only else self.devices):
+            s = d.read()
+            since = s.info.get("since")
+            if since is None:
+                since = s.t - self.config.envelope.latency
+            out.update({ch: (v, float(since), s.t) for ch, v in s.values.items()})
+        return out
+
+    def discard_pending(self) -> None:
+        """The streaming sensors' next readings are frames received after now."""
+        if self.inclinometer is not None:
+            self.inclinometer.discard_pending()
+
     def qm(self) -> list[float]:
         s = self.actuators.read()
         return [s.values[ch] for ch in self.actuators.channels]

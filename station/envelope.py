@@ -8,21 +8,28 @@ Generic over the robot (the arm's session uses it; the wrist's can):
   would cross. A planner draws again rather than plan such a pose, and the
   session checks every pose again before it moves.
 * **Live watch** (:func:`watched_move`): the move is started, and while it runs
-  every channel is read and compared with what the current model predicts at the
-  actuator values read while moving (``predict(qm) -> {channel: value}``). A
-  sensor's value is up to ``[envelope] latency`` s old when it arrives (an
-  inclinometer sending 20 frames a second, a bus, a filter), so a reading must
-  match the prediction somewhere along the path the actuators travelled over that
-  time, not at the one instant they were read.
-  Where a channel departs by more than its tolerance (``[envelope.tolerance]``,
-  channel units: m, rad) the robot is stopped where it is and
-  :class:`EnvelopeStop` says which channel, by how much, and where. The session
-  then does not record the pose and re-plans from what it has learnt.
+  every channel is read and compared with what the current model predicts
+  (``predict(qm) -> {channel: value}``, ``qm`` one pose or a stack of them) *where the
+  actuators were when the reading was sampled*. Each reading comes with the interval
+  it was sampled in (:meth:`drivers.rig.Rig.read_timed`: the draw-wire between its
+  request and its answer, the actuators at their SYNC, an inclinometer frame up to
+  ``[envelope] latency`` s before it arrived); the actuators are read before and after
+  the sensors, and since each axis moves one way during a move, its position over
+  that interval lies between the actuator readings that bracket it. The reading
+  departs where it is farther than its tolerance (``[envelope.tolerance]``, channel
+  units: m, rad) from every prediction over that box of positions.
+  A departure stops the robot where it is; the reading is then taken again at rest
+  (no timing left to doubt) and compared with the prediction there. Where it still
+  departs, :class:`EnvelopeStop` says which channel, by how much, and where, and the
+  session does not record the pose and re-plans from what it has learnt; where it
+  agrees, the sensor was only late (a frame older than the latency, a starved
+  process) and the move goes on, at most :data:`MAX_CONFIRM` times a move.
 
 Pure helpers plus one loop over :class:`drivers.rig.Rig`; no session state here.
 """
 from __future__ import annotations
 
+import logging
 import math
 import time
 from typing import Callable, Mapping
@@ -31,6 +38,8 @@ import numpy as np
 
 from calibration import simulate
 from calibration.errors import StationError
+
+log = logging.getLogger("station.envelope")
 
 ANGLE_CHANNELS = ("tilt", "roll", "pitch", "yaw")
 #: actuator values closer than this (actuator units) to the target: the move is ending
@@ -69,27 +78,37 @@ def within_limits(env) -> Callable[[np.ndarray | None, np.ndarray], bool]:
 
 def departures(readings: Mapping[str, float], predicted, tolerance: Mapping[str, float]
                ) -> dict[str, tuple[float, float]]:
-    """Channels whose reading departs from the prediction by more than their
-    tolerance (angles compared modulo 2 pi): channel -> (reading, nearest prediction).
+    """Channels whose reading departs from the predictions by more than their tolerance:
+    channel -> (reading, nearest prediction).
 
-    predicted: one ``{channel: value}`` or several (the predictions along the path the
-    robot travelled while the sensors were read, which do not read at one instant):
-    the reading departs where it is farther than the tolerance from all of them."""
-    preds = [predicted] if isinstance(predicted, Mapping) else list(predicted)
+    predicted: ``{channel: value or values}`` or a list of ``{channel: value}`` (the
+    predictions over the positions the robot went through while the reading was
+    sampled). The robot moved continuously, so a reading is explained by any value
+    between the least and the largest prediction; angles are compared modulo 2 pi
+    (the predictions' span taken the short way round)."""
+    if isinstance(predicted, Mapping):
+        preds = {ch: np.atleast_1d(np.asarray(v, dtype=float)) for ch, v in predicted.items()}
+    else:
+        preds = {ch: np.array([float(p[ch]) for p in predicted]) for ch in predicted[0]}
     out = {}
-    for ch in preds[0]:
+    for ch, p in preds.items():
         if ch not in tolerance or ch not in readings:
             continue
-        best, nearest = math.inf, None
-        for p in preds:
-            d = readings[ch] - p[ch]
-            if ch in ANGLE_CHANNELS:
-                d = (d + math.pi) % (2 * math.pi) - math.pi
-            if abs(d) < best:
-                best, nearest = abs(d), p[ch]
-        if best > tolerance[ch]:
-            out[ch] = (float(readings[ch]), float(nearest))
+        v = float(readings[ch])
+        if ch in ANGLE_CHANNELS:          # relative to the first prediction, the short way
+            rel = _wrap(p - p[0])
+            lo, hi, x = float(rel.min()), float(rel.max()), float(_wrap(v - p[0]))
+            nearest = float(p[0] + min(max(x, lo), hi))
+        else:
+            lo, hi, x = float(p.min()), float(p.max()), v
+            nearest = min(max(x, lo), hi)
+        if max(lo - x, x - hi) > tolerance[ch]:
+            out[ch] = (v, nearest)
     return out
+
+
+def _wrap(a):
+    return (np.asarray(a) + math.pi) % (2 * math.pi) - math.pi
 
 
 def describe(departed: dict, tolerance: Mapping[str, float]) -> str:
@@ -99,50 +118,137 @@ def describe(departed: dict, tolerance: Mapping[str, float]) -> str:
                      for ch, (r, p) in departed.items())
 
 
-def watched_move(rig, target, predict: Predict, env, timeout: float) -> None:
+#: how often a move may go on after a departure that the reading at rest did not confirm
+MAX_CONFIRM = 5
+
+
+class Track:
+    """The actuator readings of one move: ``(since, until, qm)``, in the order read."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.rows: list[tuple[float, float, np.ndarray]] = []
+
+    def add(self, timed: Mapping[str, tuple]) -> np.ndarray:
+        """Add the actuator channels of one :meth:`~drivers.rig.Rig.read_timed`; their qm."""
+        qm = np.array([timed[f"qm{i + 1}"][0] for i in range(self.n)])
+        since, until = timed["qm1"][1], timed["qm1"][2]
+        self.rows.append((since, until, qm))
+        return qm
+
+    def box(self, since: float, until: float) -> np.ndarray:
+        """``(n, 2)`` bounds of every axis over ``[since, until]``: between the last reading
+        sampled before ``since`` and the first sampled after ``until`` (an axis moves one
+        way during a move), every reading in between included."""
+        before = [k for k, r in enumerate(self.rows) if r[1] <= since]
+        after = [k for k, r in enumerate(self.rows) if r[0] >= until]
+        a = before[-1] if before else 0
+        b = after[0] if after else len(self.rows) - 1
+        q = np.array([r[2] for r in self.rows[a:b + 1]])
+        return np.column_stack([q.min(axis=0), q.max(axis=0)])
+
+
+def box_points(box: np.ndarray) -> np.ndarray:
+    """The corners and the centre of a box ``(n, 2)`` (corners once per moving axis)."""
+    moving = [i for i in range(len(box)) if box[i, 1] > box[i, 0]]
+    pts = np.tile(box[:, 0], (2 ** len(moving), 1))
+    for bit, i in enumerate(moving):
+        pts[:, i] = np.where((np.arange(len(pts)) >> bit) & 1, box[i, 1], box[i, 0])
+    return np.vstack([pts, box.mean(axis=1)])
+
+
+def live_departures(timed: Mapping[str, tuple], track: Track, predict: Predict,
+                    tolerance: Mapping[str, float]) -> dict[str, tuple[float, float]]:
+    """:func:`departures` of each watched sensor reading of ``timed`` against the
+    predictions over the positions the actuators went through while it was sampled."""
+    out = {}
+    for ch, (v, since, until) in timed.items():
+        if ch in tolerance:
+            pred = predict(box_points(track.box(since, until)))
+            out.update(departures({ch: v}, {ch: pred[ch]}, tolerance))
+    return out
+
+
+def at_rest(rig, predict: Predict, env, settle: int = 10) -> tuple[dict, np.ndarray]:
+    """Departures of a reading taken with the robot at rest from the prediction there,
+    and the qm. A late sensor shows the rest only after its lag: the reading is taken
+    again (frames older than the last discarded) until each watched channel stays
+    within a twentieth of its tolerance from one reading to the next (at most
+    ``settle`` readings, ``[envelope] latency`` apart)."""
+    last = None
+    for _ in range(settle):
+        time.sleep(env.latency)
+        rig.discard_pending()
+        r = {ch: v for ch, (v, _, _) in rig.read_timed().items()}
+        if last is not None and all(abs(float(_wrap(r[ch] - last[ch])) if ch in ANGLE_CHANNELS
+                                        else r[ch] - last[ch]) <= tol / 20
+                                    for ch, tol in env.tolerance.items() if ch in r):
+            break
+        last = r
+    n = sum(1 for ch in r if ch.startswith("qm"))
+    qm = np.array([r[f"qm{i + 1}"] for i in range(n)])
+    return departures(r, predict(qm[None, :]), env.tolerance), qm
+
+
+def watched_move(rig, target, predict: Predict, env, timeout: float) -> int:
     """Move to ``target`` (actuator values) while watching the live readings against
-    ``predict``; stop there and raise :class:`EnvelopeStop` where they depart.
-    Without a prediction (``predict`` None) this is a plain move."""
+    ``predict``; stop there and raise :class:`EnvelopeStop` where they depart (the
+    departure confirmed at rest). Without a prediction (``predict`` None) this is a
+    plain move. Returns how often the move was halted for a departure that the
+    reading at rest did not confirm."""
     if predict is None:
         rig.move_to(target, timeout)
-        return
+        return 0
     target = np.asarray(target, dtype=float)
     n = len(target)
     end = time.monotonic() + timeout
-    # (time, qm) read while moving, from where the move starts
-    history = [(time.monotonic(), np.array(rig.qm(), dtype=float))]
+    unconfirmed = 0
+    track = Track(n)
+    track.add(rig.read_timed(actuators_only=True))       # where the move starts
     rig.start_move(target)
     while True:
-        r = rig.read()                      # actuators first, then the sensors
-        now = time.monotonic()
-        qa = np.array([r[f"qm{i + 1}"] for i in range(n)])
-        qm = np.array(rig.qm(), dtype=float)  # and the actuators again after them
-        history.append((now, qa))
-        # the window of the sensors' lag, and the reading just before it
-        old = [k for k, (t, _) in enumerate(history) if t < now - env.latency]
-        history = history[old[-1]:] if old else history
-        path = [q for _, q in history] + [qm]
-        preds = [predict(a + f * (b - a)) for a, b in zip(path, path[1:]) for f in (0.0, 0.25, 0.5, 0.75)]
-        bad = departures(r, preds + [predict(qm)], env.tolerance)
+        timed = rig.read_timed()                # actuators first, then the sensors,
+        track.add(timed)
+        qm = track.add(rig.read_timed(actuators_only=True))   # and the actuators again
+        bad = live_departures(timed, track, predict, env.tolerance)
         if bad:
             rig.stop()
-            raise EnvelopeStop(f"stopped at qm {np.round(qm, 4).tolist()}: "
-                               + describe(bad, env.tolerance), bad, qm)
+            rest, qm = at_rest(rig, predict, env)
+            if rest:
+                raise EnvelopeStop(f"stopped at qm {np.round(qm, 4).tolist()}: "
+                                   + describe(rest, env.tolerance), rest, qm)
+            unconfirmed += 1
+            if unconfirmed > MAX_CONFIRM:
+                raise EnvelopeStop(
+                    f"stopped at qm {np.round(qm, 4).tolist()}: while moving, "
+                    + describe(bad, env.tolerance) + f"; at rest the readings agree, {unconfirmed} "
+                    "times this move: the sensors lag the actuators by more than [envelope] "
+                    f"latency ({env.latency:g} s) of the station config", bad, qm)
+            log.info("envelope: %s while moving, not at rest: the move goes on",
+                     describe(bad, env.tolerance))
+            track = Track(n)
+            track.add(rig.read_timed(actuators_only=True))
+            rig.start_move(target)
+            continue
         if np.max(np.abs(qm - target)) <= NEAR_TARGET or time.monotonic() > end:
             rig.wait_moved(max(0.1, end - time.monotonic()))
-            return
+            return unconfirmed
         time.sleep(env.poll)
 
 
 def sm_predictor(method: str, robot, xi, reference_qm, distance_off: float = 0.0) -> Predict:
-    """What the arm's sensors should read at ``qm`` under the model ``xi``: the
-    draw-wire's distance from the reference (plus ``distance_off``) and, for
-    sm-distance-tilt, the tilt of the last link."""
+    """What the arm's sensors should read at ``qm`` (one pose ``(n,)``: floats; a stack
+    ``(m, n)``: arrays) under the model ``xi``: the draw-wire's distance from the
+    reference (plus ``distance_off``) and, for sm-distance-tilt, the tilt of the last
+    link."""
     xi = np.array(xi, dtype=float)
     ref = np.asarray(reference_qm, dtype=float)
 
     def predict(qm):
+        qm = np.asarray(qm, dtype=float)
         m = simulate.measure(method, robot, xi, np.atleast_2d(qm), reference_qm=ref)
-        return {ch: float(np.asarray(v).reshape(-1)[0]) + (distance_off if ch == "distance" else 0)
-                for ch, v in m.items()}
+        out = {ch: np.asarray(v, dtype=float).reshape(-1) + (distance_off if ch == "distance"
+                                                              else 0.0)
+               for ch, v in m.items()}
+        return out if qm.ndim == 2 else {ch: float(v[0]) for ch, v in out.items()}
     return predict

@@ -831,7 +831,8 @@ class Session:
         predict = self.rounds.predictor() if self.rounds is not None else None
         came_from = self.qm() if predict is not None else None
         try:
-            watched_move(self._rig(), pose.qm, predict, env, self.config.canopen.move_timeout)
+            halts = watched_move(self._rig(), pose.qm, predict, env,
+                                 self.config.canopen.move_timeout)
         except EnvelopeStop as e:
             self._event("envelope", f"pose {pose.index}: {e}; back to where the move started",
                         plan_index=pose.index, qm=e.qm.tolist(),
@@ -843,6 +844,10 @@ class Session:
             self._rig().move_to(came_from)
             self.rounds.replan_after_stop(pose.round, self.rounds.scale_of(pose))
             return False
+        if halts:
+            self._event("info", f"pose {pose.index}: the move was halted {halts} times where "
+                        "the readings departed while moving but agreed with the model at rest "
+                        "(a sensor later than the config's [envelope] latency); it went on")
         return True
 
     def _require_touch(self) -> None:

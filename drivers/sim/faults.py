@@ -24,6 +24,8 @@ class FaultPlan:
     modbus_exception: Modbus exception code to answer every request with (0: off).
     inclinometer_silent: the inclinometer stops sending frames.
     drawwire_down:    the Modbus server drops its connections and refuses new ones.
+    inclinometer_lag_s: the inclinometer's frames show the pose of that many seconds
+                      before they are sent (a sensor's filter delay).
     seed:             seed of the fault random generator.
     """
 
@@ -35,6 +37,7 @@ class FaultPlan:
     modbus_exception: int = 0
     inclinometer_silent: bool = False
     drawwire_down: bool = False
+    inclinometer_lag_s: float = 0.0
     seed: int | None = None
 
     def __post_init__(self):
@@ -61,7 +64,7 @@ class FaultPlan:
     def clear(self) -> None:
         self.update(drop_prob=0.0, corrupt_prob=0.0, late_s=0.0, silent_nodes=set(),
                     drive_fault_node=0, modbus_exception=0, inclinometer_silent=False,
-                    drawwire_down=False)
+                    drawwire_down=False, inclinometer_lag_s=0.0)
 
     def as_dict(self) -> dict:
         return {f.name: (sorted(getattr(self, f.name)) if f.name == "silent_nodes"

@@ -174,10 +174,14 @@ class SimulatedAgebot:
         """True actuator values ``(n,)`` now (actuator units)."""
         return np.array([a.position() for a in self.axes])
 
-    def ee_pose(self) -> np.ndarray:
-        """True generalized coordinates now: SM ``[x, y, z, phi]`` (m, rad), PM
-        ``[alpha, beta, gamma]`` (rad)."""
-        qm = self.qm()
+    def ee_pose(self, ago: float = 0.0) -> np.ndarray:
+        """True generalized coordinates now (``ago`` s before now): SM ``[x, y, z, phi]``
+        (m, rad), PM ``[alpha, beta, gamma]`` (rad)."""
+        if ago > 0.0:
+            t = self.axes[0].now() - ago
+            qm = np.array([a.position_at(t) for a in self.axes])
+        else:
+            qm = self.qm()
         if self.model.name == "agebot-sm":
             return self.model.fk(qm, self._xi)[0]
         with self._lock:
@@ -276,8 +280,9 @@ class SimulatedAgebot:
                          * resolution))
 
     def inclinometer_angles(self) -> tuple[float, float, float]:
-        """Noise-free ``(roll, pitch, yaw)`` in rad (module docstring)."""
-        X = self.ee_pose()
+        """Noise-free ``(roll, pitch, yaw)`` in rad (module docstring), of the pose
+        ``faults.inclinometer_lag_s`` ago."""
+        X = self.ee_pose(self.faults.inclinometer_lag_s)
         if self.model.name == "agebot-sm":
             return 0.0, float(X[3]), 0.0
         roll, pitch = pose_tilt(X, self.truth.inclinometer_mount)

@@ -17,8 +17,8 @@ from drivers.errors import ProtocolError
 from drivers.rig import Rig
 from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import load_truth
-from station.envelope import (EnvelopeStop, departures, limit_violation, sm_predictor,
-                              watched_move)
+from station.envelope import (EnvelopeStop, Track, box_points, departures, limit_violation,
+                              live_departures, sm_predictor, watched_move)
 from station.sim_sessions import fast_config
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -90,7 +90,7 @@ def test_the_simulated_arm_refuses_a_target_beyond_its_travel(sim_rig):
 
 def test_the_watch_stops_a_move_the_model_does_not_explain(sim_rig):
     """The true model sees the move through; a model whose k2 is 30 % off stops the arm
-    on the way, short of the target, and says which channel departed."""
+    on the way, and says which channel departed (confirmed at rest)."""
     sim, rig = sim_rig
     robot = get_robot("agebot-sm")
     truth = load_truth(UNSEEN).xi()
@@ -100,14 +100,73 @@ def test_the_watch_stops_a_move_the_model_does_not_explain(sim_rig):
     target = start + np.array([4.0, 30.0, -25.0, 20.0])
     watched_move(rig, target, sm_predictor("sm-distance-tilt", robot, truth, start), env, 20.0)
     np.testing.assert_allclose(rig.qm(), target, atol=1e-4)
+    watched_move(rig, start, sm_predictor("sm-distance-tilt", robot, truth, start), env, 20.0)
     wrong = truth.copy()
     wrong[robot.index("k2")] *= 1.3
-    with pytest.raises(EnvelopeStop) as e:
-        watched_move(rig, start, sm_predictor("sm-distance-tilt", robot, wrong, start), env, 20.0)
+    with pytest.raises(EnvelopeStop) as e:      # departs more the farther it goes
+        watched_move(rig, target, sm_predictor("sm-distance-tilt", robot, wrong, start), env,
+                     20.0)
     assert "tilt" in e.value.departed or "distance" in e.value.departed
     here = np.array(rig.qm())
-    assert np.max(np.abs(here - start)) > 1.0           # stopped on the way
+    assert np.max(np.abs(here - target)) > 1.0          # stopped short of the target
     np.testing.assert_allclose(here, e.value.qm, atol=5.0)     # where it was seen, give or take a read
     with sim.control() as ctl:
         assert ctl.call(state=True)["target_reached"]
     assert math.isfinite(here.sum())
+
+
+def test_a_late_sensor_does_not_stop_a_move_the_model_explains(sim_rig):
+    """The inclinometer's frames show the arm as it was 0.4 s before (a filter's delay),
+    more than the config's latency (0.15 s). A long fast move with the true model
+    departs on the way; the readings at rest agree, and the move goes on to its target
+    (the watch it replaced stopped it). The same move with a wrong model is stopped,
+    with its departure confirmed at rest."""
+    sim, rig = sim_rig
+    robot = get_robot("agebot-sm")
+    truth = load_truth(UNSEEN).xi()
+    env = rig.config.envelope
+    start = np.array(rig.qm())
+    rig.zero_drawwire()
+    target = start + np.array([20.0, 120.0, -100.0, 80.0])
+    predict = sm_predictor("sm-distance-tilt", robot, truth, start)
+    with sim.control() as ctl:
+        ctl.call(faults={"inclinometer_lag_s": 0.4})
+    try:
+        for a, b in ((start, target), (target, start)):
+            watched_move(rig, b, predict, env, 20.0)
+            np.testing.assert_allclose(rig.qm(), b, atol=1e-4)
+        wrong = truth.copy()
+        wrong[robot.index("k2")] *= 1.3
+        with pytest.raises(EnvelopeStop) as e:
+            watched_move(rig, target, sm_predictor("sm-distance-tilt", robot, wrong, start),
+                         env, 20.0)
+        assert "tilt" in e.value.departed or "distance" in e.value.departed
+    finally:
+        with sim.control() as ctl:
+            ctl.call(faults={"inclinometer_lag_s": 0.0})
+        rig.move_to(start)
+
+
+def test_each_reading_is_compared_where_the_actuators_were_when_it_was_sampled():
+    """Axes move one way each, at their own pace, so between two actuator readings the
+    arm is anywhere in their box, not on the straight line between them. A reading
+    sampled between them is explained by a pose there; one sampled before the move is
+    compared with where the move started."""
+    track = Track(2)
+    track.add({"qm1": (0.0, 0.0, 0.01), "qm2": (0.0, 0.0, 0.01)})
+    track.add({"qm1": (1.0, 0.10, 0.11), "qm2": (0.0, 0.10, 0.11)})
+    track.add({"qm1": (1.0, 0.20, 0.21), "qm2": (1.0, 0.20, 0.21)})
+    np.testing.assert_allclose(track.box(0.05, 0.09), [[0.0, 1.0], [0.0, 0.0]])
+    np.testing.assert_allclose(track.box(0.12, 0.15), [[1.0, 1.0], [0.0, 1.0]])
+    np.testing.assert_allclose(track.box(0.05, 0.15), [[0.0, 1.0], [0.0, 1.0]])
+    np.testing.assert_allclose(track.box(-0.5, -0.1), [[0.0, 0.0], [0.0, 0.0]])
+    assert len(box_points(track.box(0.05, 0.09))) == 3      # 2 corners + centre
+
+    def predict(q):        # "tilt" qm1 - qm2: 0 on the diagonal, 1 at the corner (1, 0)
+        q = np.atleast_2d(q)
+        return {"tilt": q[:, 0] - q[:, 1]}
+    tol = {"tilt": 0.1}
+    # qm1 moved first: tilt 1 halfway, off the diagonal the straight line predicts
+    assert live_departures({"tilt": (1.0, 0.05, 0.15)}, track, predict, tol) == {}
+    bad = live_departures({"tilt": (1.0, -0.5, -0.1)}, track, predict, tol)
+    assert bad == {"tilt": (1.0, 0.0)}

@@ -51,19 +51,15 @@ def test_a_far_off_arm_completes_inside_the_envelope(tmp_path):
 
 @pytest.mark.slow
 def test_ten_drawn_arms_are_calibrated_within_their_std(tmp_path):
-    """Ten arms: every session completes or, at most once, stops safely (see below);
-    every calibrated parameter lies within 5 std of the truth, and the pooled RMS of
-    error/std is between 0.8 and 1.3."""
+    """Ten arms: every session completes; every calibrated parameter lies within 5 std
+    of the truth, and the pooled RMS of error/std is between 0.8 and 1.3. (The live
+    watch compares each reading with where the actuators were when it was sampled and
+    confirms a departure at rest, so a loaded machine does not stop a session.)"""
     scores = [run_session(station_truth("agebot-sm", s), tmp_path / f"s{s}", seed=s,
                           request=PlanRequest(count=24, validation=6, seed=s))
               for s in SLOW_SEEDS]
     failed = {sc.seed: sc.error for sc in scores if not sc.completed}
-    # Known open defect (issue 10 stays open for it): the live watch compares readings
-    # taken while the arm moves, and on a loaded machine one arm in ten now and then
-    # stops safely with EnvelopeExhausted, on a different seed each run. A safe stop is
-    # tolerated once; any other failure, or a wrong result, is not.
-    assert len(failed) <= 1 and all(e.startswith("EnvelopeExhausted") for e in failed.values()), \
-        failed
+    assert not failed, failed
     done = [sc for sc in scores if sc.completed]
     s = summary(done)
     assert s["worst"] < 5.0, s["worst_per_parameter"]
