@@ -239,6 +239,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--target-std", metavar="[NAME=]STD",
                    help="add poses until the predicted std meets this: STD alone is the "
                         "tool's held-out error (m; rad for a wrist), NAME=STD a parameter's")
+    r.add_argument("--one-shot", action="store_true",
+                   help="sm-distance, sm-distance-tilt: plan every pose at once with the start "
+                        "values, without the scout rounds and the live watch of the default "
+                        "(safe only where the start values are close: docs/cli.md)")
     r.add_argument("--sim-seed", type=int, help="seed of the simulated noise and faults "
                    "(default: the truth file's; printed and recorded in the trace)")
     r.add_argument("--endpoints", help="without --simulate: fill --config's \"@endpoints\" "

@@ -46,6 +46,8 @@ def main(argv=None) -> int:
     ap.add_argument("--validation", type=int, default=None)
     ap.add_argument("--speed", type=float, default=4.0, help="simulated moves this much faster")
     ap.add_argument("--keep", default=None, help="folder to keep the sessions in")
+    ap.add_argument("--one-shot", action="store_true",
+                    help="the arm's sessions planned at once (app.py run --one-shot)")
     a = ap.parse_args(argv)
     first = FIRST_SEED[a.robot] if a.first_seed is None else a.first_seed
     method = a.method or DEFAULT_METHOD[a.robot]
@@ -59,7 +61,7 @@ def main(argv=None) -> int:
         t0 = time.monotonic()
         req = PlanRequest(count=a.count, validation=a.validation, seed=seed)
         sc = run_session(station_truth(a.robot, seed), root / f"s{seed}", method=method,
-                         seed=seed, request=req, speed=a.speed)
+                         seed=seed, request=req, speed=a.speed, grow=not a.one_shot)
         scores.append(sc)
         exc = " ".join(f"{k} {v:.3g}" for k, v in sc.excursion.items())
         print(f"{seed:>6} {str(sc.completed):>5} {sc.poses:>6} {sc.skipped:>5} {sc.worst:>8.2f} "
@@ -77,6 +79,14 @@ def main(argv=None) -> int:
         print(f"  zero taken as exact   RMS {np.sqrt(np.mean(ex ** 2)):.1f} SE, worst {np.max(np.abs(ex)):.1f} SE "
               f"(worst {um[np.argmax(np.abs(um))]:+.1f} um)")
         print(f"  zero as a reading     RMS {np.sqrt(np.mean(rd ** 2)):.2f} SE, worst {np.max(np.abs(rd)):.2f} SE")
+    if s["tool_error"] and np.isfinite(s["tool_error"]).any():
+        te = 1e3 * np.array(s["tool_error"])
+        print(f"tool position error over the whole box (true vs calibrated model): "
+              f"mean {np.nanmean(te):.4f} mm, worst {np.nanmax(te):.4f} mm")
+    for ch, v in s["heldout"].items():
+        f = 1e3 if ch == "distance" else math.degrees(1)
+        print(f"held-out {ch} RMS after: mean {f * np.nanmean(v):.4g} "
+              f"{'mm' if ch == 'distance' else 'deg'}")
     print("worst |error|/std per parameter:")
     print("  " + ", ".join(f"{k} {v:.2f}" for k, v in s["worst_per_parameter"].items()))
     print("largest excursion from the planned box (m; rad for angles):")

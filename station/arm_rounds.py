@@ -11,8 +11,11 @@ of a small motion, whatever the arm's configuration). Round ``r >= 1`` is
 planned in the method's box shrunk to ``SCALES[r]`` (30 %, then the whole box;
 sm-distance-tilt's box centred on the reference pose as read there, tilt
 included; sm-distance's about its middle), with the model fitted to the poses
-measured so far. The first two rounds take a quarter of the fit poses each (at least
-6); the last the rest and the held-out poses.
+measured so far, every round after the scout the D-optimal choice given the fit
+poses measured. The first two rounds take an eighth of the requested fit poses each
+(at least 6) *in addition* to them; the last round the requested fit poses and the
+held-out ones, in the whole box: the design a one-shot plan would have, made given
+the early poses.
 
 Every move is watched (:func:`station.envelope.watched_move`) against the current
 model. Where the live tilt or distance departs by more than the config's
@@ -37,7 +40,7 @@ from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots.agebot_sm import wrap
 from calibration.solver import SolverOptions, solve
 from station import planner, resume
-from station.envelope import sm_predictor, within_limits
+from station.envelope import ANGLE_CHANNELS, sm_predictor, within_limits
 
 log = logging.getLogger("station.session")
 
@@ -46,6 +49,11 @@ SCALES = (0.1, 0.3, 1.0)  # each round's box, as a fraction of the method's box
 SCOUT_SCALE = SCALES[0]
 MIN_SCALE = 0.02         # below this the envelope gives up: the start model is too wrong
 SCOUT_MIN = 6
+EARLY_SHARE = 8          # the scout and the middle round: an eighth of the count each
+#: a refit is used only where it explains every recorded reading within this share of
+#: the envelope's tolerance (a model that cannot explain what was measured cannot be
+#: trusted to predict where the arm goes next)
+EXPLAIN = 0.2
 #: what a refit on fewer poses than parameters learns, in this order
 LEARN_FIRST = ("k1", "k2", "k3", "k4", "q4_off", "q3_off", "q2_off", "q1_off")
 
@@ -98,6 +106,7 @@ class ArmRounds:
         self.fitted_on = 0                        # poses the model was last fitted on
         self.prev_xi: np.ndarray | None = None    # the model before the last refit
         self._totals: tuple[int, int] | None = None  # set by a new plan
+        self.design: dict | None = None           # the last round's design record
 
     # -- the model ---------------------------------------------------------------------
     def _start_model(self) -> np.ndarray:
@@ -118,10 +127,14 @@ class ArmRounds:
         return xi
 
     def refit(self) -> None:
-        """The model fitted to the fit poses measured so far, from the start values
-        (through :func:`staged_start`): a function of the recorded poses alone, so a
-        resumed session plans as the uninterrupted one would. Unchanged where too
-        few or where the fit fails: planning then stays with what it had."""
+        """The model fitted to the fit poses measured so far, from the start values and
+        from start values grown with the data (:func:`staged_start`): a function of the
+        recorded poses alone, so a resumed session plans as the uninterrupted one
+        would. Of the fits that converged and explain every recorded reading within
+        :data:`EXPLAIN` of the envelope's tolerance, the one with the least residual;
+        where none does (a fit of few poses can be wild: it predicted -1.3 m for a
+        draw-wire reading 0.02 m, and every move from then on was stopped), planning
+        stays with the model it had."""
         s = self.s
         recs = [r for r in s.measured.values() if r.get("use", "fit") == "fit"]
         if len(recs) < 2:
@@ -131,23 +144,61 @@ class ArmRounds:
                           channels={ch: np.array([r[ch] for r in recs]) for ch in s.info.channels},
                           reference_qm=s.reference_qm, distance_zero=ref.get("zero", "exact"))
         start = self._start_model()
-        try:
-            staged = staged_start(s.method, s.robot, data, start) if len(recs) >= 8 else None
-            model = build(s.method, s.robot, data, start if staged is None else staged)
-            res = solve(model, SolverOptions(max_iter=1000, fixed=fixed_for_rows(model)))
-        except (CalibrationError, np.linalg.LinAlgError, ValueError) as e:
-            log.warning("refit on %d poses failed: %s", len(recs), e)
-            return
+        starts = [start]
+        if len(recs) >= 8:
+            staged = staged_start(s.method, s.robot, data, start)
+            if staged is not None:
+                starts.insert(0, staged)
+        best, why = None, "no fit"
+        for x0 in starts:
+            try:
+                model = build(s.method, s.robot, data, x0)
+                res = solve(model, SolverOptions(max_iter=1000, fixed=fixed_for_rows(model)))
+            except (CalibrationError, np.linalg.LinAlgError, ValueError) as e:
+                why = str(e)
+                continue
+            if not (res.converged and np.all(np.isfinite(res.x))):
+                why = res.message
+                continue
+            xi, off = self._model_of(res.x)
+            worst = self._unexplained(xi, off, data)
+            if worst > EXPLAIN:
+                why = (f"it leaves a recorded reading {worst:.2g} x the envelope's tolerance "
+                       "away from its prediction")
+                continue
+            cost = float(np.sum(np.asarray(res.residual) ** 2))
+            if best is None or cost < best[0]:
+                best = (cost, xi, off, res)
         self.fitted_on = len(recs)
-        if not np.all(np.isfinite(res.x)):
+        if best is None:
+            s._event("warning", f"model refit on {len(recs)} poses not used ({why}): planning "
+                     "stays with the model it had")
             return
-        n = s.robot.n_params
+        _, xi, off, res = best
         self.prev_xi = self.xi
-        self.xi = s.robot.canonical(res.x[:n], frame_free=True)[0]
-        if len(res.x) > n:
-            self.distance_off = float(res.x[n])
+        self.xi, self.distance_off = xi, off
         s._event("info", f"model refitted on {len(recs)} poses ({res.n_identifiable} parameters "
                  f"identifiable): {res.message}")
+
+    def _model_of(self, x) -> tuple[np.ndarray, float]:
+        """A solver's ``x`` as the robot's canonical parameters and the distance offset."""
+        n = self.s.robot.n_params
+        xi = self.s.robot.canonical(np.asarray(x[:n], dtype=float), frame_free=True)[0]
+        return xi, (float(x[n]) if len(x) > n else 0.0)
+
+    def _unexplained(self, xi, distance_off: float, data: MethodData) -> float:
+        """The largest departure of a recorded reading from the model's prediction at its
+        pose, as a multiple of the envelope's tolerance (the watch's own measure)."""
+        s = self.s
+        pred = sm_predictor(s.method, s.robot, xi, s.reference_qm, distance_off)(data.qm)
+        worst = 0.0
+        for ch, tol in s.config.envelope.tolerance.items():
+            if ch in pred and ch in data.channels:
+                d = np.asarray(data.channels[ch], dtype=float) - pred[ch]
+                if ch in ANGLE_CHANNELS:
+                    d = (d + math.pi) % (2 * math.pi) - math.pi
+                worst = max(worst, float(np.max(np.abs(d))) / tol)
+        return worst
 
     def predictor(self):
         """What the sensors should read at ``qm`` under the current model."""
@@ -176,14 +227,20 @@ class ArmRounds:
         return count, n_val
 
     def round_targets(self, rnd: int) -> tuple[int, int]:
-        """Fit and held-out poses of round ``rnd``."""
+        """Fit and held-out poses of round ``rnd``: the scout and the middle round
+        ``max(SCOUT_MIN, count / EARLY_SHARE)`` fit poses each, *on top of* the requested
+        count; the last round the requested count and the held-out poses, in the whole
+        box. The early rounds are for safety and learning; the last is the design a
+        one-shot plan would have, chosen given the early poses, so the whole is at
+        least as informative as the one-shot plan."""
         count, n_val = self.totals()
-        early = [0] * (len(SCALES) - 1)
-        for r in range(len(early)):
-            early[r] = min(count - sum(early), max(SCOUT_MIN, math.ceil(count / 4)))
-        if rnd < len(early):
-            return early[rnd], 0
-        return count - sum(early), n_val
+        if rnd < len(SCALES) - 1:
+            return max(SCOUT_MIN, math.ceil(count / EARLY_SHARE)), 0
+        return count, n_val
+
+    def fit_total(self) -> int:
+        """Fit poses of every round together."""
+        return sum(self.round_targets(r)[0] for r in range(len(SCALES)))
 
     def _measured_in(self, rnd: int, use: str) -> int:
         by_index = {p.index: p for p in self.s.plan_poses}
@@ -206,12 +263,21 @@ class ArmRounds:
                                          accept=within_limits(s.config.envelope),
                                          first_index=first, step=np.multiply(
                                              planner.SM_SCOUT_STEP, scale / SCOUT_SCALE))
+        measured = [r["qm"] for r in s.measured.values() if r.get("use", "fit") == "fit"]
+        designs: list = []
         poses = planner.plan_sm(s.method, self.xi, s.reference_qm, req, box_scale=scale,
                                 accept=within_limits(s.config.envelope), first_index=first,
-                                rnd=rnd, start_qm=start_qm, box_centre=self.box_centre(scale))
+                                rnd=rnd, start_qm=start_qm, box_centre=self.box_centre(scale),
+                                measured_qm=measured, design_out=designs)
+        self.design = designs[0] if designs else None
         if fit <= 0:        # only held-out poses left
             poses = [p for p in poses if p.use == "validation"] or poses[:0]
         return poses
+
+    def _design(self) -> dict:
+        """The plan event's design (the prediction for every fit pose measured and
+        planned so far), where the round was designed."""
+        return {"design": self.design} if self.design else {}
 
     def box_centre(self, scale: float):
         """Where the box is centred: sm-distance-tilt's on the reference pose as read
@@ -230,6 +296,10 @@ class ArmRounds:
         self.xi = self._start_model()
         return self._plan(0, SCOUT_SCALE, self.s.reference_qm)
 
+    def planned_last(self) -> bool:
+        """True once the last round (the whole box) is planned."""
+        return max((p.round for p in self.s.plan_poses), default=0) >= len(SCALES) - 1
+
     def next_round(self) -> bool:
         """Refit and plan the next round; False when the last one is done."""
         s = self.s
@@ -238,7 +308,7 @@ class ArmRounds:
             self.refit()
             poses = self._plan_safely(rnd, SCALES[rnd], s.qm())
             if poses:
-                s._set_plan(poses, replace=False, box_scale=SCALES[rnd])
+                s._set_plan(poses, replace=False, box_scale=SCALES[rnd], **self._design())
                 return True
             rnd += 1
         return False
@@ -282,7 +352,7 @@ class ArmRounds:
         self.refit()
         poses = self._plan_safely(stopped_round, scale, s.qm())
         if poses:
-            s._set_plan(poses, replace=False, box_scale=scale)
+            s._set_plan(poses, replace=False, box_scale=scale, **self._design())
 
     def scale_of(self, pose) -> float:
         """The box scale the pose's round was planned with (from the plan events)."""

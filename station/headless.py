@@ -75,7 +75,8 @@ def main(args: argparse.Namespace) -> int:
     accept = bool(getattr(args, "accept_poor_fit", False))
     request = PlanRequest(count=getattr(args, "count", None), seed=getattr(args, "seed", 0) or 0,
                           design=getattr(args, "design", None) or "optimal",
-                          target=parse_target(getattr(args, "target_std", None)))
+                          target=parse_target(getattr(args, "target_std", None)),
+                          grow=not getattr(args, "one_shot", False))
     nominal = {}
     for item in getattr(args, "nominal", None) or ():
         name, eq, value = item.partition("=")

@@ -96,7 +96,9 @@ class PlanRequest:
     seed: int = 0
     margin: float = 2.0
     components: tuple[str, ...] = ("alpha", "beta", "gamma")
-    grow: bool = False    # the arm's distance methods in rounds, live-watched (arm_rounds)
+    # the arm's distance methods in rounds, live-watched (station/arm_rounds.py): what
+    # app.py run (unless --one-shot) and the wizard ask for
+    grow: bool = False
     notes: list[str] = field(default_factory=list)
     design: str = "optimal"
     target: tuple[str, float] | None = None
@@ -156,7 +158,7 @@ def reference_pose(method: str, nominal) -> tuple[np.ndarray | None, str | None,
 def plan_sm(method: str, nominal, reference_qm, req: PlanRequest, *,
             plane=None, box_scale: float = 1.0, accept=None, first_index: int = 0,
             rnd: int = 0, start_qm=None, box_centre=None,
-            design_out: list | None = None) -> list[PlannedPose]:
+            design_out: list | None = None, measured_qm=()) -> list[PlannedPose]:
     """The poses of an SM method (``reference_qm``: the reference; travel starts there or
     at ``start_qm``). sm-plane needs ``plane`` ``(a, b, c)``; sm-self-redundancy counts
     pairs (``req.count`` pairs to fit, ``req.validation`` pairs held out). The distance
@@ -166,7 +168,8 @@ def plan_sm(method: str, nominal, reference_qm, req: PlanRequest, *,
     envelope's actuator limits); ``first_index``, ``rnd``: the poses' plan indices and
     round (:mod:`station.arm_rounds`). With ``req.design == "optimal"`` the distance
     methods' fit poses are the D-optimal choice of ten times as many candidates
-    (:func:`station.pose_design.choose`); the design's record is appended to
+    (:func:`station.pose_design.choose`) given the fit poses already measured
+    (``measured_qm``, a session's earlier rounds); the design's record is appended to
     ``design_out``."""
     robot = get_robot("agebot-sm")
     rng = np.random.default_rng(req.seed)
@@ -198,7 +201,8 @@ def plan_sm(method: str, nominal, reference_qm, req: PlanRequest, *,
     start = reference_qm if start_qm is None else start_qm
     targets, qm, validation = plan.targets, plan.qm, None
     if designed:
-        fit_idx, design = choose(method, robot, nominal, qm, count, design=req.design, rng=rng,
+        fit_idx, design = choose(method, robot, nominal, qm, count, measured=measured_qm,
+                                 design=req.design, rng=rng,
                                  reference_qm=reference_qm, distance_zero="reading",
                                  target=req.target, heldout_qm=qm[:50])
         rest = np.setdiff1d(np.arange(len(qm)), fit_idx)

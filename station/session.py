@@ -608,8 +608,9 @@ class Session:
     def rounds(self) -> ArmRounds | None:
         """The arm's round plan and envelope model (distance methods, with
         ``PlanRequest.grow`` or resuming such a session), else None."""
-        grow = self.request.grow or any("box_scale" in e for e in self.events
-                                         if e.get("kind") == "plan")   # a resumed one
+        plans = [e for e in self.events if e.get("kind") == "plan"]
+        grow = (any("box_scale" in e for e in plans) if plans       # a resumed one goes on
+                else self.request.grow)                              # as it was planned
         if (self._rounds is None and grow and self.method in ROUND_METHODS
                 and self.robot.name == "agebot-sm"):
             self._rounds = ArmRounds(self)
@@ -651,7 +652,10 @@ class Session:
 
     @property
     def rounds_complete(self) -> bool:
-        """False while the wrist's growing box has rounds to plan (station/wrist_plan.py)."""
+        """False while the wrist's growing box (station/wrist_plan.py) or the arm's rounds
+        (station/arm_rounds.py) have rounds to plan."""
+        if self.rounds is not None:
+            return self.rounds.planned_last()
         return self.wrist is None or (self.wrist.final and not self.wrist.replan)
 
     def _plan_next_round(self) -> bool:

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration import planning
+from calibration.errors import CalibrationError
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
 from drivers.config import load_station_config
@@ -96,6 +97,10 @@ class SessionScore:
                (angles compared modulo 2 pi).
     excursion: largest distance of a visited pose (true pose, from the trace's ``qm``)
                outside the planned workspace box, per coordinate (m or rad).
+    heldout:   the session's held-out validation, channel -> RMS after calibration.
+    tool_error: RMS over poses drawn in the method's whole box of the distance between
+               the tool position the calibrated model puts there and the true one
+               (captured frame; m).
     """
 
     seed: int
@@ -110,6 +115,8 @@ class SessionScore:
     skipped: int = 0
     events: dict = field(default_factory=dict)
     offset: dict = field(default_factory=dict)
+    heldout: dict = field(default_factory=dict)
+    tool_error: float = math.nan
 
     @property
     def worst(self) -> float:
@@ -117,8 +124,10 @@ class SessionScore:
 
 
 def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, seed: int = 0,
-                request=None, speed: float = 4.0) -> SessionScore:
-    """Run one unattended session on the simulated ``truth`` in ``folder`` and score it."""
+                request=None, speed: float = 4.0, grow: bool = True) -> SessionScore:
+    """Run one unattended session on the simulated ``truth`` in ``folder`` and score it
+    (``grow``: the arm in rounds, live-watched, as ``app.py run`` by default; False:
+    ``--one-shot``)."""
     from drivers.sim.server import SimulatorProcess
     from station.planner import PlanRequest
     from station.session import Session
@@ -131,7 +140,7 @@ def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, see
     save_truth(truth, truth_file)
     cfg = fast_config(robot, folder, speed, truth)
     score = SessionScore(seed=seed, robot=robot, method=method, completed=False)
-    req = dataclasses.replace(request or PlanRequest(seed=seed), grow=True)
+    req = dataclasses.replace(request or PlanRequest(seed=seed), grow=grow)
     with SimulatorProcess(robot, truth=str(truth_file), config=str(cfg), seed=seed) as sim:
         config = with_endpoints(load_station_config(cfg), sim.endpoints, source="simulator")
         s = Session(config, method, folder / "run", request=req)
@@ -152,6 +161,8 @@ def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, see
     if score.completed:
         score.names, score.z = normalized_errors(s, truth, state)
         score.offset = residual_offset(s, truth, state)
+        score.heldout = {v["channel"]: v["rms_after"] for v in s.outcome.validation or ()}
+        score.tool_error = tool_error(s, truth, state)
     return score
 
 
@@ -185,6 +196,31 @@ def truth_in_session_frame(session, truth: SimTruth, state: dict) -> dict[str, f
     if state.get("drawwire_offset") is not None:
         out["distance_off"] = -float(state["drawwire_offset"])
     return out
+
+
+def tool_error(session, truth: SimTruth, state: dict, count: int = 300) -> float:
+    """RMS distance (m) between where the calibrated and the true model put the tool,
+    over ``count`` poses drawn (seeded) in the method's whole box by the true IK: how
+    well the result holds where the session did not measure. sm-distance-tilt only
+    (its 14 parameters identify the tool's position; sm-distance's do not)."""
+    robot = get_robot(truth.robot)
+    if session.method != "sm-distance-tilt":
+        return math.nan
+    ref = truth_in_session_frame(session, truth, state)
+    xt = np.array([ref[n] for n in robot.param_names])
+    res = session.outcome.result
+    xc = np.array(res.x[:robot.n_params], dtype=float)
+    box = planning.box_array(robot, planning.SM_BOX_7_5)   # the session's box
+    if session.rounds is not None:           # centred on the reference pose as read
+        box = box + session.rounds.box_centre(1.0)[:, None]
+    try:
+        plan = planning.sample_poses(robot, xt, box, count, np.random.default_rng(0),
+                                     ik_options={"elbow": robot.elbow_of(session.reference_qm,
+                                                                         xt)})
+    except CalibrationError:          # the true arm reaches too little of that box
+        return math.nan
+    d = robot.fk(plan.qm, xc)[:, :3] - robot.fk(plan.qm, xt)[:, :3]
+    return float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))
 
 
 def normalized_errors(session, truth: SimTruth, state: dict) -> tuple[list[str], np.ndarray]:
@@ -255,4 +291,7 @@ def summary(scores: list[SessionScore]) -> dict:
             "worst": float(np.max(np.abs(z))) if z.size else math.nan,
             "rms": float(np.sqrt(np.mean(z ** 2))) if z.size else math.nan,
             "coverage_2std": float(np.mean(np.abs(z) <= 2.0)) if z.size else math.nan,
-            "n_errors": int(z.size), "worst_per_parameter": per, "excursion": exc}
+            "n_errors": int(z.size), "worst_per_parameter": per, "excursion": exc,
+            "tool_error": [s.tool_error for s in done],
+            "heldout": {ch: [s.heldout.get(ch, math.nan) for s in done]
+                        for ch in sorted({c for s in done for c in s.heldout})}}

@@ -69,13 +69,17 @@ def test_sm_distance_tilt_session(open_window, qtbot, tmp_path, answers):
     assert c.session.reference_qm is not None
 
     # 3 plan: planned on entry (not edited here: a re-planned session's resume is
-    # covered by the session's own tests once it replays replaced plans)
+    # covered by the session's own tests once it replays replaced plans). The wizard
+    # plans the arm in rounds (station/arm_rounds.py): the scout is the plan shown
     qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
     plan = win.page(PageId.PLAN)
-    qtbot.waitUntil(lambda: plan.table.rowCount() == 28, timeout=TIMEOUT)
+    qtbot.waitUntil(lambda: plan.table.rowCount() == 6, timeout=TIMEOUT)
     wait_idle(qtbot, c)
-    assert "24 poses to fit + 4 held out; eq. 60 minimum 33" in plan.counts.text()
-    assert plan.plot.count == 28
+    assert "6 poses to fit + 0 held out; eq. 60 minimum 33" in plan.counts.text()
+    assert "scout round" in plan.counts.text()
+    # 6 scout + 6 in 30 % of the box on top of the 24 asked for, in the whole box
+    assert "for 36 fit poses + 4 held out in all" in plan.counts.text()
+    assert plan.plot.count == 6
     screenshot(win, "03-plan")
 
     # 4 execute, a drive fault answered Retry, then the window closes mid-run
@@ -119,7 +123,7 @@ def test_sm_distance_tilt_session(open_window, qtbot, tmp_path, answers):
     qtbot.mouseClick(ex.start_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(ex.is_complete, timeout=60000)
     assert c.rezeroed and not s.pending
-    assert len(s.measured) + len(s.skipped) == 28
+    assert len(s.measured) == 40        # every round planned and measured (36 + 4 held out)
 
     # 5 calibrate: converged, close to the simulator's truth in the captured frame
     qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)

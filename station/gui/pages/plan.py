@@ -184,7 +184,7 @@ class PlanPage(Page):
                      f"the poses recorded so far, up to +-20 deg, for {want} fit poses in all.")
             ok = want >= need
         elif s.rounds is not None and all(p.round == 0 for p in poses):
-            want, held = s.rounds.totals()
+            want, held = s.rounds.fit_total(), s.rounds.totals()[1]
             text += (f" This is the scout round ({len(poses)} poses a small step from the "
                      "reference); after it the arm is planned in rounds from their fit (30 % of "
                      f"the box, then all of it), for {want} fit poses + {held} held out in all.")

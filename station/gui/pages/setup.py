@@ -390,7 +390,9 @@ class SetupPage(Page):
         else:
             self.controller.config_path = self.config.text().strip()
             self.controller.endpoints_path = self.endpoints.text().strip() or None
-        request = PlanRequest(count=self.count.value() or None)
+        # the arm's distance methods in rounds inside the live-watched envelope
+        # (station/arm_rounds.py), as app.py run does by default
+        request = PlanRequest(count=self.count.value() or None, grow=True)
         self._connecting = True
         self.devices.clear_devices()
         self.update_missing()
