@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 import tomllib
 import traceback
 from dataclasses import dataclass, field
@@ -123,40 +124,76 @@ class SessionScore:
         return float(np.max(np.abs(self.z))) if self.z.size else math.nan
 
 
-def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, seed: int = 0,
-                request=None, speed: float = 4.0, grow: bool = True) -> SessionScore:
-    """Run one unattended session on the simulated ``truth`` in ``folder`` and score it
-    (``grow``: the arm in rounds, live-watched, as ``app.py run`` by default; False:
-    ``--one-shot``)."""
+@dataclass
+class SimRun:
+    """One unattended session against the simulator: the :class:`Session` (closed),
+    whether it ran to its parameter file, what stopped it, the simulator's state at
+    the end and the seconds it took."""
+
+    session: object
+    completed: bool
+    error: str
+    state: dict
+    seconds: float
+
+
+def simulated_session(truth: SimTruth, folder: Path, method: str, request, config: Path,
+                      seed: int) -> SimRun:
+    """Run one unattended session on the simulated ``truth`` (its own process, the
+    station ``config``) in ``folder / "run"``; the traceback of a failure is kept in
+    ``folder / "error.txt"``. Shared by the arm's and the wrist's Monte Carlo."""
     from drivers.sim.server import SimulatorProcess
-    from station.planner import PlanRequest
     from station.session import Session
 
-    robot = truth.robot
-    method = method or DEFAULT_METHOD[robot]
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     truth_file = folder / "truth.json"
-    save_truth(truth, truth_file)
-    cfg = fast_config(robot, folder, speed, truth)
-    score = SessionScore(seed=seed, robot=robot, method=method, completed=False)
-    req = dataclasses.replace(request or PlanRequest(seed=seed), grow=grow)
-    with SimulatorProcess(robot, truth=str(truth_file), config=str(cfg), seed=seed) as sim:
-        config = with_endpoints(load_station_config(cfg), sim.endpoints, source="simulator")
-        s = Session(config, method, folder / "run", request=req)
+    t0 = time.monotonic()
+    completed, error = False, ""
+    with SimulatorProcess(truth.robot, truth=str(truth_file), config=str(config),
+                          seed=seed) as sim:
+        cfg = with_endpoints(load_station_config(config), sim.endpoints, source="simulator")
+        s = Session(cfg, method, folder / "run", request=request)
         try:
             s.run()
-            score.completed = True
+            completed = True
         except Exception as e:   # the score says what went wrong; the bench goes on
-            score.error = f"{type(e).__name__}: {e}"
+            error = f"{type(e).__name__}: {e}"
             (folder / "error.txt").write_text(traceback.format_exc())
         finally:
             with sim.control() as ctl:
                 state = ctl.call(state=True)
             s.close()
+    return SimRun(s, completed, error, state, time.monotonic() - t0)
+
+
+def event_counts(session) -> dict[str, int]:
+    """How many events of each kind the session recorded."""
+    out: dict[str, int] = {}
+    for ev in session.events:
+        out[ev["kind"]] = out.get(ev["kind"], 0) + 1
+    return out
+
+
+def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, seed: int = 0,
+                request=None, speed: float = 4.0, grow: bool = True) -> SessionScore:
+    """Run one unattended session on the simulated ``truth`` in ``folder`` and score it
+    (``grow``: the arm in rounds, live-watched, as ``app.py run`` by default; False:
+    ``--one-shot``)."""
+    from station.planner import PlanRequest
+
+    robot = truth.robot
+    method = method or DEFAULT_METHOD[robot]
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    save_truth(truth, folder / "truth.json")
+    cfg = fast_config(robot, folder, speed, truth)
+    req = dataclasses.replace(request or PlanRequest(seed=seed), grow=grow)
+    run = simulated_session(truth, folder, method, req, cfg, seed)
+    s, state = run.session, run.state
+    score = SessionScore(seed=seed, robot=robot, method=method, completed=run.completed,
+                         error=run.error)
     score.poses, score.skipped = len(s.measured), len(s.skipped)
-    for ev in s.events:
-        score.events[ev["kind"]] = score.events.get(ev["kind"], 0) + 1
+    score.events = event_counts(s)
     score.excursion = excursion(s, truth)
     if score.completed:
         score.names, score.z = normalized_errors(s, truth, state)

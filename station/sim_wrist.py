@@ -14,9 +14,6 @@ is used by a real station (it needs the simulator).
 """
 from __future__ import annotations
 
-import time
-import tomllib
-import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,8 +22,8 @@ import numpy as np
 from calibration.methods.pm_tilt import heading_grid, ik_modulo_heading
 from calibration.robots import get_robot
 from drivers.sim.truth import SimTruth, draw_truth, save_truth
+from station import sim_sessions
 
-ROOT = Path(__file__).resolve().parents[1]
 #: std of one reading of the wrist's orientation sensor (0.01 deg)
 WRIST_NOISE = {"roll": 1.7e-4, "pitch": 1.7e-4, "yaw": 1.7e-4}
 GRID_DEG = 15.0
@@ -97,53 +94,27 @@ class WristScore:
 
 def fast_config(folder: Path, speed: float = 4.0) -> Path:
     """sim-pm.toml with moves ``speed`` times faster (velocity x speed, acceleration
-    x speed^2)."""
-    path = ROOT / "fixtures" / "stations" / "sim-pm.toml"
-    text = path.read_text()
-    data = tomllib.loads(text)["canopen"]
-    out = text.replace(f"profile_velocity = {data['profile_velocity']!r}",
-                       f"profile_velocity = {data['profile_velocity'] * speed!r}")
-    out = out.replace(f"profile_acceleration = {data['profile_acceleration']!r}",
-                      f"profile_acceleration = {data['profile_acceleration'] * speed ** 2!r}")
-    if out == text and speed != 1.0:
-        raise ValueError(f"{path}: profile_velocity/profile_acceleration not found to scale")
+    x speed^2): :func:`station.sim_sessions.fast_config`."""
     Path(folder).mkdir(parents=True, exist_ok=True)
-    dest = Path(folder) / "sim-pm.toml"
-    dest.write_text(out)
-    return dest
+    return sim_sessions.fast_config("agebot-pm", folder, speed)
 
 
 def run_wrist_session(truth: SimTruth, folder, *, method: str = "pm-fk", seed: int = 0,
                       request=None, speed: float = 4.0) -> WristScore:
     """One unattended wrist session on the simulated ``truth`` in ``folder``, scored."""
-    from drivers.config import load_station_config
-    from drivers.endpoints import with_endpoints
-    from drivers.sim.server import SimulatorProcess
     from station.planner import PlanRequest
-    from station.session import Session
     from station.trace import read_trace
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     save_truth(truth, folder / "truth.json")
-    cfg = fast_config(folder, speed)
-    score = WristScore(seed=seed, method=method, completed=False)
-    t0 = time.monotonic()
-    with SimulatorProcess("agebot-pm", truth=str(folder / "truth.json"), config=str(cfg),
-                          seed=seed) as sim:
-        config = with_endpoints(load_station_config(cfg), sim.endpoints, source="simulator")
-        with Session(config, method, folder / "run",
-                     request=request or PlanRequest(seed=seed)) as s:
-            try:
-                s.run()
-                score.completed = True
-            except Exception as e:      # the score says what went wrong; the bench goes on
-                score.error = f"{type(e).__name__}: {e}"
-                (folder / "error.txt").write_text(traceback.format_exc())
-    score.seconds = time.monotonic() - t0
-    for ev in s.events:
-        score.events[ev["kind"]] = score.events.get(ev["kind"], 0) + 1
-    score.rounds = sum(1 for ev in s.events if ev["kind"] == "plan")
+    run = sim_sessions.simulated_session(truth, folder, method, request or PlanRequest(seed=seed),
+                                         fast_config(folder, speed), seed)
+    s = run.session
+    score = WristScore(seed=seed, method=method, completed=run.completed, error=run.error,
+                       seconds=run.seconds)
+    score.events = sim_sessions.event_counts(s)
+    score.rounds = score.events.get("plan", 0)
     score.dropped = score.events.get("envelope", 0)
     if s.trace_path.exists():
         poses = read_trace(s.trace_path).poses
