@@ -256,7 +256,9 @@ class ArmRounds:
         if fit + val <= 0:
             return []
         req = dataclasses.replace(s.request, count=max(fit, 1), validation=val,
-                                  seed=s.request.seed + 7919 * rnd + len(s.plan_poses))
+                                  seed=s.request.seed + 7919 * rnd + len(s.plan_poses),
+                                  # --target-std is met by the last round, in the whole box
+                                  target=s.request.target if rnd == len(SCALES) - 1 else None)
         first = max((p.index for p in s.plan_poses), default=-1) + 1
         if rnd == 0:
             return planner.plan_sm_scout(self.xi, s.reference_qm, fit, req.seed,

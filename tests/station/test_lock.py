@@ -68,7 +68,7 @@ def test_two_headless_sessions_on_one_folder(tmp_path):
         ep.write_text(json.dumps(sim.endpoints))
         cmd = [sys.executable, str(ROOT / "app.py"), "run", "--robot", "agebot-sm",
                "--method", "sm-distance-tilt", "--config", str(cfg), "--endpoints", str(ep),
-               "--count", "8", "--seed", "5", "--out", str(tmp_path / "run"),
+               "--count", "8", "--seed", "5", "--out", str(tmp_path / "run"), "--one-shot",
                "--accept-poor-fit"]   # 8 poses fail the fit-quality gate; the lock is tested
         first = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         try:

@@ -49,7 +49,11 @@ def test_default_runs_are_reproducible_and_a_finished_folder_stays(tmp_path):
              for t in (ta, tb)]
     assert poses[0] == poses[1]
     fit = [r for r in poses[0] if r["use"] == "fit"]
-    assert len(fit) == 8 and len(poses[0]) > 8     # and the held-out ones
+    # the default plans the arm in rounds: a 6-pose scout and 6 in 30 % of the box on
+    # top of the 8 asked for, in the whole box (station/arm_rounds.py); reproducible too
+    assert len(fit) == 8 + 6 + 6 and len(poses[0]) > len(fit)     # and the held-out ones
+    plans = [r for r in ta if r["record"] == "event" and r["kind"] == "plan"]
+    assert sorted({p["round"] for ev in plans for p in ev["poses"]}) == [0, 1, 2]
     sim = ta[0]["station"]["simulator"]
     assert sim["seed"] == 20240501 and sim["pose_noise"] is True   # the truth file's
     assert "seed 20240501" in ra.stdout
