@@ -63,6 +63,8 @@ def max_orientation_deg(poses, truth_xi) -> float:
         return 0.0
     X = get_robot("agebot-pm").fk(np.array([p["qm"] for p in poses], dtype=float), truth_xi)
     return float(np.degrees(np.abs(X).max()))
+
+
 @dataclass
 class WristScore:
     seed: int
