@@ -27,7 +27,7 @@ from station.gui.plots import Canvas
 from station.units import MM_DEG
 
 FLOOR_COLOR = "#8d6e63"
-INCL_AXIS = 0.06          # m: length of the inclinometer's drawn axes
+INCL_AXIS = 0.12          # m: length of the inclinometer's drawn axes
 REDRAW_MS = 120           # coalesced redraws (the polling delivers readings every 0.4 s)
 
 
@@ -59,16 +59,25 @@ def stick(robot, qm, xi) -> Stick:
 
 
 def view_box(robot, xi, qm) -> tuple[np.ndarray, np.ndarray]:
-    """``(lo, hi)`` (m) of a box around the arm that any pose stays in: the arm's length
-    (the polyline from the first joint to the tool) and a margin around the first joint,
-    from just below the floor ``z = 0`` up (the arm stops at the floor)."""
+    """``(lo, hi)`` (m) of the box the picture shows: most (5 to 95 %) of the tool origins
+    of random poses in the middle of the joint limits above the floor (the planned
+    workspace, :func:`station.serial_plan.safe_pool`) and of the arm at ``qm``, the
+    first joint, with a margin; from just below the floor ``z = 0`` up (the arm stops
+    at the floor)."""
+    from station.serial_plan import safe_pool
+
+    xi = np.asarray(xi, dtype=float)[:robot.n_params]
     s = stick(robot, qm, xi)
-    arm = s.points[s.first:]
-    reach = float(np.sum(np.linalg.norm(np.diff(arm, axis=0), axis=1)))
-    c = arm[0]
-    half = reach + 0.05
-    lo, hi = c - half, c + half
-    lo[2], hi[2] = -0.05, max(hi[2], 0.1)
+    try:
+        pool = safe_pool(robot, xi, np.random.default_rng(0), count=300)
+        pts = np.vstack([robot.frames(pool, xi)[:, :3, 3], s.points[s.first:]])
+    except Exception:  # noqa: BLE001 - no safe pose drawn: the arm alone
+        pts = s.points[s.first:]
+    lo, hi = np.percentile(pts, 5, axis=0), np.percentile(pts, 95, axis=0)
+    lo, hi = np.minimum(lo, s.points[s.first]), np.maximum(hi, s.points[s.first])
+    pad = 0.05 * float(np.max(hi - lo)) + 0.03
+    lo, hi = lo - pad, hi + pad
+    lo[2] = -0.02
     return lo, hi
 
 
@@ -106,7 +115,7 @@ def setup_axes(ax, lo, hi, scale: float, unit: str) -> None:
     ax.set_xlim(lo[0] * scale, hi[0] * scale)
     ax.set_ylim(lo[1] * scale, hi[1] * scale)
     ax.set_zlim(lo[2] * scale, hi[2] * scale)
-    ax.set_box_aspect(tuple(hi - lo))
+    ax.set_box_aspect(tuple(hi - lo), zoom=1.25)
     for setter, name in zip((ax.set_xlabel, ax.set_ylabel, ax.set_zlabel), "xyz"):
         setter(f"{name} [{unit}]", fontsize=7, labelpad=-2)
     ax.tick_params(labelsize=6, pad=0)

@@ -47,6 +47,8 @@ def _table(rows: int, headers) -> QTableWidget:
 def _fit_height(t: QTableWidget) -> None:
     t.resizeRowsToContents()
     h = t.horizontalHeader().height() + sum(t.rowHeight(r) for r in range(t.rowCount()))
+    if t.horizontalHeader().length() > t.viewport().width():    # room for its scroll bar
+        h += t.horizontalScrollBar().sizeHint().height()
     t.setMinimumHeight(min(h + 4, 560))
     t.setMaximumHeight(h + 4)
 

@@ -195,7 +195,8 @@ class MainWindow(QMainWindow):
             return False
         setup = self.pages[PageId.SETUP]
         setup.folder.setText(str(summary.folder))
-        setup.set_choice(summary.robot, summary.method)
+        if summary.robot_file is None:  # a robot file's: found by connect_session
+            setup.set_choice(summary.robot, summary.method)
         setup.connect_session()         # asks "Resume the session?"
         return True
 
