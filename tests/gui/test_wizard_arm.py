@@ -31,7 +31,8 @@ def _open(open_window, tmp_path, seed):
     return open_window(config_path=str(cfg), truth_path=None), truth
 
 
-def _to_plan(open_window, qtbot, tmp_path, count, seed=8713, shots=False):
+def _to_plan(open_window, qtbot, tmp_path, count, seed=8713, shots=False,
+             method="sm-distance-tilt"):
     """Setup, reference and plan of a UR5-like session with ``count`` poses to fit."""
     win, truth_path = _open(open_window, tmp_path, seed=seed)
     c = win.controller
@@ -40,8 +41,8 @@ def _to_plan(open_window, qtbot, tmp_path, count, seed=8713, shots=False):
     # 1 setup: the robot file is listed; without a truth the setup says so
     setup = win.page(PageId.SETUP)
     setup.folder.setText(str(folder))
-    setup.set_choice(str(HAYATI), "sm-distance-tilt")
-    assert setup.robot_file and setup.method_name == "sm-distance-tilt"
+    setup.set_choice(str(HAYATI), method)
+    assert setup.robot_file and setup.method_name == method
     assert [setup.method.itemData(i) for i in range(setup.method.count())] == \
         ["sm-distance", "sm-distance-tilt"]
     assert any("No truth for the simulated arm" in t for t in setup.missing_items())
@@ -104,8 +105,13 @@ def _to_plan(open_window, qtbot, tmp_path, count, seed=8713, shots=False):
     return win, truth_path, folder
 
 
-def test_ur5_like_setup_reference_and_plan(open_window, qtbot, tmp_path):
-    _to_plan(open_window, qtbot, tmp_path, count=12)
+@pytest.mark.parametrize("method", ["sm-distance-tilt", "sm-distance"])
+def test_ur5_like_setup_reference_and_plan(open_window, qtbot, tmp_path, method):
+    win, _, _ = _to_plan(open_window, qtbot, tmp_path, count=12, method=method)
+    s = win.controller.session
+    assert s.method == method and s.reference_record["role"] == s.info.reference
+    ref = win.page(PageId.REFERENCE)
+    assert ref.picture.target_label == s.info.reference.replace("-", " ")
 
 
 @pytest.mark.slow
@@ -173,3 +179,13 @@ def test_ur5_like_session_in_the_wizard(open_window, qtbot, tmp_path, answers):
     nominal = serial_plan.point_to_point_rms(robot, robot.nominal, truth.xi(), seed=4)
     calibrated = serial_plan.point_to_point_rms(robot, xi, truth.xi(), seed=4)
     assert nominal > 1e-3 and calibrated < 5e-5, (nominal, calibrated)
+
+    # 7 offline: the session's trace calibrated again on the Offline page, the same fit
+    assert win.go_to(PageId.OFFLINE)
+    off = win.page(PageId.OFFLINE)
+    assert off.open_trace(folder / "trace.jsonl")
+    qtbot.mouseClick(off.calibrate_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: off.outcome is not None, timeout=TIMEOUT)
+    res, again = s.outcome.result, off.outcome.result
+    assert list(again.names) == list(res.names)
+    assert np.allclose(again.x, res.x, rtol=1e-9, atol=1e-12)
