@@ -16,6 +16,8 @@ largest excursion::
     python bench/bench_sessions.py                         # 10 arms, sm-distance-tilt
     python bench/bench_sessions.py --robot agebot-sm --sessions 20 --first-seed 9100
     python bench/bench_sessions.py --method sm-distance --count 40
+    python bench/bench_sessions.py --robot fixtures/robots/ur5-like-hayati.toml --count 40 \
+        --validation 4 --first-seed 8800          # a robot file's arm (``equivalent_truth``)
 """
 from __future__ import annotations
 
@@ -38,7 +40,8 @@ FIRST_SEED = {"agebot-sm": 9100, "agebot-pm": 9200}   # seeds not used by any ot
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--robot", default="agebot-sm", choices=sorted(DEFAULT_METHOD))
+    ap.add_argument("--robot", default="agebot-sm",
+                    help=f"{' or '.join(sorted(DEFAULT_METHOD))}, or a robot file's path")
     ap.add_argument("--method", default=None, help="default: sm-distance-tilt / pm-fk")
     ap.add_argument("--sessions", type=int, default=10)
     ap.add_argument("--first-seed", type=int, default=None)
@@ -49,8 +52,8 @@ def main(argv=None) -> int:
     ap.add_argument("--one-shot", action="store_true",
                     help="the arm's sessions planned at once (app.py run --one-shot)")
     a = ap.parse_args(argv)
-    first = FIRST_SEED[a.robot] if a.first_seed is None else a.first_seed
-    method = a.method or DEFAULT_METHOD[a.robot]
+    first = FIRST_SEED.get(a.robot, 8800) if a.first_seed is None else a.first_seed
+    method = a.method or DEFAULT_METHOD.get(a.robot, "sm-distance-tilt")
     root = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="bench_sessions_"))
     print(f"{a.sessions} {a.robot} sessions, {method}, seeds {first}..{first + a.sessions - 1}, "
           f"folder {root}")
@@ -70,8 +73,10 @@ def main(argv=None) -> int:
     print()
     print(f"success rate        {s['completed']}/{s['sessions']} ({100 * s['success_rate']:.0f} %)")
     print(f"worst |error|/std   {s['worst']:.2f}")
-    print(f"RMS error/std       {s['rms']:.3f}   (over {s['n_errors']} calibrated parameters)")
-    print(f"coverage of 2 std   {100 * s['coverage_2std']:.1f} %   (ideal ~95 %)")
+    print(f"RMS error/std       {s['rms']:.3f} +- {s['rms_se']:.3f}   (over {s['n_errors']} "
+          f"calibrated parameters; standard error with the sessions as the samples)")
+    print(f"coverage of 2 std   {100 * s['coverage_2std']:.1f} +- "
+          f"{100 * s['coverage_2std_se']:.1f} %   (ideal ~95 %)")
     if s["offset_exact_se"]:
         ex, rd = np.array(s["offset_exact_se"]), np.array(s["offset_reading_se"])
         um = np.array(s["offset_exact_um"])

@@ -10,6 +10,9 @@ where the true end effector was at the reference (the draw-wire anchor), and
 ``distance_off`` is the reading the simulated draw-wire gives where the true
 distance is 0 (minus the length it read when zeroed).
 
+``robot`` may also be a robot file's path (:mod:`station.sim_serial`: the truth
+in the session's own terms is :func:`~station.sim_serial.equivalent_truth`).
+
 Nothing here is used by a real station; it needs the simulator.
 """
 from __future__ import annotations
@@ -25,12 +28,15 @@ from pathlib import Path
 import numpy as np
 
 from calibration import planning
-from calibration.errors import CalibrationError
+from calibration.errors import CalibrationError, StationError
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
 from drivers.config import load_station_config
 from drivers.endpoints import with_endpoints
+from drivers.robot_file import is_robot_file
+from drivers.sim.serial_robot import ACCELERATION, VELOCITY
 from drivers.sim.truth import SimTruth, draw_truth, save_truth
+from station.sim_serial import serial_config, serial_errors, serial_truth
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,10 +51,14 @@ DEFAULT_METHOD = {"agebot-sm": "sm-distance-tilt", "agebot-pm": "pm-fk"}
 
 def station_truth(robot: str, seed: int, **draw) -> SimTruth:
     """A robot drawn with ``default_rng(seed)`` around the nominal, with the devices'
-    noise (:data:`DEVICE_NOISE`) and the simulator's noise seeded by ``seed`` too."""
+    noise (:data:`DEVICE_NOISE`) and the simulator's noise seeded by ``seed`` too; a
+    robot file's arm where ``robot`` is its path (:func:`station.sim_serial.serial_truth`)."""
+    comment = f"drawn by station.sim_sessions, seed {seed}"
+    if is_robot_file(str(robot)):
+        return serial_truth(robot, seed, comment, **draw)
     rng = np.random.default_rng(seed)
-    return draw_truth(robot, rng, noise=DEVICE_NOISE[robot], seed=seed,
-                      comment=f"drawn by station.sim_sessions, seed {seed}", **draw)
+    return draw_truth(robot, rng, noise=DEVICE_NOISE[robot], seed=seed, comment=comment,
+                      **draw)
 
 
 def fast_config(robot: str, folder: Path, speed: float = 4.0, truth: SimTruth | None = None,
@@ -93,7 +103,10 @@ def _toml(v) -> str:
 class SessionScore:
     """One scored session.
 
-    completed: the session ran to its parameter file; ``error`` says why not.
+    completed: the session ran to its parameter file; ``error`` says why not, and
+               ``refused`` whether that was the station's named refusal (a
+               :class:`~calibration.errors.StationError`: safe, nothing written) rather
+               than a crash.
     names, z:  the calibrated (identifiable) parameters and their error / reported std
                (angles compared modulo 2 pi).
     excursion: largest distance of a visited pose (true pose, from the trace's ``qm``)
@@ -109,6 +122,7 @@ class SessionScore:
     method: str
     completed: bool
     error: str = ""
+    refused: bool = False
     names: list[str] = field(default_factory=list)
     z: np.ndarray = field(default_factory=lambda: np.zeros(0))
     excursion: dict = field(default_factory=dict)
@@ -127,14 +141,15 @@ class SessionScore:
 @dataclass
 class SimRun:
     """One unattended session against the simulator: the :class:`Session` (closed),
-    whether it ran to its parameter file, what stopped it, the simulator's state at
-    the end and the seconds it took."""
+    whether it ran to its parameter file, what stopped it (and whether that was the
+    station's named refusal), the simulator's state at the end and the seconds it took."""
 
     session: object
     completed: bool
     error: str
     state: dict
     seconds: float
+    refused: bool = False
 
 
 def simulated_session(truth: SimTruth, folder: Path, method: str, request, config: Path,
@@ -148,9 +163,9 @@ def simulated_session(truth: SimTruth, folder: Path, method: str, request, confi
     folder = Path(folder)
     truth_file = folder / "truth.json"
     t0 = time.monotonic()
-    completed, error = False, ""
-    with SimulatorProcess(truth.robot, truth=str(truth_file), config=str(config),
-                          seed=seed) as sim:
+    completed, error, refused = False, "", False
+    with SimulatorProcess(truth.robot_file or truth.robot, truth=str(truth_file),
+                          config=str(config), seed=seed) as sim:
         cfg = with_endpoints(load_station_config(config), sim.endpoints, source="simulator")
         s = Session(cfg, method, folder / "run", request=request)
         try:
@@ -158,12 +173,13 @@ def simulated_session(truth: SimTruth, folder: Path, method: str, request, confi
             completed = True
         except Exception as e:   # the score says what went wrong; the bench goes on
             error = f"{type(e).__name__}: {e}"
+            refused = isinstance(e, StationError)
             (folder / "error.txt").write_text(traceback.format_exc())
         finally:
             with sim.control() as ctl:
                 state = ctl.call(state=True)
             s.close()
-    return SimRun(s, completed, error, state, time.monotonic() - t0)
+    return SimRun(s, completed, error, state, time.monotonic() - t0, refused)
 
 
 def event_counts(session) -> dict[str, int]:
@@ -182,16 +198,20 @@ def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, see
     from station.planner import PlanRequest
 
     robot = truth.robot
-    method = method or DEFAULT_METHOD[robot]
+    method = method or DEFAULT_METHOD.get(robot, "sm-distance-tilt")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     save_truth(truth, folder / "truth.json")
-    cfg = fast_config(robot, folder, speed, truth)
+    if truth.robot_file is not None:      # a robot file's arm: ``speed`` times the default
+        cfg = serial_config(truth.robot_file, folder, velocity=VELOCITY * speed,
+                            acceleration=ACCELERATION * speed * speed)
+    else:
+        cfg = fast_config(robot, folder, speed, truth)
     req = dataclasses.replace(request or PlanRequest(seed=seed), grow=grow)
     run = simulated_session(truth, folder, method, req, cfg, seed)
     s, state = run.session, run.state
     score = SessionScore(seed=seed, robot=robot, method=method, completed=run.completed,
-                         error=run.error)
+                         error=run.error, refused=run.refused)
     score.poses, score.skipped = len(s.measured), len(s.skipped)
     score.events = event_counts(s)
     score.excursion = excursion(s, truth)
@@ -199,7 +219,8 @@ def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, see
         score.names, score.z = normalized_errors(s, truth, state)
         score.offset = residual_offset(s, truth, state)
         score.heldout = {v["channel"]: v["rms_after"] for v in s.outcome.validation or ()}
-        score.tool_error = tool_error(s, truth, state)
+        if truth.spec is None:
+            score.tool_error = tool_error(s, truth, state)
     return score
 
 
@@ -207,7 +228,7 @@ def residual_offset(session, truth: SimTruth, state: dict) -> dict:
     """The fit poses' distance residuals at the true parameters (captured frame): their
     mean and its standard error (m) with the zero taken as exact (``distance_off``
     0, the report's model) and with the draw-wire's true zero reading."""
-    if "distance" not in session.info.channels:
+    if "distance" not in session.info.channels or truth.spec is not None:
         return {}
     robot = get_robot(truth.robot)
     ref = truth_in_session_frame(session, truth, state)
@@ -261,7 +282,10 @@ def tool_error(session, truth: SimTruth, state: dict, count: int = 300) -> float
 
 
 def normalized_errors(session, truth: SimTruth, state: dict) -> tuple[list[str], np.ndarray]:
-    """Names and ``(calibrated - truth) / std`` of the identifiable parameters."""
+    """Names and ``(calibrated - truth) / std`` of the identifiable parameters (a robot
+    file's arm: :func:`station.sim_serial.serial_errors`)."""
+    if truth.spec is not None:
+        return serial_errors(session, truth, state)
     res = session.outcome.result
     robot = get_robot(truth.robot)
     angles = set(getattr(robot, "angle_params", ()))
@@ -281,7 +305,10 @@ def normalized_errors(session, truth: SimTruth, state: dict) -> tuple[list[str],
 def excursion(session, truth: SimTruth) -> dict[str, float]:
     """Per coordinate, how far the true poses of the recorded poses lie outside the
     planned box (0 inside): sm-distance-tilt's box around the captured origin,
-    sm-distance's around the base offset, the wrist's +-20 deg."""
+    sm-distance's around the base offset, the wrist's +-20 deg; {} for a robot file's
+    arm (planned in joint space)."""
+    if truth.spec is not None:
+        return {}
     robot = get_robot(truth.robot)
     qm = [p["qm"] for p in session.measured.values()]
     if not qm:
@@ -308,27 +335,42 @@ def excursion(session, truth: SimTruth) -> dict[str, float]:
 
 def summary(scores: list[SessionScore]) -> dict:
     """Success rate, worst |error|/std, pooled RMS of error/std, coverage (share within
-    2 std), worst per parameter, largest excursion per coordinate."""
+    2 std) and their standard errors, worst and RMS per parameter, largest excursion
+    per coordinate. The errors of one session are correlated (one data set), so the
+    standard errors take the sessions as the samples (the scatter of each session's
+    mean z^2 and share within 2 std)."""
     done = [s for s in scores if s.completed]
     z = np.concatenate([s.z for s in done]) if done else np.zeros(0)
     per: dict[str, float] = {}
+    sq: dict[str, list] = {}
     for s in done:
         for n, v in zip(s.names, s.z):
             per[n] = max(per.get(n, 0.0), abs(float(v)))
+            sq.setdefault(n, []).append(float(v) ** 2)
     exc: dict[str, float] = {}
     for s in scores:
         for k, v in s.excursion.items():
             exc[k] = max(exc.get(k, 0.0), v)
     off = [s.offset for s in done if s.offset]
+    rms = float(np.sqrt(np.mean(z ** 2))) if z.size else math.nan
+    scored = [s for s in done if s.z.size]
+    rms_se = cov_se = math.nan
+    if len(scored) > 1:
+        k = math.sqrt(len(scored))
+        rms_se = float(np.std([np.mean(s.z ** 2) for s in scored], ddof=1) / k / (2 * rms))
+        cov_se = float(np.std([np.mean(np.abs(s.z) <= 2.0) for s in scored], ddof=1) / k)
     return {"sessions": len(scores), "completed": len(done),
             "offset_exact_se": [o["exact"] / o["se"] for o in off],
             "offset_reading_se": [o["reading"] / o["se"] for o in off],
             "offset_exact_um": [1e6 * o["exact"] for o in off],
             "success_rate": len(done) / max(len(scores), 1),
             "worst": float(np.max(np.abs(z))) if z.size else math.nan,
-            "rms": float(np.sqrt(np.mean(z ** 2))) if z.size else math.nan,
+            "rms": rms, "rms_se": rms_se,
             "coverage_2std": float(np.mean(np.abs(z) <= 2.0)) if z.size else math.nan,
-            "n_errors": int(z.size), "worst_per_parameter": per, "excursion": exc,
+            "coverage_2std_se": cov_se,
+            "n_errors": int(z.size), "worst_per_parameter": per,
+            "rms_per_parameter": {n: (math.sqrt(sum(v) / len(v)), len(v)) for n, v in sq.items()},
+            "excursion": exc,
             "tool_error": [s.tool_error for s in done],
             "heldout": {ch: [s.heldout.get(ch, math.nan) for s in done]
                         for ch in sorted({c for s in done for c in s.heldout})}}

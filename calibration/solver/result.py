@@ -24,6 +24,9 @@ class CalibrationResult:
     status:        per parameter :class:`calibration.identifiability.ParameterStatus`.
     converged, message, iterations, nfev: how it ended.
     sigma:         channel -> estimated sigma of one row (eq. 51), residual units.
+    sigma_dof:     channel -> degrees of freedom of its estimated sigma (none where
+                   known); the covariance adds that sigma's own uncertainty
+                   (:meth:`~calibration.solver.weighting.Weighting.covariance_sigma`).
     residual_rms:  channel -> RMS of the final residual.
     condition_number: of the final scaled, weighted observation matrix.
     history:       list of :class:`Iteration`.
@@ -50,6 +53,7 @@ class CalibrationResult:
     history: tuple[Iteration, ...] = field(repr=False)
     n_rows: int = 0
     wall_time: float = 0.0
+    sigma_dof: dict = field(default_factory=dict)
 
     @property
     def n_identifiable(self) -> int:
@@ -72,6 +76,14 @@ def make_result(run, converged: bool, message: str, t_start: float) -> Calibrati
     status = _final_status(run, sigma if opt.weight_errors else None,
                            w_cov if opt.weight_errors else np.ones(rows))
     cov, cond = _covariance(run, sigma, w_cov)
+    dof = {} if run.all_known else dict(run.sigma_dof)
+    if opt.weight_errors and dof:
+        cov_sigma = run.covariance_sigma(sigma)
+        f = {ch: cov_sigma[ch] / sigma[ch] for ch in dof}
+        if len(f) == len(run.channels) and len(set(f.values())) == 1:   # one factor: a scale
+            cov = cov * next(iter(f.values())) ** 2
+        else:
+            cov = _covariance(run, cov_sigma, run.row_weights(cov_sigma))[0]
     std = np.full(len(names), np.nan)
     std[active] = np.sqrt(np.clip(np.diag(cov), 0, None))
     rss = np.bincount(run.row_channel, weights=r * r, minlength=len(run.channels)).tolist()
@@ -85,7 +97,8 @@ def make_result(run, converged: bool, message: str, t_start: float) -> Calibrati
         status=tuple(status), converged=converged, message=message, iterations=run.k,
         nfev=run.nfev, sigma=sigma, sigma_known=run.all_known, residual_rms=rms,
         residual=r, condition_number=cond, cost=0.5 * float(r @ (w_cov * r)),
-        history=tuple(run.history), n_rows=rows, wall_time=time.perf_counter() - t_start)
+        history=tuple(run.history), n_rows=rows, wall_time=time.perf_counter() - t_start,
+        sigma_dof=dof)
 
 
 # (cond * column-norm spread)^2 below which the covariance is taken from the QR

@@ -89,7 +89,8 @@ class Algorithm2(Weighting, Stepping):
         self.r_pred = None  # residual predicted at the pooled solution (early stop)
         self.last_check = None  # the last recheck (Check)
         self.last_factor = None  # the factorization the last iteration ended on
-        self._sigma_memo = (None, -1, None)
+        self._sigma_memo = (None, -1, None, None)
+        self.sigma_dof: dict = {}  # channel -> degrees of freedom of its estimated sigma
     # -- identifiability ------------------------------------------------------
     def initial_status(self):
         model, opt = self.model, self.opt

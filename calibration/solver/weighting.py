@@ -29,6 +29,7 @@ class Weighting:
         n = len(r)
         memo = self._sigma_memo
         if memo[0] is r and memo[1] == n_active:
+            self.sigma_dof = dict(memo[3])
             return dict(memo[2])
         rss = np.bincount(self.row_channel, weights=r * r, minlength=len(self.channels)).tolist()
         used = self._channel_leverage(n_active)
@@ -43,6 +44,7 @@ class Weighting:
             out[ch] = max(math.sqrt(rc / dof) if dof > 0 else math.sqrt(rc / max(nc, 1)),
                           SIGMA_FLOOR)
             est[ch] = (rc, dof)
+        dofs = {ch: d for ch, (_, d) in est.items()}
         for group in getattr(self.model, "noise_groups", ()):
             sub = {ch: est[ch] for ch in group if ch in est}
             if len(sub) > 1 and _homogeneous(sub.values()):
@@ -54,8 +56,22 @@ class Weighting:
                 dof_all = sum(d for _, d in sub.values())
                 s = max(math.sqrt(rss_all / dof_all), SIGMA_FLOOR)
                 out.update(dict.fromkeys(sub, s))
-        self._sigma_memo = (r, n_active, out)
+                dofs.update(dict.fromkeys(sub, dof_all))
+        self._sigma_memo = (r, n_active, out, dofs)
+        self.sigma_dof = dict(dofs)
         return dict(out)
+
+    def covariance_sigma(self, sigma):
+        """The sigma the covariance (eq. 52) is made with: a known sigma as given; an
+        estimated one (``nu`` degrees of freedom, :attr:`sigma_dof`) times
+        ``sqrt(nu / (nu - 2))``. Eq. 51's sigma is itself uncertain: with it in
+        eq. 52, error / std follows Student's t with ``nu`` degrees of freedom,
+        whose RMS is that factor (1.03 for 35 degrees of freedom, 1.07 for 15), so
+        the std would be optimistic by as much. ``nu`` is taken as at least
+        :data:`MIN_DOF`."""
+        dof = getattr(self, "sigma_dof", {})
+        return {ch: v * t_inflation(dof[ch]) if ch in dof and ch not in self.known else v
+                for ch, v in sigma.items()}
 
     def _channel_leverage(self, n_active):
         """Degrees of freedom each channel spends on the fit: the sum of the
@@ -122,6 +138,20 @@ class Weighting:
         self.sigma, self.mode = sigma, "channel"
         self._set_weights()
         return self._sigma_changed(sigma, old)
+
+
+# Fewest degrees of freedom credited to an estimated sigma (eq. 51) when its
+# uncertainty is added to the std (:meth:`Weighting.covariance_sigma`): with 2 or
+# fewer the t distribution has no variance; such a fit is refused by the station's
+# quality gate as too few poses anyway.
+MIN_DOF = 3.0
+
+
+def t_inflation(dof: float) -> float:
+    """``sqrt(nu / (nu - 2))``, the RMS of Student's t with ``nu = max(dof, MIN_DOF)``
+    degrees of freedom: what an estimated sigma's own uncertainty adds to the std."""
+    nu = max(float(dof), MIN_DOF)
+    return math.sqrt(nu / (nu - 2.0))
 
 
 # Significance of Bartlett's test below which the channels' noise levels are

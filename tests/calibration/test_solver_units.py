@@ -79,6 +79,12 @@ def _ols(A, y):
     return x, r, s2, s2 * np.linalg.inv(A.T @ A)
 
 
+def _t2(nu):
+    """Variance of Student's t with ``nu`` degrees of freedom: what an estimated
+    sigma's own uncertainty multiplies the covariance by (eq. 52 with eq. 51's sigma)."""
+    return nu / (nu - 2)
+
+
 # -- one channel, estimated sigma: ordinary least squares ---------------------------------
 def test_linear_solution_sigma_covariance_and_cost_are_least_squares():
     A, y, _ = _linear()
@@ -90,8 +96,10 @@ def test_linear_solution_sigma_covariance_and_cost_are_least_squares():
     np.testing.assert_allclose(res.residual, r, rtol=1e-6, atol=1e-12)
     assert res.sigma == pytest.approx({"distance": math.sqrt(s2)}, rel=1e-9)  # eq. 51
     assert not res.sigma_known
-    np.testing.assert_allclose(res.covariance, cov, rtol=1e-8)  # eq. 52
+    cov = cov * _t2(30 - 3)  # eq. 52, and sigma's own uncertainty (27 degrees of freedom)
+    np.testing.assert_allclose(res.covariance, cov, rtol=1e-8)
     np.testing.assert_allclose(res.std, np.sqrt(np.diag(cov)), rtol=1e-8)
+    assert res.sigma_dof == pytest.approx({"distance": 27.0}, rel=1e-9)
     assert res.residual_rms["distance"] == pytest.approx(math.sqrt(r @ r / len(y)), rel=1e-9)
     # cost 0.5 r^T L r with L = 1/sigma^2: half the degrees of freedom
     assert res.cost == pytest.approx(0.5 * (len(y) - 3), rel=1e-9)
@@ -145,6 +153,8 @@ def test_options_do_not_change_a_linear_answer(opts):
     res = solve(Linear(A, y), SolverOptions(**opts))
     assert res.converged, res.message
     np.testing.assert_allclose(res.x, x, rtol=1e-8, atol=1e-12)
+    if opts != dict(weight_errors=False):   # L = I: eq. 52 as the report writes it
+        cov = cov * _t2(27)
     np.testing.assert_allclose(res.covariance, cov, rtol=1e-6)
     if opts == dict(scale_columns=False):
         assert res.condition_number == pytest.approx(np.linalg.cond(A), rel=1e-9)
@@ -206,7 +216,7 @@ def test_dependent_and_zero_columns_and_fixed_parameters():
     np.testing.assert_allclose(res.x[keep], x, rtol=1e-9)
     assert res.x[2] == 0.25 and res.x[3] == -0.5  # left at their start values
     assert np.isnan(res.std[[2, 3]]).all() and res.covariance.shape == (3, 3)
-    np.testing.assert_allclose(res.covariance, cov, rtol=1e-8)
+    np.testing.assert_allclose(res.covariance, cov * _t2(25 - 3), rtol=1e-8)
     assert res.covariance_names == ("x0", "x1", "x4") and res.n_identifiable == 3
     assert np.isnan(res.history[-1].variance[[2, 3]]).all()
     # fixed: kept at the start value, not calibrated, the others fitted without it
@@ -296,8 +306,11 @@ def test_per_channel_weights_are_the_channels_sigmas():
         assert res.sigma[name] == pytest.approx(want, rel=1e-9)
         assert res.residual_rms[name] == pytest.approx(math.sqrt(r[m] @ r[m] / m.sum()), rel=1e-9)
         assert abs(res.sigma[name] / used[name] - 1) <= 0.05  # no material change left
+        assert res.sigma_dof[name] == pytest.approx(m.sum() - lev[m].sum(), rel=1e-9)
+    # the covariance: each channel's sigma with its own uncertainty (its degrees of freedom)
+    wc = 1 / np.array([res.sigma[n] ** 2 * _t2(res.sigma_dof[n]) for n in model.channels])[ch]
+    np.testing.assert_allclose(res.covariance, np.linalg.inv(A.T @ (A * wc[:, None])), rtol=1e-8)
     w = 1 / np.array([res.sigma["distance"], res.sigma["tilt"]])[ch] ** 2
-    np.testing.assert_allclose(res.covariance, np.linalg.inv(A.T @ (A * w[:, None])), rtol=1e-8)
     assert res.cost == pytest.approx(0.5 * float(r @ (w * r)), rel=1e-9)
     # the sigmas differ thirtyfold; the pooled fit would be a different (worse) answer
     assert 10 < res.sigma["tilt"] / res.sigma["distance"] < 100
@@ -322,6 +335,12 @@ def test_known_sigma_per_channel():
     part = solve(model, SolverOptions(sigma={"distance": 1e-3}))
     assert part.sigma["distance"] == 1e-3 and not part.sigma_known
     assert part.sigma["tilt"] == pytest.approx(3e-2, rel=0.3)
+    # its minimum is the weighted one: the stated sigma and the other's estimate, never 1
+    used = part.history[-1].sigma
+    assert used["distance"] == 1e-3 and abs(used["tilt"] / part.sigma["tilt"] - 1) <= 0.05
+    w_used = 1 / np.array([used["distance"], used["tilt"]])[ch] ** 2
+    np.testing.assert_allclose(part.x, _wls(A, y, w_used)[0], rtol=1e-9)
+    assert set(part.sigma_dof) == {"tilt"}      # the stated sigma is not uncertain
 
 
 def test_unweighted_two_channels_is_ordinary_least_squares():
@@ -340,7 +359,7 @@ def test_channels_of_one_sensor_share_a_sigma_unless_bartlett_tells_them_apart()
     x, r, s2, cov = _ols(A, y)
     np.testing.assert_allclose(res.x, x, rtol=1e-9)
     assert res.sigma["distance"] == pytest.approx(math.sqrt(s2), rel=1e-9)
-    np.testing.assert_allclose(res.covariance, cov, rtol=1e-8)
+    np.testing.assert_allclose(res.covariance, cov * _t2(len(y) - 3), rtol=1e-8)
     apart = solve(Linear(A, y, channel=ch, channels=("distance", "tilt")))
     assert apart.sigma["distance"] != apart.sigma["tilt"]
     differ, *_ = _two_channels(groups=(("distance", "tilt"),))
@@ -402,7 +421,8 @@ def test_nonlinear_matches_scipy_least_squares():
     np.testing.assert_allclose(res.x, ref.x, rtol=1e-9)
     J = ref.jac
     s2 = float(ref.fun @ ref.fun) / (t.size - 2)
-    np.testing.assert_allclose(res.covariance, s2 * np.linalg.inv(J.T @ J), rtol=1e-6)
+    np.testing.assert_allclose(res.covariance, s2 * _t2(t.size - 2) * np.linalg.inv(J.T @ J),
+                               rtol=1e-6)
     assert 2 < res.iterations < 30
     steps = [h.step for h in res.history]
     assert steps[-1] < 1e-10 and steps[-2] < 1e-4  # quadratic convergence at the end
@@ -493,7 +513,7 @@ def test_ill_conditioned_columns_take_the_normal_matrix_pseudo_inverse():
     H = 1 / np.linalg.norm(A, axis=0)
     x, r, s2, _ = _ols(A * H, y)
     np.testing.assert_allclose(res.x, x * H, rtol=1e-7)
-    cov = s2 * np.outer(H, H) * np.linalg.inv((A * H).T @ (A * H))
+    cov = s2 * _t2(30 - 3) * np.outer(H, H) * np.linalg.inv((A * H).T @ (A * H))
     np.testing.assert_allclose(res.covariance, cov, rtol=1e-4)
     np.testing.assert_allclose(res.std, np.sqrt(np.diag(cov)), rtol=1e-4)
     assert res.condition_number == pytest.approx(np.linalg.cond(A * H), rel=1e-6)
@@ -503,12 +523,14 @@ def test_ill_conditioned_columns_take_the_normal_matrix_pseudo_inverse():
                                   dict(recheck=False, scale_columns=False)])
 def test_per_channel_covariance_without_a_factor_to_reuse(opts):
     """Without the recheck's triangle (or with unscaled columns) the final
-    covariance is a QR of its own: the same (W^T L W)^-1, L from the final sigma."""
+    covariance is a QR of its own: the same (W^T L W)^-1, L from the final sigma
+    (with its own uncertainty); the condition number that of the weights of eq. 51."""
     model, A, y, ch = _two_channels()
     res = solve(model, SolverOptions(**opts))
     assert res.converged, res.message
+    wc = 1 / np.array([res.sigma[n] ** 2 * _t2(res.sigma_dof[n]) for n in model.channels])[ch]
+    np.testing.assert_allclose(res.covariance, np.linalg.inv(A.T @ (A * wc[:, None])), rtol=1e-8)
     w = 1 / np.array([res.sigma["distance"], res.sigma["tilt"]])[ch] ** 2
-    np.testing.assert_allclose(res.covariance, np.linalg.inv(A.T @ (A * w[:, None])), rtol=1e-8)
     H = 1 / np.linalg.norm(A, axis=0) if opts.get("scale_columns", True) else np.ones(3)
     assert res.condition_number == pytest.approx(np.linalg.cond(A * H * np.sqrt(w)[:, None]),
                                                   rel=1e-8)

@@ -48,7 +48,7 @@ def _session_config(sim: SimulatorProcess, cfg_path: Path):
     return with_endpoints(load_station_config(cfg_path), sim.endpoints, source="simulator")
 
 
-def _identifiable_within(result, truth_vec, names, k=4.5):
+def _identifiable_within(result, truth_vec, names, k=3.0):
     bad = []
     for j, (name, st) in enumerate(zip(result.names, result.status)):
         if not st.identifiable:
