@@ -24,6 +24,7 @@ from station.session import Session
 from station.sim_serial import equivalent_truth, serial_config, serial_truth_vector
 from station.trace import read_trace
 from tests.simconfig import quick_text
+from tests.station.test_session import family_bound
 
 ROOT = Path(__file__).resolve().parents[2]
 HAYATI = ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml"
@@ -153,14 +154,15 @@ def _session(tmp_path, robot_file, seed, count=None):
 
 def test_ur5_hayati_session_matches_the_truth_point_to_point(tmp_path):
     truth, files, s, state = _session(tmp_path, HAYATI, seed=8101, count=40)
-    # every calibrated parameter within 3 std of the truth in the session's terms
-    # (what its model reaches on noise-free readings, equivalent_truth); pooled over
-    # drawn arms in test_session_pooled.py
+    # every calibrated parameter within its family bound (3.6 std for 27) of the truth
+    # in the session's terms (what its model reaches on noise-free readings,
+    # equivalent_truth); pooled over drawn arms in test_session_pooled.py
     res, model = s.outcome.result, s.outcome.model
     x_eq, left = equivalent_truth(model, res, serial_truth_vector(model, truth, state))
     ok = np.array([st.identifiable for st in res.status])
     z = (res.x - x_eq)[ok] / res.std[ok]
-    assert left < 1e-3 and ok.sum() >= 25 and np.abs(z).max() < 3.0, np.round(z, 2)
+    assert left < 1e-3 and ok.sum() >= 25, (left, ok.sum())
+    assert np.abs(z).max() < family_bound(ok.sum()), np.round(z, 2)
     doc = read_params(files["params"])
     robot, xi = calibrated_model(doc)
     tr = read_trace(files["trace"])

@@ -1,8 +1,11 @@
 """Is the reported std of a whole session honest? Pooled over simulator seeds and arms.
 
 One session's parameters are one draw: a bound on them (the fast tests in
-``test_session.py`` and ``test_serial_session.py``: every parameter within 3
-std) catches gross errors, not a std that is 20 % optimistic. Here whole
+``test_session.py`` and ``test_serial_session.py``: every parameter within the
+1 % family bound of its count, 3.4 std for 14, 3.6 for 27; a session is not
+bit-identical when rerun, so 3 std on each would fail an honest one 4-7 % of
+the time) catches gross errors and biases of ~4 std, not a std that is 20 %
+optimistic. Here whole
 simulated sessions (``station.sim_sessions``: the simulator in its own process,
 one unattended session, the result against the truth in the session's own
 terms) are pooled over arms drawn around the nominal (``draw_truth``) with the

@@ -5,8 +5,8 @@ The simulator runs in its own process; the simulated operator
 and jogs the robot through the session, as an operator with a feeler gauge
 would. The influence parameters the report takes as known (sm-plane: L4,
 theta0, a0 and the plane; sm-self-redundancy: L4) are given their true values
-as start values; every identifiable parameter must come out within 4.5 std of
-the unseen truth.
+as start values; every identifiable parameter must come out within its family
+bound of the unseen truth (``test_session.family_bound``: 3.3 std for 10).
 """
 from __future__ import annotations
 
