@@ -42,7 +42,8 @@ HEADING_NOTE = (
     "the vertical changes. Only the model's rigid structure ties the heading to the tilt, "
     "weakly, and an error the model does not describe (a base turned on its mount) would "
     "shift it unseen. The calibrated IK puts the platform at the commanded tilt; its "
-    "heading may be off by the std stated under not_identified (several actuator units). "
+    "heading may be off by the std stated with it (the table, the report and the parameter "
+    "file's not_identified), often one to three actuator units. "
     "Calibrate with pm-fk (an orientation sensor that reads the heading) where the heading "
     "matters.")
 
