@@ -61,7 +61,10 @@ def max_orientation_deg(poses, truth_xi) -> float:
     angles of the box)."""
     if not poses:
         return 0.0
-    X = get_robot("agebot-pm").fk(np.array([p["qm"] for p in poses], dtype=float), truth_xi)
+    guess = np.array([p["orientation"] if len(p.get("orientation") or ()) == 3
+                      else [*p.get("tilt", (0.0, 0.0)), 0.0] for p in poses], dtype=float)
+    X = get_robot("agebot-pm").fk(np.array([p["qm"] for p in poses], dtype=float), truth_xi,
+                                  guess=guess)
     return float(np.degrees(np.abs(X).max()))
 
 
