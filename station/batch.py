@@ -226,6 +226,16 @@ def outcome_document(outcome: BatchOutcome, trace_path: str | None,
                            extra=extra or None)
 
 
+def describe_not_identified(d: dict) -> str:
+    """One line for a ``not_identified`` entry (table, report, wizard)."""
+    text = (f"not identified: {d['direction']} ({d['statement']}): std "
+            f"{math.degrees(d['std_rad']):.3g} deg over +-{d.get('box_deg', 15):g} deg")
+    if "ik_std" in d:
+        text += (f", {d['ik_std']:.3g} actuator units of the IK; the IK without it "
+                 f"{d['ik_std_modulo_heading']:.3g} units")
+    return text
+
+
 def not_identified(outcome: BatchOutcome) -> list[dict]:
     """Directions the method does not identify although every parameter is
     (``method.unidentified_directions``, e.g. pm-tilt's heading), each with the
@@ -281,10 +291,7 @@ def format_table(outcome: BatchOutcome) -> str:
     lines.append(f"sigma ({'from the trace' if res.sigma_known else 'estimated, eq. 51'}): {sig}")
     lines.append(f"residual RMS: {rms}")
     for d in not_identified(outcome):
-        lines.append(f"not identified: {d['direction']} ({d['statement']}): std "
-                     f"{math.degrees(d['std_rad']):.3g} deg over +-{d['box_deg']:g} deg, "
-                     f"{d['ik_std']:.3g} actuator units of the IK; the IK without it "
-                     f"{d['ik_std_modulo_heading']:.3g} units")
+        lines.append(describe_not_identified(d))
     for note in getattr(model, "notes", ()) or ():
         lines.append(f"note: {note}")
     if outcome.trace.method == "sm-distance-tilt" and "robot_file" not in outcome.trace.header:

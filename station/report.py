@@ -32,6 +32,7 @@ from calibration import identifiability as ident
 from calibration.errors import StationError
 from drivers.atomic import check_writable, write_atomic
 from station import report_figures as figs
+from station.batch import describe_not_identified
 from station.params_file import file_sha256
 from station.trace import utc_now
 from station.units import MM_DEG, channel_si
@@ -414,10 +415,7 @@ def _notes(ctx: _Context) -> list[str]:
     except Exception:  # noqa: BLE001
         notes += list(getattr(model, "notes", ()) or ())
     for d in (ctx.outcome.document or {}).get("not_identified") or ():
-        notes.append(f"not identified: {d['direction']} ({d['statement']}); std "
-                     f"{math.degrees(d['std_rad']):.3g} deg over +-{d.get('box_deg', 15):g} deg"
-                     + (f", {d['ik_std']:.3g} actuator units of the IK (without it "
-                        f"{d['ik_std_modulo_heading']:.3g})" if "ik_std" in d else ""))
+        notes.append(describe_not_identified(d))
     doc_notes = (ctx.outcome.document or {}).get("notes") or ()
     base = set(getattr(model, "notes", ()) or ())
     notes += [n for n in doc_notes if n not in base]

@@ -11,6 +11,7 @@ from PySide6.QtGui import QColor, QFont
 from PySide6.QtWidgets import (QHeaderView, QTableWidget, QTableWidgetItem, QVBoxLayout,
                                QWidget)
 
+from station.batch import describe_not_identified, not_identified
 from station.gui.plots import ConvergencePlots
 from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, heading, note
 from station.report import IDENT_GROUPS, IDENT_SYMBOL, param_units
@@ -118,7 +119,8 @@ class CalibrationView(QWidget):
         self._show_strip(res)
         self._show_params(outcome)
         self.show_validation(validation or [])
-        notes = list(getattr(model, "notes", ()) or ())
+        notes = [describe_not_identified(d) for d in not_identified(outcome)]
+        notes += list(getattr(model, "notes", ()) or ())
         if outcome.trace.method == "sm-distance-tilt":
             notes.append("theta0, a0 and q1_off refer to the captured base origin.")
         self.notes.setText("\n".join(f"Note: {n}" for n in notes))

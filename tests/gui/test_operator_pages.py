@@ -112,3 +112,17 @@ def test_window_fits_its_screen_and_the_wheel_scrolls_the_page(qtbot, settings, 
         assert bar.value() > before
     finally:
         win.controller.shutdown()
+
+
+def test_results_name_pm_tilts_heading_as_not_identified(qtbot):
+    """The results view of a pm-tilt calibration says the heading is not identified,
+    with its std; pm-fk's does not."""
+    from station.batch import calibrate_trace
+    from station.gui.results import CalibrationView
+
+    view = CalibrationView()
+    qtbot.addWidget(view)
+    view.show_outcome(calibrate_trace(str(ROOT / "fixtures" / "traces" / "pm-tilt.jsonl")))
+    assert "not identified: heading" in view.notes.text() and "actuator units" in view.notes.text()
+    view.show_outcome(calibrate_trace(str(ROOT / "fixtures" / "traces" / "pm-fk.jsonl")))
+    assert "heading" not in view.notes.text()
