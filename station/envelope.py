@@ -160,12 +160,15 @@ def box_points(box: np.ndarray) -> np.ndarray:
 def live_departures(timed: Mapping[str, tuple], track: Track, predict: Predict,
                     tolerance: Mapping[str, float]) -> dict[str, tuple[float, float]]:
     """:func:`departures` of each watched sensor reading of ``timed`` against the
-    predictions over the positions the actuators went through while it was sampled."""
+    predictions over the positions the actuators went through while it was sampled. A
+    channel the method does not predict (the tilt of an sm-distance session at a
+    station with an inclinometer) is not watched."""
     out = {}
     for ch, (v, since, until) in timed.items():
         if ch in tolerance:
             pred = predict(box_points(track.box(since, until)))
-            out.update(departures({ch: v}, {ch: pred[ch]}, tolerance))
+            if ch in pred:
+                out.update(departures({ch: v}, {ch: pred[ch]}, tolerance))
     return out
 
 

@@ -87,6 +87,7 @@ def test_std_is_honest_at_realistic_noise_on_drawn_robots(method):
     figures = (f"RMS err/std {f.rms:.3f} +- {f.rms_se:.3f}, within 2 std "
                f"{f.coverage2:.3f} +- {f.coverage2_se:.3f}, std/CRB {f.std_over_crb:.3f}, "
                f"{f.failed} of {runs} refused")
+    print(f"{method}: {figures}")
     assert f.failed <= 0.2 * runs, figures
     assert 0.9 - 3 * f.rms_se <= f.rms <= 1.1 + 3 * f.rms_se, figures
     assert 0.92 - 3 * f.coverage2_se <= f.coverage2 <= 0.98 + 3 * f.coverage2_se, figures

@@ -170,3 +170,8 @@ def test_each_reading_is_compared_where_the_actuators_were_when_it_was_sampled()
     assert live_departures({"tilt": (1.0, 0.05, 0.15)}, track, predict, tol) == {}
     bad = live_departures({"tilt": (1.0, -0.5, -0.1)}, track, predict, tol)
     assert bad == {"tilt": (1.0, 0.0)}
+    # a reading the method does not predict (sm-distance at a station with a tilt
+    # sensor) is not watched; it never stops the move (was a KeyError)
+    tol2 = {"tilt": 0.1, "distance": 0.05}
+    assert live_departures({"tilt": (1.0, 0.05, 0.15), "distance": (9.0, 0.05, 0.15)},
+                           track, lambda q: {"distance": np.full(len(q), 9.0)}, tol2) == {}
