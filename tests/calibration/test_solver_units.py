@@ -219,6 +219,7 @@ def test_dependent_and_zero_columns_and_fixed_parameters():
     np.testing.assert_allclose(res.covariance, cov * _t2(25 - 3), rtol=1e-8)
     assert res.covariance_names == ("x0", "x1", "x4") and res.n_identifiable == 3
     assert np.isnan(res.history[-1].variance[[2, 3]]).all()
+    np.testing.assert_allclose(res.history[-1].variance[keep], np.diag(cov), rtol=1e-6)
     # fixed: kept at the start value, not calibrated, the others fitted without it
     fx = solve(Linear(A, y, x0=x0), SolverOptions(fixed=("x4",)))
     assert fx.converged, fx.message
@@ -697,11 +698,54 @@ class Twinned(Linear):
 
 
 def test_structural_check_on_the_consistent_twin():
-    A, y, _ = _linear()
-    res = solve(Twinned(A, y, x0=[0.0, 0.0, 0.25]))
+    A, y, truth = _linear()
+    start = [0.0, 0.0, truth[2]]  # x2 at its value: the others fit to the noise
+    res = solve(Twinned(A, y, x0=start))
     assert res.converged, res.message
-    assert not res.status[2].identifiable and res.x[2] == 0.25
-    np.testing.assert_allclose(res.x[:2], _ols(A[:, :2], y - 0.25 * A[:, 2])[0], rtol=1e-9)
+    assert not res.status[2].identifiable and res.x[2] == truth[2]
+    np.testing.assert_allclose(res.x[:2], _ols(A[:, :2], y - truth[2] * A[:, 2])[0], rtol=1e-9)
+    # left out at the start, independent at the solution: not calibrated, and a
+    # wrong start value would bias the others (it influences the model)
+    st = res.status[2]
+    assert st.name == "x2" and st.influences_model and st.label == ident.INFLUENCES
+    assert st.column_norm == pytest.approx(np.linalg.norm(A[:, 2]) / res.sigma["distance"],
+                                           rel=1e-9)
+    assert st.r_diag == pytest.approx(np.abs(np.linalg.qr(A / np.linalg.norm(A, axis=0))[1][2, 2]),
+                                      rel=1e-9)
     assert res.nfev == res.iterations + 1  # the twin's evaluation counts
     fx = solve(Twinned(A, y), SolverOptions(fixed=("x0",), recheck=False))
     assert [s.identifiable for s in fx.status] == [False, True, False] and fx.x[0] == 0.0
+
+
+def _cov_accurate(A, w):
+    """``(A^T L A)^-1``, ``L = diag(w)``, from the QR of the scaled columns
+    (accurate where the normal matrix is not)."""
+    H = 1 / np.linalg.norm(A, axis=0)
+    R = np.linalg.qr(A * H * np.sqrt(w)[:, None])[1]
+    Ri = np.linalg.inv(R)
+    return np.outer(H, H) * (Ri @ Ri.T)
+
+
+@pytest.mark.parametrize("case", ["one channel", "two channels", "two channels, no recheck"])
+def test_covariance_is_accurate_with_columns_far_apart(case):
+    """Column norms 1e3 apart and two nearly parallel columns (condition ~1e3 after
+    scaling): the normal matrix loses ~12 digits, a QR of the scaled matrix ~3.
+    Each of the covariance's QR paths (the last iteration's factor, the
+    recheck's triangle, a QR of its own) keeps 1e-9."""
+    rng = np.random.default_rng(10)
+    c = rng.normal(size=(60, 3))
+    A = np.column_stack([c[:, 0], 300 * (c[:, 0] + 0.002 * c[:, 1]), 0.3 * c[:, 2]])
+    ch = np.repeat([0, 1], 30)
+    y = A @ np.array([0.5, -3e-3, 2.0]) + np.where(ch == 0, 1e-5, 3e-4) * rng.normal(size=60)
+    if case == "one channel":
+        res = solve(Linear(A, y))
+    else:
+        res = solve(Linear(A, y, channel=ch, channels=("distance", "tilt")),
+                    SolverOptions(recheck=case == "two channels"))
+    assert res.converged, res.message
+    w = 1 / np.array([res.sigma[c] for c in res.sigma])[ch if len(res.sigma) == 2 else 0 * ch] ** 2
+    want = _cov_accurate(A, w)
+    np.testing.assert_allclose(res.covariance, want, rtol=1e-9)
+    # the test can fail: the normal matrix's inverse is off by far more
+    rough = np.linalg.pinv(A.T @ (A * w[:, None]))
+    assert np.max(np.abs(rough - want) / np.abs(want)) > 1e-8
