@@ -65,7 +65,9 @@ def main(args: argparse.Namespace) -> int:
     app.setApplicationName("Calibration station")
     app.setOrganizationName("calstation")
     robot = getattr(args, "robot", None)
-    if robot and robot.endswith(".toml") and not Path(robot).is_file():
+    from drivers.sim.serial_robot import is_robot_file
+
+    if robot and is_robot_file(robot) and not Path(robot).is_file():
         raise ConfigError(f"no such robot file: {robot}", source=robot)
     window = create(bool(getattr(args, "simulate", False)), config,
                     robot=robot, truth=getattr(args, "truth", None))

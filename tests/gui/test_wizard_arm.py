@@ -32,7 +32,7 @@ def _open(open_window, tmp_path, seed):
 
 
 def _to_plan(open_window, qtbot, tmp_path, count, seed=8713, shots=False,
-             method="sm-distance-tilt"):
+             method="sm-distance-tilt", draw=False):
     """Setup, reference and plan of a UR5-like session with ``count`` poses to fit."""
     win, truth_path = _open(open_window, tmp_path, seed=seed)
     c = win.controller
@@ -46,7 +46,15 @@ def _to_plan(open_window, qtbot, tmp_path, count, seed=8713, shots=False,
     assert [setup.method.itemData(i) for i in range(setup.method.count())] == \
         ["sm-distance", "sm-distance-tilt"]
     assert any("No truth for the simulated arm" in t for t in setup.missing_items())
-    setup.truth.setText(str(truth_path))
+    if draw:        # Draw one: an arm around the robot file's nominal, in the folder
+        qtbot.mouseClick(setup.draw_truth_button, Qt.MouseButton.LeftButton)
+        truth_path = folder / "sim-truth.json"
+        assert setup.truth.text() == str(truth_path)
+        drawn = load_truth(truth_path)
+        assert drawn.spec.name == "ur5-like-hayati" and drawn.noise
+        assert not np.allclose(drawn.xi(), drawn.model().nominal)
+    else:
+        setup.truth.setText(str(truth_path))
     setup.count.setValue(count)
     qtbot.mouseClick(setup.connect_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(setup.is_complete, timeout=TIMEOUT)
@@ -107,7 +115,8 @@ def _to_plan(open_window, qtbot, tmp_path, count, seed=8713, shots=False,
 
 @pytest.mark.parametrize("method", ["sm-distance-tilt", "sm-distance"])
 def test_ur5_like_setup_reference_and_plan(open_window, qtbot, tmp_path, method):
-    win, _, _ = _to_plan(open_window, qtbot, tmp_path, count=12, method=method)
+    win, _, _ = _to_plan(open_window, qtbot, tmp_path, count=12, method=method,
+                         draw=method == "sm-distance")
     s = win.controller.session
     assert s.method == method and s.reference_record["role"] == s.info.reference
     ref = win.page(PageId.REFERENCE)
