@@ -50,9 +50,9 @@ SCOUT_SCALE = SCALES[0]
 MIN_SCALE = 0.02         # below this the envelope gives up: the start model is too wrong
 SCOUT_MIN = 6
 EARLY_SHARE = 8          # the scout and the middle round: an eighth of the count each
-#: a refit is used only where it explains every recorded reading within this share of
-#: the envelope's tolerance (a model that cannot explain what was measured cannot be
-#: trusted to predict where the arm goes next)
+#: a refit is used where it explains every recorded reading within this share of the
+#: envelope's tolerance, or better than the model in use (a model that cannot explain
+#: what was measured cannot be trusted to predict where the arm goes next)
 EXPLAIN = 0.2
 #: what a refit on fewer poses than parameters learns, in this order
 LEARN_FIRST = ("k1", "k2", "k3", "k4", "q4_off", "q3_off", "q2_off", "q1_off")
@@ -131,7 +131,8 @@ class ArmRounds:
         from start values grown with the data (:func:`staged_start`): a function of the
         recorded poses alone, so a resumed session plans as the uninterrupted one
         would. Of the fits that converged and explain every recorded reading within
-        :data:`EXPLAIN` of the envelope's tolerance, the one with the least residual;
+        :data:`EXPLAIN` of the envelope's tolerance, or at least as well as the model in
+        use, the one with the least residual;
         where none does (a fit of few poses can be wild: it predicted -1.3 m for a
         draw-wire reading 0.02 m, and every move from then on was stopped), planning
         stays with the model it had."""
@@ -150,6 +151,8 @@ class ArmRounds:
             if staged is not None:
                 starts.insert(0, staged)
         best, why = None, "no fit"
+        # what the model in use leaves unexplained: a refit must do at least as well
+        bar = max(EXPLAIN, self._unexplained(self.xi, self.distance_off, data))
         for x0 in starts:
             try:
                 model = build(s.method, s.robot, data, x0)
@@ -162,9 +165,9 @@ class ArmRounds:
                 continue
             xi, off = self._model_of(res.x)
             worst = self._unexplained(xi, off, data)
-            if worst > EXPLAIN:
+            if worst > bar:
                 why = (f"it leaves a recorded reading {worst:.2g} x the envelope's tolerance "
-                       "away from its prediction")
+                       "away from its prediction, the model in use less")
                 continue
             cost = float(np.sum(np.asarray(res.residual) ** 2))
             if best is None or cost < best[0]:
