@@ -27,6 +27,9 @@ from calibration.errors import CalibrationError
 # this fraction (in practice far less), well inside the 5 % that decides
 # whether a per-channel round is needed at all.
 EARLY_SWITCH = 1e-2
+#: after rejected steps, a Gauss-Newton step still predicting a decrease of the
+#: cost of more than this (chi-square units, i.e. a step of ~0.1 std) is not convergence
+STALL_CHI2 = 1e-2
 
 geqrf, gesvd, trtrs, trtri = lapack.dgeqrf, lapack.dgesvd, lapack.dtrtrs, lapack.dtrtri
 _MASKS: dict[int, tuple] = {}
@@ -187,6 +190,20 @@ class Stepping:
         if self.callback is not None:
             self.callback(self.k, it)
 
+    def _stalled(self, F) -> bool:
+        """After rejected steps, whether the undamped (Gauss-Newton) step at this
+        point still predicts a cost decrease of more than :data:`STALL_CHI2` in
+        units of the residual variance. At a minimum (any stationary point) the
+        gradient vanishes and so does that decrease, whatever the damping; a step
+        made small only by the damping (the edge of a model's domain, a PM that
+        cannot assemble beyond it) is not convergence."""
+        dof = F.W.shape[0] - F.n
+        if dof <= 0 or F.cost <= 0:
+            return False
+        z0 = F.step(self.lam ** 2)
+        decrease = 0.5 * F.scaled_norm(z0) ** 2
+        return decrease > STALL_CHI2 * F.cost / dof
+
     def iterate(self, early: bool = False) -> tuple[bool, str]:
         """Iterate on the current active set until the step is below epsilon.
 
@@ -228,6 +245,12 @@ class Stepping:
                 return False, f"the step became non-finite at iteration {self.k + 1}"
             cost = F.cost
             if step < eps:  # converged: the step is below the tolerance
+                if rejected and self._stalled(F):
+                    return False, (f"stalled at iteration {self.k + 1}: the damping, not the "
+                                   "data, made the step small (the Gauss-Newton step still "
+                                   "lowers the cost by a significant amount, but every step "
+                                   "tried raises it or leaves the model's domain): not a "
+                                   "minimum")
                 self.k += 1
                 self._record(F, step, cost)
                 self.last_factor = F

@@ -450,6 +450,24 @@ def test_adaptive_damping_rejects_a_step_that_leaves_the_domain():
     assert plain.message.startswith("the step left the model's domain at iteration ")
 
 
+@pytest.mark.parametrize("b_true", [3.01, 3.2])
+def test_a_minimum_beyond_the_domain_is_not_convergence(b_true):
+    """The minimum (b = 3.01 or 3.2) lies where the model cannot be evaluated
+    (b >= 3): every step towards it is rejected, the damping shrinks the step
+    below epsilon at b -> 3, and that is a stall, not a minimum (a confident
+    wrong answer: b = 3, a = 1.79 for 3.2, 5 of its std off). Within the
+    domain the same data converge."""
+    t = np.linspace(0.0, 1.0, 25)
+    rng = np.random.default_rng(0)
+    y = 1.5 * np.exp(b_true * t) + 1e-3 * rng.normal(size=25)
+    res = solve(Exponential(t, y, [1.0, 1.0]))
+    assert not res.converged
+    assert res.message.startswith("stalled at iteration "), res.message
+    inside = solve(Exponential(t, y, [1.0, 1.0], limit=4.0))
+    assert inside.converged, inside.message
+    assert abs(inside.x[1] - b_true) < 5 * math.sqrt(inside.covariance[1, 1])
+
+
 # -- the scaled problem and its damped step (eqs. 47-49, 52) ---------------------------------
 @pytest.mark.parametrize("rows", [12, 3, 2])
 @pytest.mark.parametrize("per_row", [False, True])
