@@ -94,6 +94,8 @@ def main(argv=None) -> int:
               f"{'mm' if ch == 'distance' else 'deg'}")
     print("worst |error|/std per parameter:")
     print("  " + ", ".join(f"{k} {v:.2f}" for k, v in s["worst_per_parameter"].items()))
+    print("RMS of error/std per parameter (over the sessions):")
+    print("  " + ", ".join(f"{k} {v[0]:.2f}" for k, v in s["rms_per_parameter"].items()))
     print("largest excursion from the planned box (m; rad for angles):")
     print("  " + ", ".join(f"{k} {v:.3g}" for k, v in s["excursion"].items()))
     ok = s["success_rate"] == 1.0 and math.isfinite(s["rms"])
