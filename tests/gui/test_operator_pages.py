@@ -15,11 +15,12 @@ from station.gui.window import MainWindow
 from station.trace import read_trace
 from tests.gui.helpers import ROOT, wait_idle
 from tests.gui.test_wizard_sm import TIMEOUT, connect
+from tests.simconfig import quick_config
 
 
 def test_far_reference_is_warned_and_captured_again(open_window, qtbot, tmp_path):
     folder = tmp_path / "sm"
-    win = open_window()
+    win = open_window(config_path=str(quick_config(tmp_path / "station", "agebot-sm")))
     c = win.controller
     connect(qtbot, win, folder, "agebot-sm", "sm-distance-tilt", 24)
     qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)

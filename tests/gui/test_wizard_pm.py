@@ -13,11 +13,12 @@ from station.params_file import read_params
 from station.planner import PM_SCOUT_COUNT
 from tests.gui.helpers import screenshot, wait_idle
 from tests.gui.test_wizard_sm import TIMEOUT, connect
+from tests.simconfig import quick_config
 
 
 def test_pm_fk_session(open_window, qtbot, tmp_path):
     folder = tmp_path / "pm"
-    win = open_window()
+    win = open_window(config_path=str(quick_config(tmp_path / "station", "agebot-pm", speed=1.0)))
     c = win.controller
     connect(qtbot, win, folder, "agebot-pm", "pm-fk", 14)
 

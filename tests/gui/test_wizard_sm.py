@@ -17,6 +17,7 @@ from station.gui.pages import PageId
 from station.params_file import read_params
 from station.trace import read_trace
 from tests.gui.helpers import ROOT, SCREEN, screenshot, wait_idle
+from tests.simconfig import quick_config
 
 TIMEOUT = 30000
 
@@ -33,7 +34,8 @@ def connect(qtbot, win, folder, robot, method, count):
 
 def test_sm_distance_tilt_session(open_window, qtbot, tmp_path, answers):
     folder = tmp_path / "sm"
-    win = open_window()
+    station = str(quick_config(tmp_path / "station", "agebot-sm"))
+    win = open_window(config_path=station)
     assert win.minimumSizeHint().width() <= SCREEN[0]
     assert win.minimumSizeHint().height() <= SCREEN[1]
     c = win.controller
@@ -104,7 +106,7 @@ def test_sm_distance_tilt_session(open_window, qtbot, tmp_path, answers):
     assert len(recorded) >= 5
 
     # reopen: the last session is offered, resumed, finished
-    win = open_window()
+    win = open_window(config_path=station)
     c = win.controller
     answers["asked"].clear()
     assert win.offer_resume()
