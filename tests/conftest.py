@@ -24,3 +24,20 @@ def quick_retries(monkeypatch):
     from station import device_loss
 
     monkeypatch.setattr(device_loss, "BACKOFF_S", tuple(p / 10 for p in device_loss.BACKOFF_S))
+
+
+@pytest.fixture
+def no_report(monkeypatch):
+    """Sessions write a one-line placeholder for ``report.html`` (its figures take a
+    second or more of CPU a session): for tests of the trace, the parameters and the
+    devices. The report is tested by tests/station/test_report.py and by the session
+    tests that read it."""
+    import station.report
+
+    def placeholder(path, *args, **kwargs):
+        from pathlib import Path
+
+        Path(path).write_text("report\n")
+        return Path(path)
+
+    monkeypatch.setattr(station.report, "write_report", placeholder)

@@ -11,17 +11,20 @@ answer over 127.0.0.1 within milliseconds, so a lost SDO or Modbus answer (the
 fault tests drop frames on purpose) is declared lost after ``timeout`` s instead of
 the fixtures' 0.5 and 1 s. The snapshot's read timeout stays: within it the CANopen
 reading sends SYNC after SYNC while TPDOs are lost, and the inclinometer waits for
-its next good frame. The speed is at most 4 for the SM: its acceleration goes with the square
-of the speed and the drives take it in increments/s^2 as a 32-bit number (object
-0x6083). The fixtures, which the demos and the documentation use, keep their values.
+its next good frame. The acceleration goes with the square of the speed up to what
+a drive takes (increments/s^2 in the 32 bits of object 0x6083). The fixtures, which
+the demos and the documentation use, keep their values.
 """
 from __future__ import annotations
 
 import re
+import tomllib
 from pathlib import Path
 
 #: what the tests' simulated stations use unless a test asks for other values
-SPEED, SETTLE, PERIOD, TIMEOUT = 4.0, 0.01, 0.01, 0.3
+SPEED, SETTLE, PERIOD, TIMEOUT = 8.0, 0.01, 0.01, 0.3
+#: the largest profile acceleration a drive takes (object 0x6083, increments/s^2, 32 bits)
+ACC_MAX = 0xFFFFFFFF
 
 
 def set_keys(text: str, table: str, **values) -> str:
@@ -57,12 +60,25 @@ def quick_text(text: str, *, settle: float | None = SETTLE, period: float | None
 def quick_config(folder: Path, robot: str, *, speed: float = SPEED, truth=None,
                  **timing) -> Path:
     """The simulated ``robot``'s station config (agebot-sm, agebot-pm) with moves
-    ``speed`` times faster (:func:`station.sim_sessions.fast_config`; with ``truth``
-    the envelope of that robot) and the test timing of :func:`quick_text`, written
-    into ``folder``."""
+    ``speed`` times faster (velocity x ``speed``, acceleration x ``speed**2`` up to what
+    a drive's 32-bit 0x6083 holds; with ``truth``, the envelope of that robot as
+    :func:`station.sim_sessions.fast_config` writes it) and the test timing of
+    :func:`quick_text`, written into ``folder``."""
     from station.sim_sessions import fast_config
 
     Path(folder).mkdir(parents=True, exist_ok=True)
-    path = fast_config(robot, Path(folder), speed, truth)
-    path.write_text(quick_text(path.read_text(), **timing))
+    path = fast_config(robot, Path(folder), 1.0, truth)
+    text = path.read_text()
+    can = tomllib.loads(text)["canopen"]
+    n = len(can["nodes"])
+    res = _per_axis(can["increments_per_unit"], n)
+    vel = [v * speed for v in _per_axis(can["profile_velocity"], n)]
+    acc = [min(a * speed ** 2, ACC_MAX / r)
+           for a, r in zip(_per_axis(can["profile_acceleration"], n), res)]
+    text = set_keys(text, "canopen", profile_velocity=vel, profile_acceleration=acc)
+    path.write_text(quick_text(text, **timing))
     return path
+
+
+def _per_axis(v, n: int) -> list[float]:
+    return [float(x) for x in v] if isinstance(v, list) else [float(v)] * n

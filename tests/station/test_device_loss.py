@@ -36,8 +36,8 @@ def _inject_after(ctl, n: int, faults: dict, done: list):
     ({"modbus_exception": 4}, "draw-wire", "check the Modbus link"),
     ({"inclinometer_silent": True}, "inclinometer", "check the serial cable"),
 ])
-def test_a_lost_device_stops_the_session_and_the_resume_finishes_it(tmp_path, faults, device,
-                                                                     check, quick_retries):
+def test_a_lost_device_stops_the_session_and_the_resume_finishes_it(
+        tmp_path, faults, device, check, quick_retries, no_report):
     cfg = fast_config(tmp_path, "agebot-sm")
     out = tmp_path / "run"
     with SimulatorProcess("agebot-sm", config=str(cfg), seed=9) as sim:
@@ -67,7 +67,8 @@ def test_a_lost_device_stops_the_session_and_the_resume_finishes_it(tmp_path, fa
     assert idx == list(range(10)) and again.outcome.result.converged
 
 
-def test_a_killed_simulator_stops_the_session_and_a_new_one_resumes_it(tmp_path, quick_retries):
+def test_a_killed_simulator_stops_the_session_and_a_new_one_resumes_it(tmp_path, quick_retries,
+                                                                      no_report):
     cfg = fast_config(tmp_path, "agebot-sm")
     out = tmp_path / "run"
     with SimulatorProcess("agebot-sm", config=str(cfg), seed=9) as sim:

@@ -76,10 +76,13 @@ def test_default_runs_are_reproducible_and_a_finished_folder_stays(tmp_path):
 
 def test_interrupt_says_what_is_kept_and_how_to_resume(tmp_path):
     out = tmp_path / "run"
-    # 40 poses: the interrupt comes while it is measuring, however slow the machine
+    # 40 poses: the interrupt comes while it is measuring, however slow the machine.
+    # Ctrl-C's default action in the child: a suite started in the background (by a
+    # non-interactive shell, `cmd &`) passes SIGINT on ignored, and Python keeps it so
     p = subprocess.Popen([sys.executable, os.path.join(ROOT, "app.py"), *COMMAND,
                           "--count", "40", *quick(tmp_path), "--out", str(out)],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:   # wait for two recorded poses

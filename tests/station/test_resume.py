@@ -155,7 +155,7 @@ SM_POINTS = [(0, True), (1, False), (2, True), (3, False), (4, False), (4, True)
 PM_POINTS = [(0, True), (1, False), (1, True), (3, False), (14, False), (15, True), (-3, False)]
 
 
-def test_kill_at_key_lines_sm_distance_tilt(tmp_path):
+def test_kill_at_key_lines_sm_distance_tilt(tmp_path, no_report):
     """Between the reference and the plan (the case that once gave L2 = -1.25 m),
     mid-line, mid-poses and after the last pose."""
     n, worst = _kill_everywhere(tmp_path, "agebot-sm", "sm-distance-tilt",
@@ -163,7 +163,7 @@ def test_kill_at_key_lines_sm_distance_tilt(tmp_path):
     assert n == len(SM_POINTS) and worst < 1e-6
 
 
-def test_kill_at_key_lines_pm_fk(tmp_path):
+def test_kill_at_key_lines_pm_fk(tmp_path, no_report):
     n, worst = _kill_everywhere(tmp_path, "agebot-pm", "pm-fk",
                                 PlanRequest(count=14, validation=2, seed=2), _pm_known(),
                                 PM_POINTS)
@@ -175,7 +175,8 @@ def test_kill_at_key_lines_pm_fk(tmp_path):
     ("agebot-sm", "sm-distance-tilt", PlanRequest(count=10, validation=2, seed=3), {}),
     ("agebot-pm", "pm-fk", PlanRequest(count=14, validation=2, seed=2), None),
 ])
-def test_kill_after_every_line_and_mid_line(tmp_path, robot, method, request_, nominal):
+def test_kill_after_every_line_and_mid_line(tmp_path, robot, method, request_, nominal,
+                                           no_report):
     n, worst = _kill_everywhere(tmp_path, robot, method, request_,
                                 _pm_known() if nominal is None else nominal)
     print(f"{method}: {n} kill points, largest parameter difference {worst:.3g} std")

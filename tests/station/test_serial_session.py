@@ -174,15 +174,12 @@ def test_ur5_hayati_session_matches_the_truth_point_to_point(tmp_path):
     assert Path(files["urdf"]).exists() and Path(files["report"]).exists()
 
 
-def test_robot_file_session_resumes_exactly_after_a_kill(tmp_path, monkeypatch):
+def test_robot_file_session_resumes_exactly_after_a_kill(tmp_path, no_report):
     """Killed between the reference and the plan, mid-line and mid-poses, the robot
     file's session resumes to the uninterrupted one's readings and result
     (tests/station/test_resume.py, on a UR5-like arm)."""
-    import station.report
     from tests.station.test_resume import Case, _check_same, _resume_after, _as_after_a_crash
 
-    monkeypatch.setattr(station.report, "write_report",
-                        lambda path, *a, **k: Path(path).write_text("report\n"))
     truth_path = _truth_file(tmp_path, HAYATI, seed=8203)
     cfg = _fast_config(tmp_path, HAYATI, samples=2)
     request = PlanRequest(count=16, validation=2, seed=5)
@@ -204,15 +201,11 @@ def test_robot_file_session_resumes_exactly_after_a_kill(tmp_path, monkeypatch):
             assert _check_same(case, k, records, x) < 1e-6
 
 
-def test_a_pose_below_the_real_floor_faults_and_is_skipped(tmp_path, monkeypatch, quick_retries):
+def test_a_pose_below_the_real_floor_faults_and_is_skipped(tmp_path, no_report, quick_retries):
     """The engineer's start value puts the arm's base 25 cm higher than it is, so some
     planned poses are below the real floor: the simulated drive faults naming the floor
     (EMCY manufacturer bytes), the session retries, skips, and completes with the rest
     (the base height is not seen by distances and tilts: the result is still right)."""
-    import station.report
-
-    monkeypatch.setattr(station.report, "write_report",
-                        lambda path, *a, **k: Path(path).write_text("report\n"))
     truth_path = _truth_file(tmp_path, HAYATI, seed=8305)
     cfg = _fast_config(tmp_path, HAYATI, samples=2)
     from drivers.sim.truth import load_truth
@@ -272,13 +265,9 @@ def test_cli_run_on_a_ur5_like_arm(tmp_path, robot_file, seed):
     assert (out / "calibrated.urdf").exists()
 
 
-def test_sm_distance_session_on_a_robot_file(tmp_path, monkeypatch):
+def test_sm_distance_session_on_a_robot_file(tmp_path, no_report):
     """sm-distance (draw-wire only) on the UR5-like arm: distances from the reference
     point alone calibrate the arm's shape (point to point)."""
-    import station.report
-
-    monkeypatch.setattr(station.report, "write_report",
-                        lambda path, *a, **k: Path(path).write_text("report\n"))
     truth_path = _truth_file(tmp_path, HAYATI, seed=8611)
     cfg = _fast_config(tmp_path, HAYATI, samples=2)
     from drivers.sim.truth import load_truth

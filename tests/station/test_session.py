@@ -237,7 +237,7 @@ def test_sigkill_mid_session_resumes_to_the_same_result(tmp_path):
             assert abs(pa["value"] - pb["value"]) < 4 * math.hypot(pa["std"], pb["std"]), name
 
 
-def test_device_faults_mid_session_are_survived_and_recorded(tmp_path, quick_retries):
+def test_device_faults_mid_session_are_survived_and_recorded(tmp_path, quick_retries, no_report):
     """A drive fault (EMCY) and a dropped Modbus link during execution: the session
     resets the drive / reconnects, retries the pose, records the events; a node
     that stays silent makes its poses skipped, never a silent wrong reading."""
@@ -317,7 +317,7 @@ def test_a_skipped_pose_leaves_no_fault_behind(tmp_path):
     assert [e["kind"] for e in s.events].count("fault") == 1
 
 
-def test_a_flaky_cable_session_completes(tmp_path, quick_retries):
+def test_a_flaky_cable_session_completes(tmp_path, quick_retries, no_report):
     """5 % of the frames on every link lost and 5 % corrupted (CAN TPDOs, inclinometer
     frames, Modbus answers): lost TPDOs cost another SYNC, bad frames are dropped by
     their checksums, failed poses are retried; the result is still right."""
