@@ -119,14 +119,7 @@ class SimulatedAgebot:
     def __init__(self, truth: SimTruth, *, faults: FaultPlan | None = None,
                  seed: int | None = None, home=None, velocity=None, acceleration=None,
                  clock=time.monotonic, pose_noise: bool = False, qm_range=None):
-        self.truth = truth
-        self.model = get_robot(truth.robot)
-        self._xi = truth.xi()
-        self.faults = faults if faults is not None else FaultPlan()
-        self._seed = truth.seed if seed is None else seed
-        self._rng = np.random.default_rng(self._seed)
-        self.pose_noise = pose_noise
-        self._lock = threading.RLock()
+        self._hold(truth, get_robot(truth.robot), faults, seed, pose_noise)
         self.home_pose = np.array(HOME[truth.robot] if home is None else home, dtype=float)
         try:
             self.home_qm = np.asarray(self.model.ik(self.home_pose, self._xi), dtype=float)
@@ -163,6 +156,17 @@ class SimulatedAgebot:
             a, b = (lo - off) / k, (hi - off) / k
             out.append((min(a, b), max(a, b)))
         return out
+
+    def _hold(self, truth: SimTruth, model, faults, seed, pose_noise: bool) -> None:
+        """The truth, its model and parameters, the fault plan and the noise generator
+        (the constructor's part that every simulated robot shares)."""
+        self.truth, self.model = truth, model
+        self._xi = truth.xi()
+        self.faults = faults if faults is not None else FaultPlan()
+        self._seed = truth.seed if seed is None else seed
+        self._rng = np.random.default_rng(self._seed)
+        self.pose_noise = pose_noise
+        self._lock = threading.RLock()
 
     # -- state -----------------------------------------------------------------------------
     @property

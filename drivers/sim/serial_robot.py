@@ -25,7 +25,6 @@ middle of the limits that keeps it :data:`HOME_FLOOR` above.
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from pathlib import Path
 
@@ -72,14 +71,7 @@ class SimulatedSerial(SimulatedAgebot):
         if truth.spec is None:
             raise ConfigError("the truth file names no robot file", source=truth.source,
                               key="robot_file")
-        self.truth = truth
-        self.model = truth.model()
-        self._xi = truth.xi()
-        self.faults = faults if faults is not None else FaultPlan()
-        self._seed = truth.seed if seed is None else seed
-        self._rng = np.random.default_rng(self._seed)
-        self.pose_noise = pose_noise
-        self._lock = threading.RLock()
+        self._hold(truth, truth.model(), faults, seed, pose_noise)
         n = self.model.n_actuators
         lim = np.asarray(self.model.limits, dtype=float)
         if qm_range is not None:     # the station config's [envelope], within the limits

@@ -27,7 +27,7 @@ from station.planner import PlanRequest
 from station.session import Session
 from station.trace import read_trace
 from tests.simconfig import quick_config
-from tests.station.test_session import FIX, _session_config
+from tests.station.test_session import FIX, _session_config, referenced_folder
 
 @pytest.fixture(autouse=True)
 def _no_figures(monkeypatch):
@@ -187,20 +187,9 @@ def test_poses_skipped_for_a_fault_are_measured_again_on_resume(tmp_path):
     """Offline (no devices): a plan with one pose skipped for a fault and one for lack
     of contact; the resumed session measures the first again, not the second, and
     says what it will redo."""
-    import numpy as np
-
-    from drivers.config import load_station_config
     from station import resume
-    from station.trace import TraceWriter
 
-    robot = get_robot("agebot-sm")
-    config = load_station_config(FIX / "stations" / "sim-sm.toml")
-    out = tmp_path / "run"
-    out.mkdir()
-    qref = robot.ik(np.array([0.5, 1.0, 0.8, 0.0]), robot.nominal, elbow=-1)
-    with TraceWriter.create(out / "trace.jsonl", {"robot": "agebot-sm",
-                                                  "method": "sm-distance-tilt"}) as w:
-        w.append({"record": "reference", "role": "base-origin", "qm": qref.tolist()})
+    config, out = referenced_folder(tmp_path)
     with Session(config, "sm-distance-tilt", out, request=PlanRequest(count=6, validation=2)) as s:
         plan = s.plan()
         s._skip(plan[1], "pose 1 skipped", resume.FAULT)

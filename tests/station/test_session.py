@@ -278,8 +278,9 @@ def test_device_faults_mid_session_are_survived_and_recorded(tmp_path, quick_ret
     assert quality["accepted"] == (not quality["passed"])
 
 
-def test_a_replaced_plan_is_the_plan_after_resume(tmp_path):
-    """Regenerating the plan before measuring replaces it, also for a resumed session."""
+def referenced_folder(tmp_path: Path):
+    """Offline (no devices): the simulated SM station's config and a session folder
+    whose sm-distance-tilt trace holds its header and a reference, nothing more."""
     from station.trace import TraceWriter
 
     robot = get_robot("agebot-sm")
@@ -290,6 +291,12 @@ def test_a_replaced_plan_is_the_plan_after_resume(tmp_path):
     with TraceWriter.create(out / "trace.jsonl", {"robot": "agebot-sm",
                                                   "method": "sm-distance-tilt"}) as w:
         w.append({"record": "reference", "role": "base-origin", "qm": qref.tolist()})
+    return config, out
+
+
+def test_a_replaced_plan_is_the_plan_after_resume(tmp_path):
+    """Regenerating the plan before measuring replaces it, also for a resumed session."""
+    config, out = referenced_folder(tmp_path)
     with Session(config, "sm-distance-tilt", out, request=PlanRequest(count=10, validation=3)) as s:
         first = s.plan()
         s.request.seed = 9
