@@ -7,11 +7,11 @@ computed from the axes' positions when it is sent, so a settle of a few ms is as
 good as the fixtures' 50 ms; the snapshot still discards every frame from before
 the settle and each of its samples still waits for a fresh frame (the simulated
 inclinometer sends 100 per second: a period of 10 ms is one frame). The devices
-answer over 127.0.0.1 within milliseconds, so a lost SDO or Modbus answer (the
-fault tests drop frames on purpose) is declared lost after ``timeout`` s instead of
-the fixtures' 0.5 and 1 s. The snapshot's read timeout stays: within it the CANopen
-reading sends SYNC after SYNC while TPDOs are lost, and the inclinometer waits for
-its next good frame. The acceleration goes with the square of the speed up to what
+answer over 127.0.0.1 within milliseconds, so a lost Modbus answer (the fault
+tests drop frames on purpose) is declared lost after ``timeout`` s instead of the
+fixtures' 1 s. The CANopen timeout stays (it is also the window of an actuator
+reading, within which it sends SYNC after SYNC while TPDOs are lost), and so does
+the snapshot's read timeout. The acceleration goes with the square of the speed up to what
 a drive takes (increments/s^2 in the 32 bits of object 0x6083). The fixtures, which
 the demos and the documentation use, keep their values.
 """
@@ -47,13 +47,11 @@ def set_keys(text: str, table: str, **values) -> str:
 def quick_text(text: str, *, settle: float | None = SETTLE, period: float | None = PERIOD,
                samples: int | None = None, timeout: float | None = TIMEOUT) -> str:
     """A station config's text with the test timing: the snapshot's ``settle``,
-    ``period`` and ``samples``, and ``timeout`` for one CANopen SDO answer and one
-    draw-wire answer (where the config has a draw-wire)."""
+    ``period`` and ``samples``, and ``timeout`` for one draw-wire answer (where the
+    config has a draw-wire)."""
     text = set_keys(text, "snapshot", settle=settle, period=period, samples=samples)
-    if timeout is not None:
-        text = set_keys(text, "canopen", sdo_timeout=timeout)
-        if re.search(r"^\[drawwire\]$", text, re.M):
-            text = set_keys(text, "drawwire", timeout=timeout)
+    if timeout is not None and re.search(r"^\[drawwire\]$", text, re.M):
+        text = set_keys(text, "drawwire", timeout=timeout)
     return text
 
 
