@@ -84,12 +84,14 @@ def _mutate(data, doc):
 
 
 # -- traces ------------------------------------------------------------------------------
+@pytest.mark.parametrize("reader, name", [(read_trace, "t.jsonl"), (read_params, "p.json")],
+                         ids=["trace", "params"])
 @FUZZ
 @given(raw=st.binary(max_size=600))
-def test_trace_reader_on_any_bytes(tmp_path, raw):
-    p = tmp_path / "t.jsonl"
+def test_reader_on_any_bytes(tmp_path, reader, name, raw):
+    p = tmp_path / name
     p.write_bytes(raw)
-    reads_or_one_line_error(read_trace, p)
+    reads_or_one_line_error(reader, p)
 
 
 @FUZZ
@@ -161,14 +163,6 @@ def good_params(tmp_path_factory):
     out = tmp_path_factory.mktemp("fuzz") / "p.json"
     calibrate_trace(os.path.join(TRACES, "sm-distance.jsonl"), out=str(out))
     return json.loads(out.read_text())
-
-
-@FUZZ
-@given(raw=st.binary(max_size=600))
-def test_params_reader_on_any_bytes(tmp_path, raw):
-    p = tmp_path / "p.json"
-    p.write_bytes(raw)
-    reads_or_one_line_error(read_params, p)
 
 
 @FUZZ
