@@ -1,5 +1,6 @@
 """Pages as an operator meets them: a reference captured far from the mark is
-warned about and can be captured again (the trace keeps the new one); the Offline
+warned about and can be captured again (the trace keeps the new one), and a session
+set up without rounds plans every pose at once; the Offline
 page after a failed open shows one line and nothing of the previous trace; the
 window fits the screen it opens on; the wheel over a plot scrolls the page."""
 from __future__ import annotations
@@ -22,7 +23,14 @@ def test_far_reference_is_warned_and_captured_again(open_window, qtbot, tmp_path
     folder = tmp_path / "sm"
     win = open_window(config_path=str(quick_config(tmp_path / "station", "agebot-sm")))
     c = win.controller
+    setup = win.page(PageId.SETUP)
+    setup.set_choice("agebot-pm", "pm-fk")
+    assert not setup.rounds.isEnabled()              # the wrist always grows its box
+    setup.set_choice("agebot-sm", "sm-distance-tilt")
+    assert setup.rounds.isEnabled() and setup.rounds.isChecked()   # the default: rounds
+    setup.rounds.setChecked(False)                   # app.py run --one-shot
     connect(qtbot, win, folder, "agebot-sm", "sm-distance-tilt", 24)
+    assert not c.session.request.grow
     qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
     assert win.current == PageId.REFERENCE
     ref = win.page(PageId.REFERENCE)
@@ -53,6 +61,13 @@ def test_far_reference_is_warned_and_captured_again(open_window, qtbot, tmp_path
     refs = [line for line in (folder / "trace.jsonl").read_text().splitlines()
             if '"record":"reference"' in line.replace(" ", "")]
     assert len(refs) == 2
+    # without rounds the plan is every pose at once, no scout
+    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
+    plan = win.page(PageId.PLAN)
+    qtbot.waitUntil(lambda: plan.table.rowCount() > 24, timeout=TIMEOUT)
+    wait_idle(qtbot, c)
+    assert c.session.rounds is None and "scout" not in plan.counts.text()
+    assert plan.counts.text().startswith("24 poses to fit + ")
 
 
 def test_offline_failed_open_clears_the_page(qtbot, settings, answers, tmp_path):

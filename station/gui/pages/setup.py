@@ -5,14 +5,16 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from PySide6.QtWidgets import (QComboBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
-                               QLineEdit, QMessageBox, QPushButton, QSpinBox, QWidget)
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, QGroupBox,
+                               QHBoxLayout, QLineEdit, QMessageBox, QPushButton, QSpinBox,
+                               QWidget)
 
 from calibration.methods import METHODS
 from calibration.robots import get_robot
 from drivers.sim.serial_robot import is_robot_file
 from station.gui.controller import ROBOTS, summarize_folder
 from station.gui.pages.base import Page, error_text
+from station.arm_rounds import ROUND_METHODS
 from station.gui.widgets import BAD_COLOR, OK_COLOR, DeviceTable, note
 from station.planner import SESSION_METHODS, PlanRequest
 
@@ -141,6 +143,15 @@ class SetupPage(Page):
         self.count.setSpecialValueText("automatic (twice the minimum of eq. 60)")
         self.count.setMinimumWidth(280)
         form.addRow("&Poses to fit:", self.count)
+        # the arm's distance methods: rounds inside the live-watched envelope
+        # (station/arm_rounds.py), as app.py run does; unticked is its --one-shot
+        self.rounds = QCheckBox("Plan in rounds from the measured poses, and watch "
+                                "every move (recommended)")
+        self.rounds.setChecked(True)
+        self.rounds.setToolTip("Unticked: every pose planned at once from the start values, "
+                               "moves not watched (app.py run --one-shot); safe only where "
+                               "the start values are close to the robot")
+        form.addRow("", self.rounds)
         self.layout_.addWidget(box)
 
         self.connect_button = QPushButton("&Connect")
@@ -237,6 +248,9 @@ class SetupPage(Page):
 
     def _method_changed(self, *_):
         self.method_text.setText(METHOD_TEXT.get(self.method_name or "", ""))
+        if hasattr(self, "rounds"):      # the arm's rounds: AGEBOT's distance methods
+            self.rounds.setEnabled(self.robot_key == "agebot-sm"
+                                   and self.method_name in ROUND_METHODS)
 
     def _robot_from_config(self, path) -> None:
         try:
@@ -390,9 +404,7 @@ class SetupPage(Page):
         else:
             self.controller.config_path = self.config.text().strip()
             self.controller.endpoints_path = self.endpoints.text().strip() or None
-        # the arm's distance methods in rounds inside the live-watched envelope
-        # (station/arm_rounds.py), as app.py run does by default
-        request = PlanRequest(count=self.count.value() or None, grow=True)
+        request = PlanRequest(count=self.count.value() or None, grow=self.rounds.isChecked())
         self._connecting = True
         self.devices.clear_devices()
         self.update_missing()
