@@ -121,30 +121,42 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
     ref_qm = None if reference is None else np.array(reference["qm"])
     meas = simulate.measure(method, robot, xi_true, qm, reference_qm=ref_qm,
                             noise=meas_noise, rng=rng, mount=mount)
+    if method == "pm-fk" and components and "orientation" in meas:
+        meas["orientation"] = meas["orientation"][:, [("alpha", "beta", "gamma").index(c)
+                                                      for c in components]]
+    return header, reference, pose_records(qm, meas, group)
+
+
+def pose_records(qm, channels: dict, group=None) -> list[dict]:
+    """The trace's pose records: index, actuator values, the group where poses
+    come in groups, and each channel's reading (a number or a list)."""
     poses = []
     for i in range(len(qm)):
         rec = {"index": i, "qm": [float(v) for v in qm[i]]}
         if group is not None:
             rec["group"] = int(group[i])
-        for ch, arr in meas.items():
+        for ch, arr in channels.items():
             v = arr[i]
-            if method == "pm-fk" and ch == "orientation" and components:
-                idx = [("alpha", "beta", "gamma").index(c) for c in components]
-                v = v[idx]
             rec[ch] = v.tolist() if np.ndim(v) else float(v)
         poses.append(rec)
-    return header, reference, poses
+    return poses
+
+
+def attempts(count: int, message: str):
+    """Up to 400 tries per wanted pose, then :class:`CalibrationError` ``message``
+    (``for _ in attempts(n, why):`` with a break once there are enough)."""
+    for _ in range(400 * count):
+        yield
+    raise CalibrationError(message)
 
 
 def _pairs(robot, xi_true, box, count, rng):
     """sm-self-redundancy: ``count`` pairs touching one (x, y) with phi about
     -12 and +12 degrees (the true robot really touches the same point)."""
     qm, group = [], []
-    draws = 0
-    while len(group) < 2 * count:
-        draws += 1
-        if draws > 400 * count:
-            raise CalibrationError("cannot find enough reachable pose pairs")
+    for _ in attempts(count, "cannot find enough reachable pose pairs"):
+        if len(group) >= 2 * count:
+            break
         X = rng.uniform(box[:, 0], box[:, 1])
         X1, X2 = X.copy(), X.copy()
         X1[3] = rng.uniform(math.radians(-20), math.radians(-5))
@@ -164,11 +176,9 @@ def _plane_contacts(robot, xi_true, plane, box, count, rng):
     a = np.asarray(plane, dtype=float)
     k = int(np.argmax(np.abs(a)))
     qm = []
-    draws = 0
-    while len(qm) < count:
-        draws += 1
-        if draws > 400 * count:
-            raise CalibrationError("the plane crosses too little of the reachable workspace")
+    for _ in attempts(count, "the plane crosses too little of the reachable workspace"):
+        if len(qm) >= count:
+            break
         X = rng.uniform(box[:, 0], box[:, 1])
         rest = [i for i in range(3) if i != k]
         X[k] = -(1.0 + a[rest] @ X[rest]) / a[k]

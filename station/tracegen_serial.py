@@ -18,6 +18,7 @@ from calibration.methods.sm_plane import PLANE
 from calibration.robots import get_robot
 from calibration.robots.agebot_pm import gravity_tilt
 from station.trace import write_trace
+from station.tracegen import attempts, pose_records
 
 # rows per pose of each method on a robot file (eq. 60's p)
 ROWS = {"sm-full-pose": 6, "sm-position": 3, "sm-distance": 1, "sm-distance-tilt": 3,
@@ -95,27 +96,16 @@ def generate(robot, method: str, truth_xi, *, nominal=None, noise=None, seed=0, 
     for name in known:
         if name not in PLANE:
             header["nominal"][name] = float(xi[robot.index(name)])
-    poses = []
-    for i in range(m):
-        rec = {"index": i, "qm": [float(v) for v in qm[i]]}
-        if group is not None:
-            rec["group"] = int(group[i])
-        for ch, arr in channels.items():
-            v = arr[i]
-            rec[ch] = v.tolist() if np.ndim(v) else float(v)
-        poses.append(rec)
-    return header, reference, poses
+    return header, reference, pose_records(qm, channels, group)
 
 
 def _groups(robot, xi, count, rng, spread: float = 0.1):
     """sm-self-redundancy: ``count`` pairs of poses at one true tool position; the
     second pose starts up to ``spread`` of each joint's range away and moves back to it."""
     qm, group = [], []
-    draws = 0
-    while len(group) < 2 * count:
-        draws += 1
-        if draws > 400 * count:
-            raise CalibrationError("cannot find enough pose pairs within the limits")
+    for _ in attempts(count, "cannot find enough pose pairs within the limits"):
+        if len(group) >= 2 * count:
+            break
         q1 = _draw(robot, rng, 1)[0]
         start = q1 + rng.uniform(-spread, spread, size=q1.size) * np.ptp(robot.limits, axis=1)
         try:
@@ -137,11 +127,9 @@ def _contacts(robot, xi, plane, count, rng):
         plane = -n / float(n @ c)
     a = np.asarray(plane, dtype=float)
     qm = []
-    draws = 0
-    while len(qm) < count:
-        draws += 1
-        if draws > 400 * count:
-            raise CalibrationError("the plane crosses too little of the reachable workspace")
+    for _ in attempts(count, "the plane crosses too little of the reachable workspace"):
+        if len(qm) >= count:
+            break
         q = _draw(robot, rng, 1)[0]
         p = robot.frames(q, xi)[0, :3, 3]
         p = p - (a @ p + 1.0) * a / (a @ a)
