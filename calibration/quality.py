@@ -48,19 +48,39 @@ class Outlier:
     threshold: float
 
 
+def _scaled_svd(W: np.ndarray, weights: np.ndarray, active: np.ndarray):
+    """Column norms and the thin SVD (rank from the singular values) of the
+    weighted, column-scaled ``A = sqrt(w) W_R / norms``."""
+    A = W[:, active] * np.sqrt(weights)[:, None]
+    norms = np.linalg.norm(A, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    U, sv, Vt = np.linalg.svd(A / norms, full_matrices=False)
+    keep = sv > sv[0] * 1e-10 if sv.size and sv[0] > 0 else np.zeros(sv.size, bool)
+    return norms, U[:, keep], sv[keep], Vt[keep]
+
+
 def leverage(W: np.ndarray, weights: np.ndarray, active: np.ndarray) -> np.ndarray:
     """Diagonal of the weighted hat matrix ``A (A^T A)^+ A^T``, ``A = sqrt(w) W_R``
     (columns scaled first; rank from the singular values)."""
-    WA = W[:, active]
-    if WA.shape[1] == 0:
+    if not np.any(active):
         return np.zeros(W.shape[0])
-    A = WA * np.sqrt(weights)[:, None]
-    norms = np.linalg.norm(A, axis=0)
-    A = A / np.where(norms > 0, norms, 1.0)
-    U, sv, _ = np.linalg.svd(A, full_matrices=False)
-    keep = sv > sv[0] * 1e-10 if sv.size and sv[0] > 0 else np.zeros(sv.size, bool)
-    U = U[:, keep]
+    U = _scaled_svd(W, weights, active)[1]
     return np.einsum("ij,ij->i", U, U)
+
+
+def prediction_leverage(W: np.ndarray, weights: np.ndarray, active: np.ndarray,
+                        W_new: np.ndarray, weights_new: np.ndarray) -> np.ndarray:
+    """For rows not in the fit (held out, or left out of it): ``w J (A^T A)^+ J^T``
+    with ``A = sqrt(w) W_R`` of the fit's rows, the variance of the row's prediction
+    from the fitted parameters in units of the row's own noise variance. A fit
+    row's leverage ``h`` is this ``h / (1 - h)`` from the fit without it."""
+    W_new = np.atleast_2d(np.asarray(W_new, dtype=float))
+    if not np.any(active):
+        return np.zeros(W_new.shape[0])
+    norms, _, sv, Vt = _scaled_svd(W, weights, active)
+    B = W_new[:, active] * np.sqrt(weights_new)[:, None] / norms
+    Z = (B @ Vt.T) / sv
+    return np.einsum("ij,ij->i", Z, Z)
 
 
 def row_weights(row_channel, channels, sigma: dict) -> np.ndarray:
@@ -100,6 +120,42 @@ def worst_row(r, h, row_channel, channels, *, testable=None,
     if not t[i] > thr:
         return None, n_test
     return Outlier(i, channels[rc[i]], float(r[i]), float(t[i]), thr), n_test
+
+
+def channel_noise(r, h, row_channel, n_channels: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per channel of the fit: the noise variance estimate ``RSS_c / dof_c`` and
+    ``dof_c`` (:func:`channel_dof`)."""
+    r = np.asarray(r, dtype=float)
+    rc = np.asarray(row_channel)
+    dof = channel_dof(rc, n_channels, h)
+    rss = np.bincount(rc, weights=r * r, minlength=n_channels)
+    return rss / np.maximum(dof, 1e-300), dof
+
+
+def worst_prediction(e, h_new, row_channel_new, s2, dof, channels, *,
+                     alpha: float = OUTLIER_ALPHA) -> tuple[Outlier | None, int]:
+    """Rows not in the fit (held out): each row's prediction error ``e`` against
+    its own std, ``t = |e| / (s_c sqrt(1 + h_new))`` (noise plus the fitted
+    parameters' uncertainty, :func:`prediction_leverage`; ``s_c^2, dof_c`` of
+    the fit, :func:`channel_noise`), which follows Student's t with ``dof_c``
+    degrees of freedom (the externally studentized residual of :func:`worst_row`
+    is this statistic for a fit row left out). The row with the smallest p-value,
+    if below the Bonferroni level ``alpha / rows tested``; and the rows tested."""
+    e = np.asarray(e, dtype=float)
+    rc = np.asarray(row_channel_new)
+    d = np.asarray(dof, dtype=float)[rc]
+    var = np.asarray(s2, dtype=float)[rc] * (1 + np.asarray(h_new, dtype=float))
+    ok = (d > 3) & np.isfinite(e) & np.isfinite(var) & (var > 0)
+    n_test = int(ok.sum())
+    if n_test == 0:
+        return None, 0
+    t = np.where(ok, np.abs(e) / np.sqrt(np.where(ok, var, 1.0)), 0.0)
+    logp = np.where(ok, stats.t.logsf(t, np.where(ok, d, 4.0)), 0.0)
+    i = int(np.argmin(logp))
+    if not logp[i] < math.log(alpha / (2 * n_test)):
+        return None, n_test
+    thr = float(stats.t.isf(alpha / (2 * n_test), d[i]))
+    return Outlier(i, channels[rc[i]], float(e[i]), float(t[i]), thr), n_test
 
 
 def chi_square(r, h, row_channel, channels, sigma_stated: dict,

@@ -8,7 +8,10 @@
 2. Noise: per channel with a stated ``sigma`` (trace header), the residual must
    fit that noise (chi-square, upper tail).
 3. Validation: where the trace holds held-out poses, the calibrated parameters
-   must not predict them worse than the start values did.
+   must not predict them worse than the start values did, and no held-out
+   reading may be beyond its own prediction std (noise plus the parameters'
+   uncertainty, Bonferroni over the held-out rows:
+   :func:`calibration.quality.worst_prediction`).
 4. Spread: the fit poses must hold enough distinct poses for the identifiable
    parameters (eq. 60), and the method must identify what a well-spread set of
    poses identifies (:data:`station.planner.NR_P`).
@@ -358,6 +361,17 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
                           f"{'went' if ok else 'is worse than the start:'} {before:.4g} -> "
                           f"{after:.4g} {v['unit']}", channel=v["channel"],
                           rms_before=before, rms_after=after)
+        for v in validation:
+            o = v.get("outlier")
+            if o:
+                where = f"pose {o['pose']}" if o.get("pose") is not None else "a held-out pose"
+                quality.check("validation", False,
+                              f"validation: held-out {where} {v['channel']} is {o['residual']:.4g} "
+                              f"{v['unit']} off the calibration's prediction, {o['t']:.3g} times "
+                              f"its predicted std {o['std']:.3g} {v['unit']} (threshold "
+                              f"{o['threshold']:.3g} over {o['rows_tested']} held-out rows): a bad "
+                              "reading or a model that does not predict; check that pose's "
+                              "reading", channel=v["channel"], heldout=dict(o))
     return quality, trace, model, result, validation
 
 

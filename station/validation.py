@@ -1,12 +1,17 @@
 """Held-out validation: how well a calibration predicts poses it was not fitted to.
 
 Per measured channel, RMS and max |error| of the trace's held-out poses
-(``use = "validation"``) before calibration and after, in the channel's unit.
+(``use = "validation"``) before calibration and after, in the channel's unit;
+and each held-out reading against its own prediction std (noise plus the fitted
+parameters' uncertainty, :func:`calibration.quality.worst_prediction`): the most
+significant one beyond the Bonferroni threshold is named as ``outlier`` in its
+channel's record (the gate refuses the fit then).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from calibration import quality as q
 from calibration.errors import CalibrationError
 from calibration.methods import build, extra_params
 from station.batch import BatchOutcome
@@ -32,7 +37,9 @@ def validation_errors(outcome: BatchOutcome) -> list[dict]:
         opts["plane_given"] = True
     model = build(trace.method, robot, data, outcome.result.x, **opts)
     out = []
-    after = _in_metres(trace.method, model.evaluate(outcome.result.x)[0], outcome.result.x, robot)
+    raw, W = model.evaluate(outcome.result.x)
+    after = _in_metres(trace.method, raw, outcome.result.x, robot)
+    worst = heldout_outlier(outcome, model, raw, W)
     try:
         before = _in_metres(trace.method, model.evaluate(x_before)[0], x_before, robot)
         before_note = ""
@@ -49,8 +56,51 @@ def validation_errors(outcome: BatchOutcome) -> list[dict]:
                        max_before=float(np.abs(b).max()))
         else:
             rec.update(rms_before=None, max_before=None, note=before_note)
+        if worst is not None and worst[0].channel == ch:
+            o, n_test = worst
+            rp = _row_pose(model)
+            pose = None if rp is None else int(trace.validation_poses[int(rp[o.row])]["index"])
+            rec["outlier"] = {"pose": pose, "residual": float(after[o.row]),
+                              "std": float(abs(after[o.row]) / o.t), "t": o.t,
+                              "threshold": o.threshold, "rows_tested": n_test}
         out.append(rec)
     return out
+
+
+def heldout_outlier(outcome: BatchOutcome, model, raw, W) -> tuple | None:
+    """The held-out row (of ``model``, the validation poses' model; ``raw, W`` its
+    residual and Jacobian at the solution) whose prediction error is most
+    significant against its prediction std, if beyond the Bonferroni threshold
+    over the held-out rows: ``(Outlier, rows tested)`` with the row of ``model``;
+    else None. The noise and the parameters' covariance are the fit's."""
+    fit, result = outcome.model, outcome.result
+    r_fit, W_fit = fit.evaluate(result.x)
+    channels = tuple(fit.channels)
+    active = np.array([s.identifiable for s in result.status])
+    w_fit = q.row_weights(fit.row_channel, channels, result.sigma)
+    h_fit = q.leverage(W_fit, w_fit, active)
+    s2, dof = q.channel_noise(r_fit, h_fit, fit.row_channel, len(channels))
+    if any(ch not in channels for ch in model.channels):
+        return None
+    rc = np.array([channels.index(model.channels[k]) for k in model.row_channel], dtype=int)
+    # the validation model's columns in the fit's order (a parameter it does not
+    # free, sm-plane's given plane, adds no uncertainty to the prediction)
+    W_new = np.zeros((len(raw), len(result.names)))
+    for j, name in enumerate(model.names):
+        if name in result.names:
+            W_new[:, result.names.index(name)] = W[:, j]
+    h_new = q.prediction_leverage(W_fit, w_fit, active, W_new,
+                                  q.row_weights(rc, channels, result.sigma))
+    o, n_test = q.worst_prediction(raw, h_new, rc, s2, dof, channels)
+    if o is None:
+        return None
+    return o, n_test
+
+
+def _row_pose(model) -> np.ndarray | None:
+    from station.gate import row_poses
+
+    return row_poses(model)
 
 
 def _in_metres(method: str, residual, x, robot):
