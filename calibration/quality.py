@@ -13,6 +13,12 @@ Pure numerics (no I/O); :mod:`station.batch` runs the gate with them.
   Leaving the row out of the noise estimate keeps a gross reading from hiding
   itself by inflating the estimated sigma, and it does not trust a stated sigma
   (that is the consistency test's business).
+* Held-out rows (not in the fit): the prediction error over its own std,
+  ``t = e / (s_c sqrt(1 + h))`` with ``h = w J (A^T A)^+ J^T`` the fitted
+  parameters' uncertainty at the row in units of its noise and ``s_c^2 =
+  RSS_c / dof_c`` of the fit; Student's t with ``dof_c`` degrees of freedom,
+  Bonferroni over the held-out rows. A fit row's externally studentized
+  residual is this statistic for the row left out of the fit.
 * Consistency: per channel with a stated sigma, ``RSS_c / sigma_c^2`` against
   chi-square with ``dof_c`` degrees of freedom (upper tail).
 * Spread: the number of distinct poses (actuator values).
@@ -132,24 +138,40 @@ def channel_noise(r, h, row_channel, n_channels: int) -> tuple[np.ndarray, np.nd
     return rss / np.maximum(dof, 1e-300), dof
 
 
-def worst_prediction(e, h_new, row_channel_new, s2, dof, channels, *,
+def prediction_std(model, result, W_new, row_channel_new) -> tuple[np.ndarray, np.ndarray]:
+    """For rows not in the fit of ``model`` (``result`` its solution; ``W_new`` their
+    Jacobian in the fit's columns, ``row_channel_new`` indices into the fit's
+    channels): the std of each row's prediction error, ``s_c sqrt(1 + h_new)``
+    (the channel's noise estimated from the fit's residuals, :func:`channel_noise`,
+    and the fitted parameters' uncertainty, :func:`prediction_leverage`), and its
+    degrees of freedom ``dof_c``."""
+    r, W = model.evaluate(result.x)
+    channels = tuple(model.channels)
+    active = np.array([s.identifiable for s in result.status])
+    w = row_weights(model.row_channel, channels, result.sigma)
+    s2, dof = channel_noise(r, leverage(W, w, active), model.row_channel, len(channels))
+    rc = np.asarray(row_channel_new, dtype=int)
+    h_new = prediction_leverage(W, w, active, W_new, row_weights(rc, channels, result.sigma))
+    return np.sqrt(s2[rc] * (1 + h_new)), dof[rc]
+
+
+def worst_prediction(e, std, dof, row_channel_new, channels, *,
                      alpha: float = OUTLIER_ALPHA) -> tuple[Outlier | None, int]:
-    """Rows not in the fit (held out): each row's prediction error ``e`` against
-    its own std, ``t = |e| / (s_c sqrt(1 + h_new))`` (noise plus the fitted
-    parameters' uncertainty, :func:`prediction_leverage`; ``s_c^2, dof_c`` of
-    the fit, :func:`channel_noise`), which follows Student's t with ``dof_c``
-    degrees of freedom (the externally studentized residual of :func:`worst_row`
-    is this statistic for a fit row left out). The row with the smallest p-value,
-    if below the Bonferroni level ``alpha / rows tested``; and the rows tested."""
+    """Rows not in the fit (held out): each row's prediction error ``e`` in its own
+    std (:func:`prediction_std`), ``t = |e| / std``, follows Student's t with the
+    channel's ``dof`` (the externally studentized residual of :func:`worst_row` is
+    this statistic for a fit row left out of the fit). The row with the smallest
+    p-value, if below the Bonferroni level ``alpha / rows tested`` (two-sided);
+    and the number of rows tested (those with ``dof > 3``)."""
     e = np.asarray(e, dtype=float)
     rc = np.asarray(row_channel_new)
-    d = np.asarray(dof, dtype=float)[rc]
-    var = np.asarray(s2, dtype=float)[rc] * (1 + np.asarray(h_new, dtype=float))
-    ok = (d > 3) & np.isfinite(e) & np.isfinite(var) & (var > 0)
+    d = np.asarray(dof, dtype=float)
+    sd = np.asarray(std, dtype=float)
+    ok = (d > 3) & np.isfinite(e) & np.isfinite(sd) & (sd > 0)
     n_test = int(ok.sum())
     if n_test == 0:
         return None, 0
-    t = np.where(ok, np.abs(e) / np.sqrt(np.where(ok, var, 1.0)), 0.0)
+    t = np.where(ok, np.abs(e) / np.where(ok, sd, 1.0), 0.0)
     logp = np.where(ok, stats.t.logsf(t, np.where(ok, d, 4.0)), 0.0)
     i = int(np.argmin(logp))
     if not logp[i] < math.log(alpha / (2 * n_test)):

@@ -217,7 +217,8 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate):
             return got
         got2 = run_gate(trace1, model2, result2, refit=refit, stated_sigma=stated_sigma,
                         validate=validate, outliers=quality.outliers)
-        if got2[0].passed:
+        if got2[0].passed or _lower(got2[2:4], got[2:4]):
+            # a lower minimum is the fit to judge (and to name what fails in it)
             got2[0].check("start", True, "start: the fit from the start values ended in a "
                           "local minimum; refitted from a robust fit's solution")
             return got2
@@ -247,23 +248,33 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate):
     return got2
 
 
+def _lower(a, b) -> bool:
+    """Does the fit ``a = (model, result)`` end lower than ``b`` on the same trace
+    (both residuals weighted with ``b``'s sigma)?"""
+    (ma, ra), (mb, rb) = a, b
+    w = q.row_weights(mb.row_channel, mb.channels, rb.sigma)
+    return float(np.sum(w * ra.residual ** 2)) < float(np.sum(w * rb.residual ** 2))
+
+
 # Refits of every pose from a better start that one run of the gate may make.
 MAX_RESTARTS = 3
 
 
-def _confirmed(model, result_without, worst: q.Outlier) -> bool:
+def _confirmed(model, model_without, result_without, worst: q.Outlier) -> bool:
     """Is the suspect reading also an outlier against the fit made without its pose
-    (its prediction error in that fit's noise, against the same threshold)?"""
+    (``model_without``, ``result_without``): its prediction error there in its own
+    std, the noise of that fit plus its parameters' uncertainty at that row
+    (:func:`calibration.quality.prediction_std`; a high-leverage row's prediction
+    is the less certain), against the same threshold?"""
     try:
-        r = model.evaluate(result_without.x)[0]
+        r, W = model.evaluate(result_without.x)
+        rc = np.asarray(model.row_channel)[[worst.row]]
+        std = q.prediction_std(model_without, result_without, W[[worst.row]], rc)[0][0]
     except CalibrationError:
         return True
-    k = list(model.channels).index(worst.channel)
-    rc = np.asarray(model.row_channel)
-    s = result_without.residual_rms.get(worst.channel)
-    if not s or not math.isfinite(s):
-        s = math.sqrt(float(np.mean(r[rc == k] ** 2)))
-    return abs(float(r[worst.row])) > worst.threshold * s
+    if not std > 0 or not math.isfinite(std):
+        return True
+    return abs(float(r[worst.row])) > worst.threshold * std
 
 
 def _statistics(model, result):
@@ -312,7 +323,7 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
                           f"(studentized residual {worst.t:.3g} > {worst.threshold:.3g}) and the "
                           f"fit without it fails: {e}", next=entry)
             break
-        if restarts < MAX_RESTARTS and not _confirmed(model, new_result, worst):
+        if restarts < MAX_RESTARTS and not _confirmed(model, new_model, new_result, worst):
             # the reading fits the fit made without it: the first fit was in a local
             # minimum, not thrown off by this reading; refit every pose from there
             try:

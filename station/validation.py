@@ -74,12 +74,7 @@ def heldout_outlier(outcome: BatchOutcome, model, raw, W) -> tuple | None:
     over the held-out rows: ``(Outlier, rows tested)`` with the row of ``model``;
     else None. The noise and the parameters' covariance are the fit's."""
     fit, result = outcome.model, outcome.result
-    r_fit, W_fit = fit.evaluate(result.x)
     channels = tuple(fit.channels)
-    active = np.array([s.identifiable for s in result.status])
-    w_fit = q.row_weights(fit.row_channel, channels, result.sigma)
-    h_fit = q.leverage(W_fit, w_fit, active)
-    s2, dof = q.channel_noise(r_fit, h_fit, fit.row_channel, len(channels))
     if any(ch not in channels for ch in model.channels):
         return None
     rc = np.array([channels.index(model.channels[k]) for k in model.row_channel], dtype=int)
@@ -89,12 +84,9 @@ def heldout_outlier(outcome: BatchOutcome, model, raw, W) -> tuple | None:
     for j, name in enumerate(model.names):
         if name in result.names:
             W_new[:, result.names.index(name)] = W[:, j]
-    h_new = q.prediction_leverage(W_fit, w_fit, active, W_new,
-                                  q.row_weights(rc, channels, result.sigma))
-    o, n_test = q.worst_prediction(raw, h_new, rc, s2, dof, channels)
-    if o is None:
-        return None
-    return o, n_test
+    std, dof = q.prediction_std(fit, result, W_new, rc)
+    o, n_test = q.worst_prediction(raw, std, dof, rc, channels)
+    return None if o is None else (o, n_test)
 
 
 def _row_pose(model) -> np.ndarray | None:

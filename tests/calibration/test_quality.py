@@ -75,3 +75,64 @@ def test_distinct_poses():
     qm = np.array([[1.0, 2.0], [1.0, 2.0], [1.0, 2.0 + 1e-9], [3.0, 4.0]])
     assert q.distinct_poses(qm) == 2
     assert q.distinct_poses(np.zeros((5, 4))) == 1
+
+
+def test_prediction_leverage_is_the_prediction_variance_of_rows_not_in_the_fit():
+    """``x (A^T A)^-1 x^T`` for new rows (weighted, columns of any scale); for a fit
+    row left out, h / (1 - h) of its leverage in the fit with it."""
+    rng = np.random.default_rng(4)
+    A, _ = _linear(rng, n=30, p=4)
+    A = A * np.array([1.0, 50.0, 1e-3, 7.0])
+    w = rng.uniform(0.5, 2.0, size=30)
+    active = np.ones(4, bool)
+    new = rng.normal(size=(5, 4)) * np.array([1.0, 50.0, 1e-3, 7.0])
+    w_new = rng.uniform(0.5, 2.0, size=5)
+    N = (A * w[:, None]).T @ A
+    want = w_new * np.einsum("ij,ji->i", new, np.linalg.solve(N, new.T))
+    got = q.prediction_leverage(A, w, active, new, w_new)
+    assert np.allclose(got, want, rtol=1e-9)
+    h = q.leverage(A, w, active)
+    out = q.prediction_leverage(np.delete(A, 7, 0), np.delete(w, 7), active, A[[7]], w[[7]])
+    assert np.isclose(out[0], h[7] / (1 - h[7]), rtol=1e-9)
+
+
+class _Fit:
+    """A linear fit as the gate sees it: ``evaluate``, channels, row_channel and a
+    result with ``x``, ``status`` and ``sigma``."""
+
+    def __init__(self, A, y):
+        self.A, self.y = A, y
+        self.channels = ("d",)
+        self.row_channel = np.zeros(len(y), dtype=int)
+        x, *_ = np.linalg.lstsq(A, y, rcond=None)
+        status = [type("S", (), {"identifiable": True})()] * A.shape[1]
+        self.result = type("R", (), {"x": x, "status": status, "sigma": {"d": 1.0}})()
+
+    def evaluate(self, x):
+        return self.y - self.A @ x, self.A
+
+
+def test_held_out_false_alarm_rate_is_the_bonferroni_alpha_with_extrapolated_rows():
+    """Held-out rows, some far outside the fit's (an extrapolation: the parameters'
+    uncertainty there is many times the noise): the family-wise rate of a row
+    refused at alpha = 0.05 is 0.05 at most and not far below. Against the noise
+    alone (no parameter uncertainty) the extrapolated rows would be refused far
+    more often."""
+    rng = np.random.default_rng(5)
+    trials, alarms, naive = 2000, 0, 0
+    for _ in range(trials):
+        A = rng.normal(size=(25, 4))
+        new = rng.normal(size=(6, 4)) * np.array([1, 1, 1, 1, 6, 6])[:, None]
+        x_true = rng.normal(size=4)
+        fit = _Fit(A, A @ x_true + rng.normal(scale=1e-3, size=25))
+        e = new @ (x_true - fit.result.x) + rng.normal(scale=1e-3, size=6)
+        std, dof = q.prediction_std(fit, fit.result, new, np.zeros(6, int))
+        worst, n_test = q.worst_prediction(e, std, dof, np.zeros(6, int), ("d",), alpha=0.05)
+        assert n_test == 6 and np.allclose(dof, 21)
+        alarms += worst is not None
+        s = np.sqrt(np.sum(fit.evaluate(fit.result.x)[0] ** 2) / 21)
+        naive += q.worst_prediction(e, np.full(6, s), dof, np.zeros(6, int), ("d",),
+                                    alpha=0.05)[0] is not None
+    print(f"refused: {alarms / trials:.3f}; against the noise alone {naive / trials:.3f}")
+    assert 0.02 <= alarms / trials <= 0.06, alarms / trials      # rows correlated: below alpha
+    assert naive / trials > 0.2, naive / trials
