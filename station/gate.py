@@ -14,7 +14,7 @@
    :func:`calibration.quality.worst_prediction`).
 4. Spread: the fit poses must hold enough distinct poses for the identifiable
    parameters (eq. 60), and the method must identify what a well-spread set of
-   poses identifies (:data:`station.planner.NR_P`).
+   poses identifies (:func:`station.planner.parameter_count`).
 
 A failed gate raises :class:`FitQualityError` (with the outcome, so that a GUI
 can still show it) unless the operator accepts the fit explicitly; the result
@@ -177,12 +177,13 @@ def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | Non
 def check_spread(trace, model) -> None:
     """Before fitting: refuse a set of poses with fewer distinct poses than eq. 60
     asks for the parameters the method identifies (e.g. all poses identical)."""
-    from station.planner import NR_P
+    from station.planner import NR_P, parameter_count
 
     qm = getattr(model, "qm", None)
     if qm is None or trace.method not in NR_P or "robot_file" in trace.header:
         return    # NR_P counts AGEBOT's parameters
-    need = min(ident.minimum_poses(NR_P[trace.method][0], model.p), model.n_poses)
+    need = min(ident.minimum_poses(parameter_count(trace.method, trace.distance_zero), model.p),
+               model.n_poses)
     distinct = q.distinct_poses(qm)
     if distinct < need:
         raise FitQualityError(f"the fit failed the quality gate: poses: only {distinct} distinct "
@@ -387,7 +388,7 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
 
 
 def _spread(quality, trace, model, result) -> None:
-    from station.planner import NR_P
+    from station.planner import NR_P, parameter_count
 
     qm = getattr(model, "qm", None)
     if qm is None:
@@ -395,7 +396,8 @@ def _spread(quality, trace, model, result) -> None:
     distinct = q.distinct_poses(qm)
     n_id = result.n_identifiable
     need = ident.minimum_poses(n_id, model.p)
-    expected = NR_P.get(trace.method, (n_id,))[0]
+    expected = (parameter_count(trace.method, trace.distance_zero) if trace.method in NR_P
+                else n_id)
     if "robot_file" in trace.header:
         expected = n_id    # NR_P counts AGEBOT's parameters
     if trace.method == "pm-fk" and trace.header.get("components"):

@@ -29,6 +29,7 @@ from calibration import planning
 from calibration.errors import CalibrationError, UnreachablePose
 from calibration.identifiability import minimum_poses
 from calibration.methods import METHODS
+from calibration.methods.sm_distance import zero_names
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import BUILTIN, get_robot
 
@@ -36,7 +37,9 @@ from calibration.robots import BUILTIN, get_robot
 SM_REFERENCE_POINT = np.array([1.0, 1.0, 0.0, 0.2])   # relative to the base offset
 SM_BASE_ORIGIN = np.array([0.5, 1.0, 0.8, 0.0])       # absolute, elbow -1
 # N_R and p of each method (brief section 3) for the pose count of eq. 60; for
-# sm-self-redundancy a "pose" of eq. 60 is a pair (its p = 2 rows dx, dy)
+# sm-self-redundancy a "pose" of eq. 60 is a pair (its p = 2 rows dx, dy). The
+# brief's N_R counts the robot's parameters only: :func:`parameter_count` adds the
+# draw-wire's zero offset where the method calibrates it.
 NR_P = {"sm-distance": (9, 1), "sm-distance-tilt": (13, 2), "pm-ik": (8, 3), "pm-fk": (8, 3),
         "pm-tilt": (10, 2), "sm-self-redundancy": (7, 2), "sm-plane": (10, 1),
         "sm-full-pose": (13, 4)}
@@ -51,6 +54,9 @@ PLANE = ("plane_a", "plane_b", "plane_c")
 TOUCH_STANDOFF = 0.02         # m: sm-plane approach poses this far from the rough plane
 PAIR_PHI_DEG = (8.0, 16.0)    # sm-self-redundancy: |phi| of a pair's two poses, degrees
 PM_SCOUT_COUNT = 12
+# a session's draw-wire zero is one reading (station.session.capture_reference):
+# the distance methods calibrate ``distance_off`` there
+SESSION_ZERO = "reading"
 
 
 @dataclass(frozen=True)
@@ -127,11 +133,23 @@ def touch_instructions(method: str) -> str:
     return ""
 
 
-def minimum_count(method: str, components=None) -> int:
-    nr, p = NR_P[method]
+def parameter_count(method: str, distance_zero: str = SESSION_ZERO) -> int:
+    """N_R of eq. 60 for ``method`` on AGEBOT: the parameters a well-spread set of
+    poses identifies, the brief's (:data:`NR_P`) plus the method's draw-wire zero
+    offset where the zero is a reading (:func:`calibration.methods.sm_distance.zero_names`)."""
+    nr = NR_P[method][0]
+    if "distance" in METHODS[method].channels:
+        nr += len(zero_names(distance_zero))
+    return nr
+
+
+def minimum_count(method: str, components=None, distance_zero: str = SESSION_ZERO) -> int:
+    """Eq. 60's minimum pose count of ``method`` (a session's by default; a trace
+    passes its reference's ``zero``)."""
+    p = NR_P[method][1]
     if method == "pm-fk" and components:
         p = len(components)
-    return minimum_poses(nr, p)
+    return minimum_poses(parameter_count(method, distance_zero), p)
 
 
 def reference_pose(method: str, nominal) -> tuple[np.ndarray | None, str | None, str]:

@@ -116,9 +116,14 @@ class Trace:
             group = np.array([p.get("group", -1) for p in poses])
         ref = None if self.reference is None else np.array(self.reference["qm"], dtype=float)
         comps = self.header.get("components")
-        zero = "exact" if self.reference is None else self.reference.get("zero", "exact")
         return MethodData(qm=qm, channels=channels, group=group, reference_qm=ref,
-                          components=tuple(comps) if comps else None, distance_zero=zero)
+                          components=tuple(comps) if comps else None,
+                          distance_zero=self.distance_zero)
+
+    @property
+    def distance_zero(self) -> str:
+        """The draw-wire's zero at the reference: ``"exact"`` or ``"reading"``."""
+        return "exact" if self.reference is None else self.reference.get("zero", "exact")
 
 
 # -- reading ------------------------------------------------------------------------

@@ -49,7 +49,7 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
     nom = robot.nominal.copy() if nominal is None else np.asarray(nominal, dtype=float)
     rng = np.random.default_rng(seed)
     noise = dict(noise or {})
-    count = count or minimum_count(method, components)
+    count = count or minimum_count(method, components, distance_zero="exact")   # its zero is exact
     if design not in pose_design.DESIGNS:
         raise CalibrationError(f"unknown design {design!r} (known: "
                                f"{', '.join(pose_design.DESIGNS)})")

@@ -235,3 +235,33 @@ def test_false_alarm_rate_on_clean_traces(tmp_path):
             lost.append(seed)
         os.unlink(path)
     assert len(lost) <= 1, lost
+
+
+@pytest.mark.parametrize("method, n_r, minimum", [("sm-distance-tilt", 14, 35),
+                                                   ("sm-distance", 10, 50)])
+def test_the_plans_eq60_minimum_is_the_gates(tmp_path, method, n_r, minimum):
+    """A session's trace (its draw-wire zero a reading: distance_off calibrated):
+    the planner's eq. 60 minimum is the one the gate checks (the plan said 33 for
+    sm-distance-tilt where the gate asked for 35); a trace with an exact zero keeps
+    the brief's N_R."""
+    from calibration.identifiability import minimum_poses
+    from station.planner import minimum_count, parameter_count
+
+    def zero_is_a_reading(path):
+        lines = open(path).read().splitlines()
+        ref = json.loads(lines[1])
+        ref["zero"] = "reading"
+        with open(path, "w") as f:
+            f.write("\n".join([lines[0], json.dumps(ref)] + lines[2:]) + "\n")
+
+    noise = NOISE if method == "sm-distance-tilt" else {"distance": NOISE["distance"]}
+    path, _, _ = make_trace(tmp_path, 5, method=method, noise=noise, count=minimum + 4)
+    zero_is_a_reading(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        outcome = calibrate(read_trace(path))
+    poses = next(c for c in outcome.quality.checks if c["check"] == "poses")
+    assert poses["ok"] and poses["identifiable"] == poses["expected_identifiable"] == n_r
+    assert parameter_count(method) == n_r
+    assert minimum_count(method) == minimum_poses(poses["identifiable"], outcome.model.p) == minimum
+    assert minimum_count(method, distance_zero="exact") == minimum_poses(n_r - 1, outcome.model.p)
