@@ -19,8 +19,10 @@ Two parts:
 
 ``--sample N`` scores N mutants drawn at random (``--seed``) from the module's mutants
 and reports the score with its 95 % Clopper-Pearson interval: a sample's
-score, not the module's. ``--tests`` replaces the module's test list (e.g. the
-tests as they were before, for a "before" figure on the same mutants).
+score, not the module's. ``--tests`` replaces the module's test list (files or pytest node ids), and
+``--tests-at REV`` takes the tests/ folder as it was at git commit REV (on
+today's code): a "before" figure on the same mutants. ``--time-limit X`` bounds a mutant's CPU time to 2 X
+(its tests' time + 1 s), a timeout counting as killed.
 
 Children: one (``--jobs``), because the machine is small and shared. The
 scratch copies live under ``--work`` (default ``$TMPDIR/calstation-mutation``);
@@ -130,15 +132,24 @@ def _existing(patterns) -> list[str]:
 
 
 def run_module(name: str, work: Path, jobs: int, keep: bool, sample: int = 0, seed: int = 0,
-               tests=None) -> dict:
+               tests=None, tests_at: str | None = None, time_limit: float = 15.0) -> dict:
     files, module_tests, names = MODULES[name]
-    files, tests = _existing(files), _existing(tests or module_tests)
+    tests = tests or module_tests
+    files = _existing(files)
     if not files:
         return {"module": name, "error": "no such files"}
     scratch = work / name
     if scratch.exists() and not keep:
         shutil.rmtree(scratch)
     _copy_tree(scratch)
+    if tests_at:  # the tests/ folder as it was at that commit, on today's code
+        shutil.rmtree(scratch / "tests")
+        tar = subprocess.run(["git", "archive", tests_at, "tests"], cwd=ROOT, capture_output=True)
+        if tar.returncode:
+            return {"module": name, "error": f"git archive {tests_at}: {tar.stderr.decode().strip()}"}
+        subprocess.run(["tar", "-x"], cwd=scratch, input=tar.stdout, check=True)
+    else:
+        tests = _existing(tests)
     base = (ROOT / "pyproject.toml").read_text()
     base = base.split("\n[tool.mutmut]")[0]
     (scratch / "pyproject.toml").write_text(
@@ -147,6 +158,8 @@ def run_module(name: str, work: Path, jobs: int, keep: bool, sample: int = 0, se
         f"only_mutate = {_toml_list(files)}\n"
         f'also_copy = ["fixtures"]\n'
         f"pytest_add_cli_args_test_selection = {_toml_list(tests)}\n"
+        # a mutant's CPU-time limit: 2 x this x (its tests' time + 1 s)
+        f"timeout_multiplier = {time_limit}\n"
         )
     # the folder on PYTHONPATH must exist before Python starts, or its importer
     # caches it as missing (subprocesses of the tests import the mutants from it)
@@ -154,7 +167,7 @@ def run_module(name: str, work: Path, jobs: int, keep: bool, sample: int = 0, se
     cmd = [sys.executable, "-m", "mutmut", "run", "--max-children", str(jobs)]
     t0 = time.monotonic()
     log = scratch / "mutmut.log"
-    out = {"module": name, "files": files, "tests": tests}
+    out = {"module": name, "files": files, "tests": tests, "tests_at": tests_at}
     if sample:
         # mutmut generates every mutant (and learns which test runs which function)
         # before it filters by name; a name that matches nothing stops it there
@@ -266,6 +279,10 @@ def main(argv=None) -> int:
                     help="score N mutants drawn at random (a sample, with its 95%% interval)")
     ap.add_argument("--seed", type=int, default=0, help="the sample's seed (default 0)")
     ap.add_argument("--tests", nargs="+", help="run these tests instead of the module's list")
+    ap.add_argument("--tests-at", metavar="REV",
+                    help="the tests/ folder as it was at git commit REV (a 'before' figure)")
+    ap.add_argument("--time-limit", type=float, default=15.0, metavar="X",
+                    help="a mutant's CPU-time limit: 2 X (its tests' time + 1 s); default 15")
     a = ap.parse_args(argv)
     if a.list:
         for name, (files, tests, names) in MODULES.items():
@@ -291,7 +308,8 @@ def main(argv=None) -> int:
         print(f"{'module':16s} {'mutants':>7s} {'killed':>6s} {'survived':>8s} {'no tests':>8s} "
               f"{'timeout':>7s} {'score':>6s} {'time':>6s}")
     for m in mods:
-        r = run_module(m, a.work, a.jobs, a.keep, a.sample, a.seed, a.tests)
+        r = run_module(m, a.work, a.jobs, a.keep, a.sample, a.seed, a.tests, a.tests_at,
+                       a.time_limit)
         report[m] = r
         if "error" in r:
             print(f"{m:16s} error: {r['error']}")

@@ -20,6 +20,12 @@ these steps must come before the next measurement:
                        the fault is cleared (poses skipped for lack of contact in
                        guided touching stay skipped, with their pair partners).
 
+Which poses are done and which remain comes from the trace too: :func:`restore`
+replays its plan events (:func:`recorded_plan`), its pose records and its skips
+into a :class:`Restored` state, :func:`pending` lists what remains to measure, and
+:func:`finished` tells a session measured and exported (left as it is) from one
+to go on with.
+
 :meth:`station.session.Session.run` (headless) and the GUI's controller both ask
 :meth:`Session.redo <station.session.Session.redo>`; :meth:`Session.execute`
 re-zeroes itself when :func:`redo` says so, so no caller can measure distances
@@ -27,9 +33,12 @@ against a lost zero.
 """
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+
+from station.planner import PlannedPose
 
 # why a pose was skipped (the ``reason`` of a ``skip`` event); DROPPED: a wrist round
 # dropped and re-planned because the model missed the measured orientation (final)
@@ -105,3 +114,70 @@ def unstarted(trace_path: Path) -> bool:
         return False
     os.unlink(trace_path)
     return True
+
+
+def recorded_plan(trace) -> tuple[list[PlannedPose], set[int], dict[int, dict]]:
+    """What a trace says of its session's plan: the planned poses (``plan`` events, a
+    replacing one dropping those before it), the skipped plan indices and the measured
+    pose records by plan index."""
+    plan: list[PlannedPose] = []
+    skipped: set[int] = set()
+    for ev in trace.events:
+        if ev.get("kind") == "plan":
+            poses = [PlannedPose.from_record(r) for r in ev.get("poses", ())]
+            plan = poses if ev.get("replace", True) else plan + poses
+        elif ev.get("kind") == "skip" and "plan_index" in ev:
+            skipped.add(int(ev["plan_index"]))
+    measured = {int(p["plan_index"]): p for p in trace.poses if "plan_index" in p}
+    return plan, skipped, measured
+
+
+@dataclass(frozen=True)
+class Restored:
+    """A resumed session's poses, from its trace (:func:`restore`)."""
+
+    plan: list           # the planned poses (PlannedPose), in plan order
+    measured: dict       # plan index -> pose record
+    skipped: set         # plan indices skipped for good (no contact, dropped)
+    remeasure: set       # plan indices skipped for a fault: measured again
+    next_index: int      # the next pose record's index
+
+
+def restore(trace) -> Restored:
+    """Which poses of ``trace``'s session are done, skipped for good or to be measured
+    again, and the index its next pose record takes."""
+    plan, skipped, measured = recorded_plan(trace)
+    again = remeasurable(trace.events, measured)
+    nxt = (int(trace.poses[-1]["index"]) + 1) if trace.poses else 0
+    return Restored(plan, measured, skipped - again, again, nxt)
+
+
+def pending(plan, measured, skipped, held=()) -> list:
+    """The planned poses still to measure: neither recorded, nor skipped, nor touched
+    and held for their pair (in plan order)."""
+    return [p for p in plan if p.index not in measured and p.index not in skipped
+            and p.index not in held]
+
+
+def reported_since_last_pose(trace_path: Path) -> bool:
+    """The trace ends with its report written: a ``report`` event after its last pose,
+    skip or plan record (a line that is not JSON, a crash's half line, is passed over)."""
+    last_pose = last_report = -1
+    with open(trace_path, encoding="utf-8") as f:
+        for n, line in enumerate(f):
+            try:
+                rec = json.loads(line)
+            except ValueError:
+                continue
+            if rec.get("record") == "pose" or rec.get("kind") in ("skip", "plan"):
+                last_pose = n
+            elif rec.get("kind") == "report":
+                last_report = n
+    return last_report > last_pose
+
+
+def finished(trace_path: Path, pending_poses, outputs) -> bool:
+    """A session measured and exported: nothing pending, its report recorded after its
+    last pose and every file of ``outputs`` (parameter file, report) written."""
+    return (not pending_poses and reported_since_last_pose(trace_path)
+            and all(Path(f).is_file() for f in outputs))

@@ -38,7 +38,6 @@ called from that worker thread.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import math
 import threading
@@ -125,22 +124,6 @@ def retry_then_skip(retries: int = 3) -> FaultPolicy:
     def policy(pose, error, attempt):
         return "retry" if attempt < retries else "skip"
     return policy
-
-
-def recorded_plan(trace) -> tuple[list[PlannedPose], set[int], dict[int, dict]]:
-    """What a trace says of its session's plan: the planned poses (``plan`` events, a
-    replacing one dropping those before it), the skipped plan indices and the measured
-    pose records by plan index."""
-    plan: list[PlannedPose] = []
-    skipped: set[int] = set()
-    for ev in trace.events:
-        if ev.get("kind") == "plan":
-            poses = [PlannedPose.from_record(r) for r in ev.get("poses", ())]
-            plan = poses if ev.get("replace", True) else plan + poses
-        elif ev.get("kind") == "skip" and "plan_index" in ev:
-            skipped.add(int(ev["plan_index"]))
-    measured = {int(p["plan_index"]): p for p in trace.poses if "plan_index" in p}
-    return plan, skipped, measured
 
 
 class Session:
@@ -257,35 +240,19 @@ class Session:
             if ev.get("kind") == "plan":
                 rec = ev.get("design") or (ev.get("wrist") or {}).get("design")
                 self.last_design = rec if isinstance(rec, dict) else self.last_design
-        self.plan_poses, self.skipped, self.measured = recorded_plan(tr)
-        self.remeasure = resume.remeasurable(tr.events, self.measured)
-        self.skipped -= self.remeasure
+        done = resume.restore(tr)
+        self.plan_poses, self.measured = done.plan, done.measured
+        self.skipped, self.remeasure = set(done.skipped), set(done.remeasure)
+        self._next_index = done.next_index
         if self.wrist is not None:
             self.wrist.components = self.components or self.wrist.components
             self.wrist.restore(tr.events)
-        self._next_index = (tr.poses[-1]["index"] + 1) if tr.poses else 0
-        self.finished = (not self.pending and self._reported_since_last_pose()
-                         and (self.out / PARAMS).is_file() and (self.out / REPORT).is_file())
+        self.finished = resume.finished(self.trace_path, self.pending,
+                                        (self.out / PARAMS, self.out / REPORT))
         if self.finished:      # nothing new: left as it is, no event appended
             return
         self._event("resume", f"resumed: {len(self.measured)} poses recorded, "
                     f"{len(self.pending)} still to measure; to do: {self.redo().describe()}")
-
-    def _reported_since_last_pose(self) -> bool:
-        """The trace ends with its report written: a ``report`` event after its last
-        pose, skip or plan record."""
-        last_pose = last_report = -1
-        with open(self.trace_path, encoding="utf-8") as f:
-            for n, line in enumerate(f):
-                try:
-                    rec = json.loads(line)
-                except ValueError:
-                    continue
-                if rec.get("record") == "pose" or rec.get("kind") in ("skip", "plan"):
-                    last_pose = n
-                elif rec.get("kind") == "report":
-                    last_report = n
-        return last_report > last_pose
 
     def _ensure_trace(self) -> TraceWriter:
         if self._writer is None:
@@ -508,8 +475,7 @@ class Session:
     # -- planning -------------------------------------------------------------------------------
     @property
     def pending(self) -> list[PlannedPose]:
-        return [p for p in self.plan_poses if p.index not in self.measured
-                and p.index not in self.skipped and p.index not in self._held]
+        return resume.pending(self.plan_poses, self.measured, self.skipped, self._held)
 
     @property
     def _done(self) -> int:

@@ -57,7 +57,8 @@ class TraceSummary:
 
 def summarize_folder(folder) -> TraceSummary | None:
     """The session in ``folder`` (None if it holds no trace)."""
-    from station.session import TRACE, recorded_plan
+    from station.resume import recorded_plan
+    from station.session import TRACE
     from station.trace import read_trace
 
     folder = Path(folder)

@@ -1,15 +1,18 @@
 """The session's resume decisions (station.resume) on synthetic trace events and
 session states: which skipped poses are measured again, why a pose was skipped,
-what must come before the next measurement, and a trace cut in its header. Each
+what must come before the next measurement, a trace cut in its header, and which
+poses a resumed session counts as done, skipped or still to measure. Each
 test takes milliseconds (the whole-session resume tests are
 tests/station/test_resume.py); bench/mutation.py session-resume runs these.
 """
+import json
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from station import resume
+from station.planner import PlannedPose
 from station.resume import DROPPED, FAULT, NO_CONTACT, Redo, redo, remeasurable, skip_reason
 
 
@@ -159,3 +162,128 @@ def test_unstarted_trace(tmp_path):
     assert resume.unstarted(path) is False and path.exists()
     path.write_bytes(b'{"record": "header"}\n')
     assert resume.unstarted(path) is False and path.read_bytes() == b'{"record": "header"}\n'
+
+
+# -- which poses are done and which remain (the trace replayed) ----------------------------
+def _plan(indices, replace=None, **kw):
+    ev = {"kind": "plan", "poses": [{"index": i, "qm": [0.1 * i, 0.0], "target": [float(i)],
+                                     **kw} for i in indices]}
+    if replace is not None:
+        ev["replace"] = replace
+    return ev
+
+
+def _pose(index, plan_index=None):
+    rec = {"record": "pose", "index": index, "qm": [0.0]}
+    if plan_index is not None:
+        rec["plan_index"] = plan_index
+    return rec
+
+
+def _trace(events=(), poses=()):
+    return SimpleNamespace(events=list(events), poses=list(poses))
+
+
+def test_recorded_plan_replays_plan_events():
+    tr = _trace([_plan([0, 1, 2], use="validation", round=2, group=7), _skip(1, FAULT),
+                 {"kind": "info", "plan_index": 0}, {"kind": "skip", "message": "no index"}],
+                [_pose(0, 0), _pose(1), _pose(2, "2")])
+    plan, skipped, measured = resume.recorded_plan(tr)
+    assert [p.index for p in plan] == [0, 1, 2]
+    assert plan[0] == PlannedPose(0, (0.0, 0.0), (0.0,), "validation", 2, 7)
+    assert skipped == {1}
+    assert measured == {0: tr.poses[0], 2: tr.poses[2]} and list(measured) == [0, 2]
+    assert resume.recorded_plan(_trace()) == ([], set(), {})
+
+
+def test_a_replacing_plan_drops_the_poses_before_it_and_a_round_adds():
+    first, second = _plan([0, 1, 2]), _plan([5, 6])
+    assert [p.index for p in resume.recorded_plan(_trace([first, second]))[0]] == [5, 6]
+    assert [p.index for p in resume.recorded_plan(
+        _trace([first, _plan([5, 6], replace=True)]))[0]] == [5, 6]
+    added = resume.recorded_plan(_trace([first, _plan([3, 4], replace=False)]))[0]
+    assert [p.index for p in added] == [0, 1, 2, 3, 4]
+    # a plan event without poses empties the plan; a round without poses adds none
+    assert resume.recorded_plan(_trace([first, {"kind": "plan"}]))[0] == []
+    assert len(resume.recorded_plan(_trace([first, {"kind": "plan", "replace": False}]))[0]) == 3
+    # defaults of a pose record: a fit pose of round 0 in no pair
+    p = resume.recorded_plan(_trace([first]))[0][1]
+    assert (p.use, p.round, p.group) == ("fit", 0, None)
+
+
+def test_restore_splits_skips_into_final_and_to_measure_again():
+    tr = _trace([_plan(range(8)), _skip(1, FAULT), _skip(2, NO_CONTACT), _skip(3, FAULT),
+                 _skip(4, DROPPED)], [_pose(0, 0), _pose(1, 3), _pose(2, 5)])
+    r = resume.restore(tr)
+    assert [p.index for p in r.plan] == list(range(8))
+    assert set(r.measured) == {0, 3, 5}
+    assert r.skipped == {2, 3, 4}          # 3 was skipped, then measured: a skip of record
+    assert r.remeasure == {1}              # a fault, not measured since
+    assert r.next_index == 3               # after the last pose record's index
+    assert resume.pending(r.plan, r.measured, r.skipped | r.remeasure) == [
+        p for p in r.plan if p.index in (6, 7)]
+    assert [p.index for p in resume.pending(r.plan, r.measured, r.skipped)] == [1, 6, 7]
+
+
+def test_restore_next_index_follows_the_last_record_not_the_count():
+    tr = _trace([_plan([0, 1])], [_pose(4, 0), _pose("9", 1)])
+    assert resume.restore(tr).next_index == 10
+    assert resume.restore(_trace([_plan([0, 1])])).next_index == 0
+    empty = resume.restore(_trace())
+    assert (empty.plan, empty.measured, empty.skipped, empty.remeasure) == ([], {}, set(), set())
+
+
+def test_pending_keeps_plan_order_and_leaves_out_done_skipped_and_held():
+    plan = [PlannedPose(i, (0.0,), (0.0,)) for i in (4, 0, 3, 1, 2)]
+    assert resume.pending(plan, {}, set()) == plan
+    assert [p.index for p in resume.pending(plan, {3: {}}, {1}, {2: {}})] == [4, 0]
+    assert [p.index for p in resume.pending(plan, {4: {}}, set(), ())] == [0, 3, 1, 2]
+    assert resume.pending(plan, {i: {} for i in range(5)}, set()) == []
+    assert resume.pending([], {}, set()) == []
+
+
+def _lines(path, *recs, tail=b""):
+    path.write_bytes(b"".join(json.dumps(r).encode() + b"\n" for r in recs) + tail)
+    return path
+
+
+def test_reported_since_last_pose(tmp_path):
+    hdr, pose, report = {"record": "header"}, _pose(0, 0), {"record": "event", "kind": "report"}
+    skip, plan = {"record": "event", **_skip(1, FAULT)}, {"record": "event", **_plan([0])}
+    p = tmp_path / "trace.jsonl"
+    assert resume.reported_since_last_pose(_lines(p, hdr, pose, report))
+    assert not resume.reported_since_last_pose(_lines(p, hdr, report, pose))
+    assert not resume.reported_since_last_pose(_lines(p, hdr, pose))
+    assert not resume.reported_since_last_pose(_lines(p, hdr))
+    for last in (skip, plan):    # a skip or a new plan after the report: not finished
+        assert not resume.reported_since_last_pose(_lines(p, hdr, pose, report, last))
+        assert resume.reported_since_last_pose(_lines(p, hdr, pose, last, report))
+    # other events after the report (an export, a resume) leave it finished
+    assert resume.reported_since_last_pose(
+        _lines(p, hdr, pose, report, {"record": "event", "kind": "export"}))
+    # a crash's half line is passed over, whichever record it was
+    assert resume.reported_since_last_pose(_lines(p, hdr, pose, report, tail=b'{"record": "po'))
+    assert not resume.reported_since_last_pose(_lines(p, hdr, pose, tail=b'{"kind": "rep'))
+    # and so is a line that is not JSON before later records (they still count)
+    assert resume.reported_since_last_pose(_lines(p, hdr, pose, tail=b'garbled\n' + json.dumps(
+        report).encode() + b"\n"))
+    # a report with nothing measured yet (the header is line 0, the report line 1)
+    assert resume.reported_since_last_pose(_lines(p, hdr, report))
+
+
+def test_finished_needs_nothing_pending_the_report_recorded_and_every_output(tmp_path):
+    p = _lines(tmp_path / "trace.jsonl", {"record": "header"}, _pose(0, 0),
+               {"record": "event", "kind": "report"})
+    out = [tmp_path / "params.json", tmp_path / "report.html"]
+    for f in out:
+        f.write_text("x")
+    assert resume.finished(p, [], out)
+    assert not resume.finished(p, [PlannedPose(1, (0.0,), (0.0,))], out)
+    out[1].unlink()
+    assert not resume.finished(p, [], out)
+    out[1].mkdir()                  # a folder of that name is not the file
+    assert not resume.finished(p, [], out)
+    out[1].rmdir()
+    out[1].write_text("x")
+    _lines(p, {"record": "header"}, {"record": "event", "kind": "report"}, _pose(0, 0))
+    assert not resume.finished(p, [], out)
