@@ -58,10 +58,13 @@ MODULES = {
     # session-sized tests that also run it take ~12 s a mutant (docs/testing.md)
     "solver": (["calibration/solver/*.py"],
                ["tests/calibration/test_solver_units.py", "tests/calibration/test_kappa.py"], None),
+    # test_serial: the robot-file methods (sm-distance-tilt with its inclinometer,
+    # sm-position), 4 s; test_methods_units: registry, sm-plane's start, PM notes
     "methods": (["calibration/methods/*.py"],
                 ["tests/calibration/test_sm_model.py", "tests/calibration/test_pm.py",
                  "tests/calibration/test_identifiability.py",
-                 "tests/calibration/test_convergence.py"], None),
+                 "tests/calibration/test_convergence.py", "tests/calibration/test_serial.py",
+                 "tests/calibration/test_methods_units.py"], None),
     "trace": (["station/trace.py"],
               ["tests/station/test_trace_and_params.py", "tests/station/test_durability.py"], None),
     "params_file": (["station/params_file.py"],
