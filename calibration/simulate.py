@@ -25,6 +25,8 @@ def measure(method: str, robot, xi_true, qm, *, reference_qm=None, noise=None,
 
     if method == "sm-full-pose":
         return {"pose": robot.fk(qm, xi_true) + n("pose", (m, 4))}
+    if method == "sm-position":                     # a laser tracker's reflector
+        return {"position": robot.fk(qm, xi_true)[:, :3] + n("position", (m, 3))}
     if method in ("sm-distance", "sm-distance-tilt"):
         if reference_qm is None:
             raise CalibrationError(f"{method} needs the reference actuator values")

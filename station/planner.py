@@ -42,7 +42,7 @@ SM_BASE_ORIGIN = np.array([0.5, 1.0, 0.8, 0.0])       # absolute, elbow -1
 # draw-wire's zero offset where the method calibrates it.
 NR_P = {"sm-distance": (9, 1), "sm-distance-tilt": (13, 2), "pm-ik": (8, 3), "pm-fk": (8, 3),
         "pm-tilt": (10, 2), "sm-self-redundancy": (7, 2), "sm-plane": (10, 1),
-        "sm-full-pose": (13, 4)}
+        "sm-full-pose": (13, 4), "sm-position": (13, 3)}
 # methods a session measures unattended (the wizard offers these) and those that
 # need guided touching (a session with a ``touch`` callback)
 SESSION_METHODS = ("sm-distance", "sm-distance-tilt", "pm-ik", "pm-fk", "pm-tilt")

@@ -61,14 +61,15 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
     header = {"robot": robot.name, "method": method,
               "nominal": robot.as_dict(nom),
               "station": {"generator": "station.tracegen", "seed": seed}}
-    meas_noise = {k: v for k, v in noise.items() if k in ("pose", "distance", "tilt", "orientation")}
+    meas_noise = {k: v for k, v in noise.items()
+                  if k in ("pose", "position", "distance", "tilt", "orientation")}
     if meas_noise:
         header["sigma"] = {k: (list(v) if isinstance(v, (list, tuple)) else v)
                            for k, v in meas_noise.items() if k in mi.channels}
     if mi.kind == "serial":
         off = np.r_[robot.base_offset(nom), 0.0]
         box = planning.box_array(robot, planning.SM_BOX_7_1, off)
-        if method == "sm-full-pose":
+        if method in ("sm-full-pose", "sm-position"):
             plan = planning.sample_poses(robot, nom, box, count, rng)
             qm = plan.qm
         elif method == "sm-distance":
@@ -90,7 +91,7 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
             plane = default_plane(xi_true, robot) if plane is None else np.asarray(plane, float)
             qm = _plane_contacts(robot, xi_true, plane, box, count, rng)
         else:  # pragma: no cover
-            raise CalibrationError(method)
+            raise CalibrationError(f"{method} cannot be simulated on {robot.name}")
     else:
         # the report's nominal wrist cannot even reach X = 0 (its rods are too
         # short), so the orientations are those the true wrist is driven to
