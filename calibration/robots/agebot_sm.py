@@ -102,7 +102,12 @@ class AgebotSM(RobotModel):
         frame_free: the measurements do not see the base frame turned by pi about
         ``z_b`` through its origin (distances to the origin or to a point of the arm,
         and phi modulo 2 pi: the distance methods); then also ``(L4, q4_off, q2_off,
-        theta0) ~ (-L4, q4_off + pi, q2_off + pi, theta0 + pi)``.
+        theta0) ~ (-L4, q4_off + pi, q2_off + pi, theta0 + pi)``, and the arm mirrored
+        through the horizontal plane of the origin, ``(k1, q1_off) ~ (-k1, -q1_off)``
+        (every other factor turns about or moves along the horizontal, so the rail
+        running down instead of up changes no distance and no phi): ``k1`` positive,
+        as the nominal has it (a session's final fit of a drawn arm ended there once
+        in twenty, and the gate took the sign for a mis-wired reading).
         Returns ``(xi', s)``, ``s`` the sign of ``d xi' / d xi`` per parameter."""
         xi = np.array(xi, dtype=float)
         s = np.ones(len(xi))
@@ -116,6 +121,9 @@ class AgebotSM(RobotModel):
                 xi[i[length]], s[i[length]] = -xi[i[length]], -s[i[length]]
                 for a in angles:
                     xi[i[a]] += math.pi
+        if frame_free and xi[i["k1"]] < 0:
+            for n in ("k1", "q1_off"):
+                xi[i[n]], s[i[n]] = -xi[i[n]], -s[i[n]]
         xi, _ = super().canonical(xi)
         return xi, s
 

@@ -72,3 +72,29 @@ def test_fits_are_compared_by_their_residuals_not_their_self_weighted_cost():
     assert batch._explains_better(model, truth_min, local_min)
     assert not batch._explains_better(model, local_min, truth_min)
     assert not batch._explains_better(model, truth_min, truth_min)
+
+
+def test_the_arm_mirrored_through_the_horizontal_is_written_with_k1_positive():
+    """The distance methods do not see the rail run down instead of up: ``(k1, q1_off)``
+    and ``(-k1, -q1_off)`` read the same everywhere. A fit that ends on the mirrored
+    side is written as the nominal has it (the gate took k1 < 0 for a mis-wired
+    reading and refused a sound session, seed 9318)."""
+    from calibration import simulate
+    from calibration.robots import get_robot
+
+    robot = get_robot("agebot-sm")
+    xi = station_truth("agebot-sm", 9318).xi()
+    mirrored = xi.copy()
+    for name in ("k1", "q1_off"):
+        mirrored[robot.index(name)] *= -1
+    ref = np.array([36.0, 149.0, -171.8, -134.3])
+    qm = ref + np.random.default_rng(0).uniform(-50, 50, (20, 4))
+    for method in ("sm-distance-tilt", "sm-distance"):
+        a = simulate.measure(method, robot, xi, qm, reference_qm=ref)
+        b = simulate.measure(method, robot, mirrored, qm, reference_qm=ref)
+        assert all(np.allclose(a[ch], b[ch], rtol=0, atol=1e-12) for ch in a)
+    back, sign = robot.canonical(mirrored, frame_free=True)
+    assert np.allclose(back, robot.canonical(xi, frame_free=True)[0], rtol=0, atol=1e-12)
+    assert sign[robot.index("k1")] == sign[robot.index("q1_off")] == -1
+    # a robot-frame method sees the rail's direction: nothing is turned over there
+    assert robot.canonical(mirrored)[0][robot.index("k1")] < 0
