@@ -35,6 +35,7 @@ from scipy.linalg import lapack
 IDENTIFIABLE = "identifiable"
 NO_INFLUENCE = "no influence"
 INFLUENCES = "influences the model"
+FIXED = "fixed"
 
 
 @dataclass(frozen=True)
@@ -44,11 +45,16 @@ class ParameterStatus:
     influences_model: bool  # meaningful where not identifiable
     r_diag: float  # |R[j, j]| of the scaled, weighted matrix (1 = independent)
     column_norm: float  # ||G W[:, j]|| (weighted, per parameter unit)
+    # kept at its given value (``SolverOptions.fixed``), never a candidate; then
+    # ``influences_model`` says whether its column is above the zero floor
+    fixed: bool = False
 
     @property
     def label(self) -> str:
         if self.identifiable:
             return IDENTIFIABLE
+        if self.fixed:
+            return f"{FIXED}, {INFLUENCES if self.influences_model else NO_INFLUENCE}"
         return INFLUENCES if self.influences_model else NO_INFLUENCE
 
 

@@ -319,15 +319,13 @@ def _fmt(v, width=13):
 def format_table(outcome: BatchOutcome) -> str:
     """The parameter table (nominal, calibrated, std, identifiability) and fit figures."""
     res, model = outcome.result, outcome.model
-    fixed = set(getattr(getattr(model, "robot", None), "fixed", ()) or ())
     lines = [f"{'parameter':<10}{'start':>13}{'calibrated':>13}{'std':>13}  identifiability",
              "-" * 72]
     for j, (name, st) in enumerate(zip(res.names, res.status)):
         std = res.std[j] if st.identifiable else None
-        label = "identifiable" if st.identifiable else "held (the robot file's fixed)" if (
-            name in fixed) else (
-            "not identifiable, influences the model" if st.influences_model
-            else "not identifiable, no influence")
+        infl = "influences the model" if st.influences_model else "no influence"
+        label = "identifiable" if st.identifiable else (
+            f"held (the robot file's fixed), {infl}" if st.fixed else f"not identifiable, {infl}")
         lines.append(f"{name:<10}{_fmt(outcome.nominal[j])}{_fmt(res.x[j])}{_fmt(std)}  {label}")
     need = ident.minimum_poses(res.n_identifiable, model.p)
     lines.append("-" * 72)

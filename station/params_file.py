@@ -58,6 +58,8 @@ def params_document(result, *, robot: str, nominal: np.ndarray, trace_path: str 
             "identifiable": bool(st.identifiable),
             "influences_model": bool(st.influences_model) if not st.identifiable else False,
         }
+        if getattr(st, "fixed", False):
+            params[name]["fixed"] = True
     doc = {
         "format": FORMAT,
         "version": VERSION,
@@ -124,7 +126,8 @@ SCHEMA = {
             "properties": {"value": _NUM, "nominal": _NUM,
                            "std": {"oneOf": [{"type": "null"}, {"type": "number", "minimum": 0}]},
                            "identifiable": {"type": "boolean"},
-                           "influences_model": {"type": "boolean"}}}},
+                           "influences_model": {"type": "boolean"},
+                           "fixed": {"type": "boolean"}}}},
         "fit": {"type": "object",
                 "properties": {"converged": {"type": "boolean"},
                                "iterations": {"type": "integer", "minimum": 0},

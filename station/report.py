@@ -46,9 +46,13 @@ IDENT_GROUPS = (
     ("influence", "Not identifiable, with influence",
      ("a combination of other columns: kept at its start value, and a wrong start value "
       "biases the others, so it must be known")),
+    ("fixed", "Fixed",
+     ("held at its given value (the robot file's fixed), not calibrated; where the "
+      "measurements depend on it (\"influences the model\") a wrong value biases the others")),
 )
 # Table 3 symbols
-IDENT_SYMBOL = {"identifiable": "\u2713", "no-influence": "\u25cb", "influence": "\u25cf"}
+IDENT_SYMBOL = {"identifiable": "\u2713", "no-influence": "\u25cb", "influence": "\u25cf",
+                "fixed": "\u25a0"}
 
 # units of the parameters (SI, as in the parameter file)
 PARAM_UNITS = {
@@ -191,7 +195,7 @@ class _Context:
                                 dtype=float)
         self.x = np.asarray(res.x, dtype=float)
         self.std = np.asarray(res.std, dtype=float)
-        self.groups = [_group(st) for st in res.status]
+        self.groups = [group_of(st) for st in res.status]
         nom = getattr(model, "nominal", None)
         try:
             nom = np.asarray(nom, dtype=float) if nom is not None else None
@@ -269,9 +273,12 @@ class _Context:
         return out
 
 
-def _group(st) -> str:
+def group_of(st) -> str:
+    """The parameter's group of :data:`IDENT_GROUPS` from its status."""
     if st.identifiable:
         return "identifiable"
+    if getattr(st, "fixed", False):
+        return "fixed"
     return "influence" if st.influences_model else "no-influence"
 
 

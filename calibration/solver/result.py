@@ -194,11 +194,21 @@ def _final_status(run, sigma, weights):
                              residual=run.r if opt.recheck else None,
                              rank_tol=opt.rank_tol, kappa=opt.kappa)
     ok, dep, rdiag, norms = cls
+    # a fixed parameter's column against the zero floor of the classification
+    # (rank and, at the solution, the residual): strong, a wrong value biases the others
+    cand = run.candidates
+    floor = opt.rank_tol * float(norms.max(initial=0.0, where=cand)) if cand.any() else 0.0
+    if opt.recheck:
+        rg = np.sqrt(weights) * run.r
+        floor = max(floor, opt.kappa * math.sqrt(float(rg @ rg)))
     out = []
-    for nm, a, i_ok, i_dep, rd, cn in zip(run.names, run.active.tolist(), ok.tolist(),
-                                          dep.tolist(), rdiag.tolist(), norms.tolist()):
+    for nm, a, c, i_ok, i_dep, rd, cn in zip(run.names, run.active.tolist(), cand.tolist(),
+                                             ok.tolist(), dep.tolist(), rdiag.tolist(),
+                                             norms.tolist()):
         if a:
             out.append(ident.ParameterStatus(nm, True, False, rd, cn))
+        elif not c:
+            out.append(ident.ParameterStatus(nm, False, bool(cn > floor), rd, cn, fixed=True))
         elif i_ok:  # excluded earlier, independent now: it still was not calibrated
             out.append(ident.ParameterStatus(nm, False, True, rd, cn))
         else:

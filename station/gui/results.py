@@ -14,16 +14,11 @@ from PySide6.QtWidgets import (QHeaderView, QTableWidget, QTableWidgetItem, QVBo
 from station.batch import describe_not_identified, not_identified
 from station.gui.plots import ConvergencePlots
 from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, heading, note
-from station.report import IDENT_GROUPS, IDENT_SYMBOL, param_units
+from station.report import IDENT_GROUPS, IDENT_SYMBOL, group_of, param_units
 from station.units import MM_DEG, channel_si
 
-GROUP_COLOR = {"identifiable": OK_COLOR, "no-influence": "#555555", "influence": BAD_COLOR}
-
-
-def group_of(status) -> str:
-    if status.identifiable:
-        return "identifiable"
-    return "influence" if status.influences_model else "no-influence"
+GROUP_COLOR = {"identifiable": OK_COLOR, "no-influence": "#555555", "influence": BAD_COLOR,
+               "fixed": "#1f4e9c"}
 
 
 def _num(v, fmt=".7g") -> str:

@@ -769,3 +769,21 @@ def test_covariance_is_accurate_with_columns_far_apart(case):
     # the test can fail: the normal matrix's inverse is off by far more
     rough = np.linalg.pinv(A.T @ (A * w[:, None]))
     assert np.max(np.abs(rough - want) / np.abs(want)) > 1e-10
+
+
+def test_a_fixed_parameter_reports_its_columns_influence():
+    """A fixed parameter is labelled fixed, and whether the measurements depend on
+    it: a strong column influences the model (a wrong value biases the others;
+    it was reported "no influence" before), a zero column does not."""
+    rng = np.random.default_rng(2)
+    c0, c1, c2 = rng.normal(size=(3, 25))
+    A = np.column_stack([c0, c1, 5 * c2, np.zeros(25)])
+    y = A @ np.array([0.4, -0.7, 0.0, 0.0]) + 1e-3 * rng.normal(size=25)
+    res = solve(Linear(A, y), SolverOptions(fixed=("x2", "x3")))
+    st = {s.name: s for s in res.status}
+    assert [st[n].identifiable for n in res.names] == [True, True, False, False]
+    assert st["x2"].fixed and st["x2"].influences_model
+    assert st["x2"].label == f"{ident.FIXED}, {ident.INFLUENCES}"
+    assert st["x3"].fixed and not st["x3"].influences_model
+    assert st["x3"].label == f"{ident.FIXED}, {ident.NO_INFLUENCE}"
+    assert not st["x0"].fixed and st["x0"].label == ident.IDENTIFIABLE
