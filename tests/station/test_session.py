@@ -21,9 +21,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.stats import norm
+from scipy.stats import t as student_t
 
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
+from calibration.solver.weighting import MIN_DOF, t_inflation
 from drivers.config import load_station_config
 from drivers.endpoints import with_endpoints
 from drivers.sim.server import SimulatorProcess
@@ -49,18 +51,33 @@ def _session_config(sim: SimulatorProcess, cfg_path: Path):
     return with_endpoints(load_station_config(cfg_path), sim.endpoints, source="simulator")
 
 
-def family_bound(n: int, alpha: float = 0.01) -> float:
-    """The |error|/std that any of ``n`` honest, normal errors exceeds with probability
-    ``alpha`` (Bonferroni): 3.4 std for 14 parameters, 3.6 for 27. A session's readings
-    are taken against the wall clock, so a rerun is another draw of the noise; a bound
-    of 3 std on each of 14 parameters would fail an honest session 4 % of the time."""
-    return float(norm.isf(alpha / 2 / max(n, 1)))
+def family_bound(n: int, alpha: float = 0.01, dof: float | None = None) -> float:
+    """The |error|/std that any of ``n`` honest errors exceeds with probability
+    ``alpha`` (Bonferroni): for normal errors 3.4 std for 14 parameters, 3.6 for 27.
+    With ``dof`` (the residual degrees of freedom of the estimated sigma) error/std
+    follows Student's t, scaled down by the ``sqrt(nu / (nu - 2))`` the reported std
+    already carries (``calibration.solver.weighting.t_inflation``): 4.2 std for 14
+    parameters at 11 dof, 3.5 at 60. A session's readings are taken against the wall
+    clock, so a rerun is another draw of the noise; a bound of 3 std on each of 14
+    parameters would fail an honest session 4 % of the time."""
+    p = alpha / 2 / max(n, 1)
+    if dof is None:
+        return float(norm.isf(p))
+    nu = max(float(dof), MIN_DOF)
+    return float(student_t.isf(p, nu) / t_inflation(nu))
+
+
+def session_bound(result) -> float:
+    """:func:`family_bound` of ``result``'s identifiable parameters at its channels'
+    fewest degrees of freedom (the widest; none where every sigma was stated)."""
+    dof = min(result.sigma_dof.values()) if result.sigma_dof else None
+    return family_bound(sum(st.identifiable for st in result.status), dof=dof)
 
 
 def _identifiable_within(result, truth_vec, names, k=None):
     """The identifiable parameters farther than ``k`` std from the truth (default
-    :func:`family_bound` of their count)."""
-    k = family_bound(sum(st.identifiable for st in result.status)) if k is None else k
+    :func:`session_bound`)."""
+    k = session_bound(result) if k is None else k
     bad = []
     for j, (name, st) in enumerate(zip(result.names, result.status)):
         if not st.identifiable:

@@ -6,7 +6,7 @@ and jogs the robot through the session, as an operator with a feeler gauge
 would. The influence parameters the report takes as known (sm-plane: L4,
 theta0, a0 and the plane; sm-self-redundancy: L4) are given their true values
 as start values; every identifiable parameter must come out within its family
-bound of the unseen truth (``test_session.family_bound``: 3.3 std for 10).
+bound of the unseen truth (``test_session.session_bound``: 3.3 std for 10 normal errors, more at few degrees of freedom).
 """
 from __future__ import annotations
 
