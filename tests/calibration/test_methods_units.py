@@ -120,3 +120,44 @@ def test_a_method_refuses_the_other_kind_of_robot():
     with pytest.raises(CalibrationError, match="sm-position needs a serial robot"):
         build("sm-position", AgebotPM(), MethodData(orient.qm, {"position": np.zeros((6, 3))}),
               AgebotPM().nominal)
+
+
+# -- the robot-file sm-distance-tilt's distance rows (known answers) ---------------------------
+@pytest.mark.parametrize("residual", ["plain", "squared"])
+def test_inclinometer_distance_rows_are_the_reading_minus_the_model_s_distance(residual):
+    """Distance rows: the reading against |p - p_reference| + distance_off (plain) or
+    their squares (eq. 83); rows per pose distance, roll, pitch."""
+    from calibration.methods.sm_distance_tilt import InclinometerDistanceTilt
+    rob = robot("ur5-like-hayati")
+    data, _ = data_of(rob, "sm-distance-tilt", rob.nominal, seed=1, count=6, mount=(0.02, -0.01))
+    model = build("sm-distance-tilt", rob, data, np.r_[rob.nominal, 0.0, 0.0],
+                  distance_zero="reading", residual=residual)
+    assert isinstance(model, InclinometerDistanceTilt)
+    assert model.names[rob.n_params:] == ("distance_off", "mount_x", "mount_y")
+    assert model.channels == ("distance", "roll", "pitch")
+    np.testing.assert_array_equal(model.row_channel, np.tile([0, 1, 2], 6))
+    x = model.x0.copy()
+    x[rob.n_params] = 2e-3                                   # the draw-wire's zero offset
+    r = model.evaluate(x)[0].reshape(6, 3)
+    p = rob.fk(data.qm, x[:rob.n_params])[:, :3]
+    p_ref = rob.fk(np.atleast_2d(data.reference_qm), x[:rob.n_params])[0, :3]
+    pred = np.linalg.norm(p - p_ref, axis=1) + 2e-3
+    D_m = data.channels["distance"].reshape(-1)
+    want = D_m - pred if residual == "plain" else D_m ** 2 - pred ** 2
+    np.testing.assert_allclose(r[:, 0], want, rtol=1e-9, atol=1e-15)
+    # the tilt rows do not see the draw-wire's zero
+    x0 = x.copy()
+    x0[rob.n_params] = 0.0
+    np.testing.assert_array_equal(model.evaluate(x0)[0].reshape(6, 3)[:, 1:], r[:, 1:])
+
+
+def test_inclinometer_and_position_channels_are_checked():
+    rob = robot("scara-like")
+    data, _ = data_of(rob, "sm-distance-tilt", rob.nominal, seed=1, count=6)
+    bad = MethodData(data.qm, {**data.channels, "tilt": data.channels["tilt"][:, :1]},
+                     reference_qm=data.reference_qm)
+    with pytest.raises(CalibrationError, match=r"channel 'tilt' must have shape \(poses, 2\)"):
+        build("sm-distance-tilt", rob, bad, np.r_[rob.nominal, 0.0, 0.0])
+    with pytest.raises(CalibrationError, match="method sm-position needs the measured channel "
+                                               "'position'"):
+        build("sm-position", rob, MethodData(data.qm, {}), rob.nominal)
