@@ -115,6 +115,10 @@ class SessionScore:
     tool_error: RMS over poses drawn in the method's whole box of the distance between
                the tool position the calibrated model puts there and the true one
                (captured frame; m).
+    corr, dof: the reported correlation of the ``z`` (from the result's covariance) and
+               the fewest degrees of freedom of a channel's estimated sigma (inf where
+               every sigma was stated): ``d2`` is ``z^T corr^-1 z``, what an honest std
+               makes chi-square-like whatever the correlation (:func:`d2_interval`).
     """
 
     seed: int
@@ -132,10 +136,29 @@ class SessionScore:
     offset: dict = field(default_factory=dict)
     heldout: dict = field(default_factory=dict)
     tool_error: float = math.nan
+    corr: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    dof: float = math.inf
 
     @property
     def worst(self) -> float:
         return float(np.max(np.abs(self.z))) if self.z.size else math.nan
+
+    @property
+    def whitened(self) -> np.ndarray:
+        """``L^-1 z`` with ``corr = L L^T``: independent errors of unit variance for an
+        honest std (one session's ``z`` move together: one data set)."""
+        if not self.z.size:
+            return self.z
+        w, v = np.linalg.eigh(self.corr)           # symmetric inverse square root:
+        w = np.clip(w, 1e-15 * w.max(), None)      # stable where columns nearly coincide
+        return (v / np.sqrt(w)) @ v.T @ self.z
+
+    @property
+    def d2(self) -> float:
+        """``z^T corr^-1 z``: chi-square on ``len(z)`` for an honest std and stated
+        sigma; :func:`d2_interval` takes the estimated sigma's ``dof`` in."""
+        w = self.whitened
+        return float(w @ w)
 
 
 @dataclass
@@ -217,11 +240,44 @@ def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, see
     score.excursion = excursion(s, truth)
     if score.completed:
         score.names, score.z = normalized_errors(s, truth, state)
+        score.corr = correlation(s.outcome.result, score.names)
+        dof = s.outcome.result.sigma_dof
+        score.dof = float(min(dof.values())) if dof else math.inf
         score.offset = residual_offset(s, truth, state)
         score.heldout = {v["channel"]: v["rms_after"] for v in s.outcome.validation or ()}
         if truth.spec is None:
             score.tool_error = tool_error(s, truth, state)
     return score
+
+
+def correlation(result, names) -> np.ndarray:
+    """The reported correlation matrix of ``result``'s parameters ``names``."""
+    idx = [list(result.covariance_names).index(n) for n in names]
+    c = np.asarray(result.covariance, dtype=float)[np.ix_(idx, idx)]
+    d = np.sqrt(np.diag(c))
+    return c / np.outer(d, d)
+
+
+def d2_interval(ks, dofs, alpha: float = 0.01, draws: int = 200_000,
+                seed: int = 0) -> tuple[float, float]:
+    """The two-sided ``alpha`` interval of the sum of sessions' ``d2`` for an honest std:
+    a session with ``k`` parameters and sigma estimated on ``dof`` degrees of freedom has
+    ``d2 = (nu - 2) / nu * chi2_k / (chi2_nu / nu)`` (the reported std carries the
+    ``sqrt(nu / (nu - 2))`` of the sigma's own uncertainty, so its mean is ``k``;
+    ``dof`` inf: chi2_k). The fewest channel dof makes the interval the widest.
+    Seeded Monte Carlo of the sum."""
+    from calibration.solver.weighting import MIN_DOF
+
+    rng = np.random.default_rng(seed)
+    total = np.zeros(draws)
+    for k, dof in zip(ks, dofs):
+        x = rng.chisquare(k, draws)
+        if math.isfinite(dof):
+            nu = max(float(dof), MIN_DOF)
+            x *= (nu - 2.0) / rng.chisquare(nu, draws)
+        total += x
+    lo, hi = np.quantile(total, [alpha / 2, 1 - alpha / 2])
+    return float(lo), float(hi)
 
 
 def residual_offset(session, truth: SimTruth, state: dict) -> dict:
@@ -354,6 +410,7 @@ def summary(scores: list[SessionScore]) -> dict:
     off = [s.offset for s in done if s.offset]
     rms = float(np.sqrt(np.mean(z ** 2))) if z.size else math.nan
     scored = [s for s in done if s.z.size]
+    w = np.concatenate([s.whitened for s in scored]) if scored else np.zeros(0)
     rms_se = cov_se = math.nan
     if len(scored) > 1:
         k = math.sqrt(len(scored))
@@ -369,6 +426,12 @@ def summary(scores: list[SessionScore]) -> dict:
             "coverage_2std": float(np.mean(np.abs(z) <= 2.0)) if z.size else math.nan,
             "coverage_2std_se": cov_se,
             "n_errors": int(z.size), "worst_per_parameter": per,
+            # the same errors whitened by each session's reported correlation
+            "d2": [s.d2 for s in scored], "d2_k": [len(s.z) for s in scored],
+            "d2_dof": [s.dof for s in scored],
+            "d2_sum": float(sum(s.d2 for s in scored)),
+            "rms_whitened": float(np.sqrt(np.mean(w ** 2))) if w.size else math.nan,
+            "coverage_2std_whitened": float(np.mean(np.abs(w) <= 2.0)) if w.size else math.nan,
             "rms_per_parameter": {n: (math.sqrt(sum(v) / len(v)), len(v)) for n, v in sq.items()},
             "excursion": exc,
             "tool_error": [s.tool_error for s in done],
