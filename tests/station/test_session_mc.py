@@ -14,7 +14,7 @@ import pytest
 
 from calibration.robots import get_robot
 from station.planner import PlanRequest
-from station.sim_sessions import run_session, station_truth, summary
+from station.sim_sessions import d2_interval, run_session, station_truth, summary
 from station.trace import read_trace
 
 FAR_SEED = 9422          # k1, k2, k4 32-38 % below the nominal, k3 16 % above
@@ -53,9 +53,17 @@ def test_a_far_off_arm_completes_inside_the_envelope(tmp_path):
 @pytest.mark.slow
 def test_ten_drawn_arms_are_calibrated_within_their_std(tmp_path):
     """Ten arms: every session completes; every calibrated parameter lies within 5 std
-    of the truth, and the pooled RMS of error/std is between 0.8 and 1.3. (The live
-    watch compares each reading with where the actuators were when it was sampled and
-    confirms a departure at rest, so a loaded machine does not stop a session.)"""
+    of the truth, and the errors are as large as the reported covariance says: the
+    pooled ``d2 = e^T Sigma^-1 e`` of the 140 errors within its central 99.8 %
+    (``d2_interval``), and the RMS of the errors whitened by each session's reported
+    correlation between 0.8 and 1.3. A session's 14 errors move together (one data
+    set), so the RMS of the raw error/std alone scatters from run to run beyond its
+    nominal spread (0.74 and 1.19 in two runs of the same seeds under load, every
+    session at its truth's minimum); it is printed. (The live watch
+    compares each reading with where the actuators were when it was sampled and
+    confirms a departure at rest, so a loaded machine does not stop a session; the
+    final fit starts from two starts and keeps the better, so a drawn arm's fit does
+    not end in a local minimum, whatever the noise draw.)"""
     scores = [run_session(station_truth("agebot-sm", s), tmp_path / f"s{s}", seed=s,
                           request=PlanRequest(count=24, validation=6, seed=s))
               for s in SLOW_SEEDS]
@@ -64,7 +72,11 @@ def test_ten_drawn_arms_are_calibrated_within_their_std(tmp_path):
     done = [sc for sc in scores if sc.completed]
     s = summary(done)
     assert s["worst"] < 5.0, s["worst_per_parameter"]
-    assert 0.8 <= s["rms"] <= 1.3, s
-    assert s["n_errors"] == len(done) * 14
+    assert s["n_errors"] == sum(s["d2_k"]) == len(done) * 14
+    lo, hi = d2_interval(s["d2_k"], s["d2_dof"], alpha=0.002)
     print(f"ten arms: {len(done)} of 10 completed, worst |error|/std {s['worst']:.2f}, RMS "
-          f"{s['rms']:.3f}, {100 * s['coverage_2std']:.1f} % within 2 std")
+          f"{s['rms']:.3f}, {100 * s['coverage_2std']:.1f} % within 2 std; whitened RMS "
+          f"{s['rms_whitened']:.3f}, {100 * s['coverage_2std_whitened']:.1f} % within 2; d2 "
+          f"{s['d2_sum']:.1f} (honest 99.8 %: {lo:.1f}-{hi:.1f})")
+    assert lo <= s["d2_sum"] <= hi, s
+    assert 0.8 <= s["rms_whitened"] <= 1.3, s
