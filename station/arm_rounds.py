@@ -55,7 +55,7 @@ EARLY_SHARE = 8          # the scout and the middle round: an eighth of the coun
 #: what was measured cannot be trusted to predict where the arm goes next)
 EXPLAIN = 0.2
 #: what a refit on fewer poses than parameters learns, in this order
-LEARN_FIRST = ("k1", "k2", "k3", "k4", "q4_off", "q3_off", "q2_off", "q1_off")
+LEARN_FIRST = ("k1", "k2", "k3", "k4", "q4_off", "q3_off", "q2_off", "q1_off", "L4", "L3", "L2")
 
 
 def fixed_for_rows(model) -> tuple[str, ...]:
@@ -139,9 +139,10 @@ class ArmRounds:
         """The model fitted to the fit poses measured so far, from the start values and
         from start values grown with the data (:func:`staged_start`): a function of the
         recorded poses alone, so a resumed session plans as the uninterrupted one
-        would. Of the fits that converged and explain every recorded reading within
+        would. Of the fits that explain every recorded reading within
         :data:`EXPLAIN` of the envelope's tolerance, or at least as well as the model in
-        use, the one with the least residual;
+        use, a converged one before one that is not (few poses), then the one with the
+        least residual;
         where none does (a fit of few poses can be wild: it predicted -1.3 m for a
         draw-wire reading 0.02 m, and every move from then on was stopped), planning
         stays with the model it had."""
@@ -169,18 +170,22 @@ class ArmRounds:
             except (CalibrationError, np.linalg.LinAlgError, ValueError) as e:
                 why = str(e)
                 continue
-            if not (res.converged and np.all(np.isfinite(res.x))):
+            if not np.all(np.isfinite(res.x)):
                 why = res.message
                 continue
+            # a fit of few poses may not meet the solver's step tolerance (the noise
+            # weights estimated on a few degrees of freedom wander); for planning it
+            # is judged by what it explains, a converged one preferred
             xi, off = self._model_of(res.x)
             worst = self._unexplained(xi, off, data)
             if worst > bar:
-                why = (f"it leaves a recorded reading {worst:.2g} x the envelope's tolerance "
-                       "away from its prediction, the model in use less")
+                why = (f"{'' if res.converged else res.message + '; '}it leaves a recorded "
+                       f"reading {worst:.2g} x the envelope's tolerance away from its "
+                       "prediction, the model in use less")
                 continue
-            cost = float(np.sum(np.asarray(res.residual) ** 2))
-            if best is None or cost < best[0]:
-                best = (cost, xi, off, res)
+            key = (not res.converged, float(np.sum(np.asarray(res.residual) ** 2)))
+            if best is None or key < best[0]:
+                best = (key, xi, off, res)
         self.fitted_on = len(recs)
         if best is None:
             s._event("warning", f"model refit on {len(recs)} poses not used ({why}): planning "

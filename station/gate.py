@@ -207,8 +207,10 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate):
     quality, trace1, model1 = got[:3]
     if quality.passed or len(quality.outliers) >= max_outliers(len(trace.fit_poses)):
         return got
-    # least squares may spread a gross reading over every residual: ask a robust fit
-    worst, x_robust = q.robust_worst_row(model1, model1.x0, stated_sigma)
+    # least squares may spread a gross reading over every residual: ask a robust fit,
+    # started where least squares ended (from the bare start values a robot far from
+    # its nominal lands in another minimum, where every reading looks gross)
+    worst, x_robust = q.robust_worst_row(model1, got[3].x, stated_sigma)
     if worst is None and x_robust is not None:
         # no gross reading: least squares found a local minimum; start again where
         # the robust fit ended
