@@ -10,7 +10,8 @@ the session captured (``station.sim_sessions``).
 Prints per session the worst |error|/std and the largest excursion from the
 planned box, then the success rate, the worst normalized error, the RMS of
 error/std (ideally 1), the coverage of the reported std (share of parameters
-within 2 std, ideally ~95 %), the worst |error|/std per parameter and the
+within 2 std, ideally ~95 %), the same of the errors whitened by each session's
+reported correlation and their d2 = e^T Sigma^-1 e against its 99 % interval, the worst |error|/std per parameter and the
 largest excursion::
 
     python bench/bench_sessions.py                         # 10 arms, sm-distance-tilt
@@ -34,7 +35,8 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from station.planner import PlanRequest  # noqa: E402
-from station.sim_sessions import DEFAULT_METHOD, run_session, station_truth, summary  # noqa: E402
+from station.sim_sessions import (DEFAULT_METHOD, d2_interval, run_session,  # noqa: E402
+                                  station_truth, summary)
 
 FIRST_SEED = {"agebot-sm": 9100, "agebot-pm": 9200}   # seeds not used by any other test
 
@@ -77,6 +79,11 @@ def main(argv=None) -> int:
           f"calibrated parameters; standard error with the sessions as the samples)")
     print(f"coverage of 2 std   {100 * s['coverage_2std']:.1f} +- "
           f"{100 * s['coverage_2std_se']:.1f} %   (ideal ~95 %)")
+    if s["d2_k"]:
+        lo, hi = d2_interval(s["d2_k"], s["d2_dof"], alpha=0.01)
+        print(f"whitened by each session's reported correlation: RMS {s['rms_whitened']:.3f}, "
+              f"{100 * s['coverage_2std_whitened']:.1f} % within 2; d2 {s['d2_sum']:.1f} on "
+              f"{sum(s['d2_k'])} errors (an honest std's 99 %: {lo:.1f}-{hi:.1f})")
     if s["offset_exact_se"]:
         ex, rd = np.array(s["offset_exact_se"]), np.array(s["offset_reading_se"])
         um = np.array(s["offset_exact_um"])

@@ -60,12 +60,15 @@ LEARN_FIRST = ("k1", "k2", "k3", "k4", "q4_off", "q3_off", "q2_off", "q1_off", "
 
 def fixed_for_rows(model) -> tuple[str, ...]:
     """With fewer rows than parameters, what the first poses can teach first: the
-    gear ratios, then the joints' offsets; the rest stays at its start value."""
+    gear ratios, then the joints' offsets; the rest stays at its start value. A robot
+    file's ``fixed`` parameters are always held (freed by a partial fit, they moved the
+    final fit of a UR5-like arm grown from it by up to 3.5 std)."""
+    held = tuple(n for n in (getattr(model.robot, "fixed", ()) or ()) if n in model.names)
     free = len(model.row_channel) - 2
-    if free >= len(model.names):
-        return ()
+    if free >= len(model.names) - len(held):
+        return held
     learn = LEARN_FIRST[:max(free, 0)]
-    return tuple(n for n in model.names if n not in learn)
+    return tuple(n for n in model.names if n not in learn or n in held)
 
 
 def staged_start(method: str, robot, data: MethodData, x, options: dict | None = None):
