@@ -139,7 +139,8 @@ class ArmRounds:
                           (s.reference_record or {}).get("tilt"))
 
     def refit(self) -> None:
-        """The model fitted to the fit poses measured so far, from the start values and
+        """The model fitted to the fit poses measured so far and to the readings where
+        the envelope stopped the arm (:meth:`_stops`), from the start values and
         from start values grown with the data (:func:`staged_start`): a function of the
         recorded poses alone, so a resumed session plans as the uninterrupted one
         would. Of the fits that explain every recorded reading within
@@ -153,6 +154,10 @@ class ArmRounds:
         recs = [r for r in s.measured.values() if r.get("use", "fit") == "fit"]
         if len(recs) < 2:
             return
+        stops = self._stops()
+        recs += stops
+        what = f"{len(recs) - len(stops)} poses" + (f" and {len(stops)} envelope stop(s)"
+                                                    if stops else "")
         ref = s.reference_record or {}
         data = MethodData(qm=np.array([r["qm"] for r in recs]),
                           channels={ch: np.array([r[ch] for r in recs]) for ch in s.info.channels},
@@ -191,14 +196,28 @@ class ArmRounds:
                 best = (key, xi, off, res)
         self.fitted_on = len(recs)
         if best is None:
-            s._event("warning", f"model refit on {len(recs)} poses not used ({why}): planning "
+            s._event("warning", f"model refit on {what} not used ({why}): planning "
                      "stays with the model it had")
             return
         _, xi, off, res = best
         self.prev_xi = self.xi
         self.xi, self.distance_off = xi, off
-        s._event("info", f"model refitted on {len(recs)} poses ({res.n_identifiable} parameters "
+        s._event("info", f"model refitted on {what} ({res.n_identifiable} parameters "
                  f"identifiable): {res.message}")
+
+    def _stops(self) -> list[dict]:
+        """Where the envelope stopped the arm: its qm and the sensors' readings at rest
+        there (the ``envelope`` events'), rows of the planning refits. The pose was not
+        reached and is not recorded for the calibration, but where the arm went instead
+        is what the model did not know (a scout of small steps cannot tell a gear ratio
+        30 % off from a length; the stop 15 cm off can)."""
+        chans = tuple(self.s.info.channels)
+        out = []
+        for ev in self.s.events:
+            got = ev.get("readings") if ev.get("kind") == "envelope" else None
+            if got and "qm" in ev and all(ch in got for ch in chans):
+                out.append({"qm": ev["qm"], **{ch: float(got[ch]) for ch in chans}})
+        return out
 
     def _model_of(self, x) -> tuple[np.ndarray, float]:
         """A solver's ``x`` as the robot's canonical parameters and the distance offset."""

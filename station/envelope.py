@@ -52,10 +52,13 @@ class EnvelopeStop(StationError):
     """The live readings left the model's prediction by more than the tolerance; the
     robot was stopped at ``qm``. ``departed``: channel -> (reading, predicted)."""
 
-    def __init__(self, message: str, departed: dict, qm):
+    def __init__(self, message: str, departed: dict, qm, readings: dict | None = None):
         super().__init__(message)
         self.departed = departed
         self.qm = np.asarray(qm, dtype=float)
+        #: the sensors' readings at rest where it stopped (a departure confirmed at
+        #: rest: what the robot really does there, which the next plan learns from)
+        self.readings = dict(readings or {})
 
 
 def limit_violation(qm, env) -> str | None:
@@ -172,9 +175,9 @@ def live_departures(timed: Mapping[str, tuple], track: Track, predict: Predict,
     return out
 
 
-def at_rest(rig, predict: Predict, env, settle: int = 10) -> tuple[dict, np.ndarray]:
+def at_rest(rig, predict: Predict, env, settle: int = 10) -> tuple[dict, np.ndarray, dict]:
     """Departures of a reading taken with the robot at rest from the prediction there,
-    and the qm. A late sensor shows the rest only after its lag: the reading is taken
+    the qm, and the sensors' readings. A late sensor shows the rest only after its lag: the reading is taken
     again (frames older than the last discarded) until each watched channel stays
     within a twentieth of its tolerance from one reading to the next (at most
     ``settle`` readings, ``[envelope] latency`` apart)."""
@@ -190,7 +193,8 @@ def at_rest(rig, predict: Predict, env, settle: int = 10) -> tuple[dict, np.ndar
         last = r
     n = sum(1 for ch in r if ch.startswith("qm"))
     qm = np.array([r[f"qm{i + 1}"] for i in range(n)])
-    return departures(r, predict(qm[None, :]), env.tolerance), qm
+    sensors = {ch: float(v) for ch, v in r.items() if not ch.startswith("qm")}
+    return departures(r, predict(qm[None, :]), env.tolerance), qm, sensors
 
 
 def watched_move(rig, target, predict: Predict, env, timeout: float) -> int:
@@ -216,10 +220,10 @@ def watched_move(rig, target, predict: Predict, env, timeout: float) -> int:
         bad = live_departures(timed, track, predict, env.tolerance)
         if bad:
             rig.stop()
-            rest, qm = at_rest(rig, predict, env)
+            rest, qm, sensors = at_rest(rig, predict, env)
             if rest:
                 raise EnvelopeStop(f"stopped at qm {np.round(qm, 4).tolist()}: "
-                                   + describe(rest, env.tolerance), rest, qm)
+                                   + describe(rest, env.tolerance), rest, qm, sensors)
             unconfirmed += 1
             if unconfirmed > MAX_CONFIRM:
                 raise EnvelopeStop(

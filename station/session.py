@@ -806,7 +806,8 @@ class Session:
         except EnvelopeStop as e:
             self._event("envelope", f"pose {pose.index}: {e}; back to where the move started",
                         plan_index=pose.index, qm=e.qm.tolist(),
-                        departed={k: list(v) for k, v in e.departed.items()})
+                        departed={k: list(v) for k, v in e.departed.items()},
+                        readings=e.readings)
             self._skip(pose, f"pose {pose.index} not recorded: the arm was stopped by the "
                        "envelope", resume.DROPPED)
             # back the way it came (the same straight line in actuator space): where the

@@ -110,6 +110,12 @@ def test_the_watch_stops_a_move_the_model_does_not_explain(sim_rig):
     here = np.array(rig.qm())
     assert np.max(np.abs(here - target)) > 1.0          # stopped short of the target
     np.testing.assert_allclose(here, e.value.qm, atol=5.0)     # where it was seen, give or take a read
+    # what the arm really reads where it stopped (the next plan learns from it): the
+    # true model's prediction at the stop's qm, within the readings' noise
+    true_there = sm_predictor("sm-distance-tilt", robot, truth, start)(e.value.qm)
+    assert set(e.value.readings) >= {"distance", "tilt"}
+    assert abs(e.value.readings["distance"] - true_there["distance"]) < 1e-3
+    assert abs(e.value.readings["tilt"] - true_there["tilt"]) < 3e-3
     with sim.control() as ctl:
         assert ctl.call(state=True)["target_reached"]
     assert math.isfinite(here.sum())

@@ -48,6 +48,12 @@ def test_a_far_off_arm_completes_inside_the_envelope(tmp_path):
     assert len(trace.fit_poses) == 36 and len(trace.validation_poses) == 6
     plans = [e for e in trace.events if e["kind"] == "plan"]
     assert plans[0]["box_scale"] < 1.0 and plans[-1]["box_scale"] <= 1.0   # scout first
+    # where the envelope stopped the arm, the readings there taught the next plan
+    stops = [e for e in trace.events if e["kind"] == "envelope"]
+    assert all(set(e["readings"]) >= {"distance", "tilt"} for e in stops)
+    if stops:
+        assert any("envelope stop" in e["message"] for e in trace.events
+                   if e["kind"] in ("info", "warning") and "refit" in e["message"])
 
 
 @pytest.mark.slow
