@@ -4,9 +4,11 @@ Every node is a canopen ``RemoteNode`` on one ``canopen.Network``; SDO, PDO and
 NMT are the library's. Positions are sampled together: the master sends one
 SYNC and waits for every node's TPDO1 (transmission type 1, mapping statusword
 0x6041 + position actual value 0x6064, or position value 0x6004 for an
-encoder). A TPDO is attributed to the last SYNC sent before it arrived (the
-synchronous window is the read timeout); a node whose TPDO does not come in
-time gives :class:`DeviceTimeout` naming it, never an older value. Heartbeats
+encoder). A TPDO is taken for the one SYNC the master awaits: a node whose TPDO
+has not come after ``sync_wait`` is asked over SDO, and its TPDO comes before
+that answer or is lost (then the SYNC is repeated within the read timeout); a
+node whose TPDO does not come in time gives :class:`DeviceTimeout` naming it,
+never an older value (:class:`CanopenNodes`, ``sync_wait``). Heartbeats
 (producer time 0x1017, set by the master) are watched: a silent node is
 ``"canopen node 3: heartbeat lost ..."``.
 
@@ -35,6 +37,11 @@ from drivers.canopen_od import NMT_OPERATIONAL, standard_od
 from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 
 
+class TpdoLost(DeviceTimeout):
+    """A SYNC's TPDO is lost on the bus: the node answered an SDO request sent after the
+    SYNC, and its TPDO, which it would have sent first, had not come."""
+
+
 class CanopenNodes(Device):
     """Common part of the CANopen devices: network, NMT, heartbeat consumer, EMCY,
     SYNC + TPDO sampling and SDO fallback. Subclasses set the profile.
@@ -47,14 +54,17 @@ class CanopenNodes(Device):
     heartbeat_ms:      producer heartbeat time written to 0x1017 (ms).
     heartbeat_timeout: seconds without heartbeat before a node is lost (default 5 periods).
     read_via:          ``"tpdo"`` (SYNC + TPDO, default) or ``"sdo"`` (SDO upload per node).
-    sync_attempts:     SYNCs tried for one reading (within its timeout) when a TPDO is lost
-                       on the bus (a flaky cable): nodes whose heartbeat is alive get a
-                       fresh SYNC after waiting ``sync_wait`` s plus as long again for
-                       stragglers (doubled where stragglers came: a slow bus); retries
-                       count in ``resyncs``.
-                       A TPDO later than that pause can still land in the next SYNC's
-                       window: a fresh, never-used value from one SYNC period before
-                       (the snapshot's std and drift limits catch a robot that moved).
+    sync_wait:         seconds a SYNC's TPDOs are awaited before the nodes still missing
+                       are asked over SDO (the barrier): a node's TPDO of a SYNC is on the
+                       bus before its answer to an SDO request sent after that SYNC (it
+                       is sent first, and at a higher priority), so a TPDO that comes in
+                       before that answer is taken for the SYNC, however late (a slow bus,
+                       a busy machine), and one that has not come is lost. A SYNC whose
+                       TPDOs are lost is repeated as long as the reading's timeout lasts;
+                       repeats count in ``resyncs``. A TPDO never answers a later SYNC: a
+                       node that has a SYNC's TPDO outstanding (a reading given up) is
+                       asked over SDO before the next SYNC goes out, and a TPDO outside
+                       its SYNC's window counts in ``unsolicited_tpdos``.
     """
 
     profile = 0x0192                      # low word of 0x1000
@@ -64,8 +74,7 @@ class CanopenNodes(Device):
     def __init__(self, nodes: Sequence[int], resolution: float | Sequence[float], *,
                  interface: str = "socketcan", channel: str = "can0", bus_options: dict | None = None,
                  timeout: float = 1.0, heartbeat_ms: int = 100, heartbeat_timeout: float | None = None,
-                 read_via: str = "tpdo", name: str = "canopen", sync_attempts: int = 10,
-                 sync_wait: float = 0.05):
+                 read_via: str = "tpdo", name: str = "canopen", sync_wait: float = 0.05):
         super().__init__(name, timeout)
         self.nodes = [int(n) for n in nodes]
         if not self.nodes or len(set(self.nodes)) != len(self.nodes) or not all(1 <= n <= 127 for n in self.nodes):
@@ -93,9 +102,10 @@ class CanopenNodes(Device):
         self._sync_t = 0.0
         self._pending: set[int] = set()
         self._fresh: dict[int, tuple] = {}
+        self._outstanding: set[int] = set()   # nodes that may still send a given-up SYNC's TPDO
         self.unsolicited_tpdos = 0        # TPDOs that came outside a SYNC window (late or extra)
-        self.sync_attempts, self.sync_wait = max(1, int(sync_attempts)), float(sync_wait)
-        self.resyncs = 0                  # readings that needed another SYNC (lost TPDOs)
+        self.sync_wait = float(sync_wait)
+        self.resyncs = 0                  # SYNCs repeated because TPDOs were lost
 
     @classmethod
     def from_endpoint(cls, endpoint: dict, resolution, **options):
@@ -127,6 +137,7 @@ class CanopenNodes(Device):
     # -- lifecycle ------------------------------------------------------------
     def _open_internal(self) -> None:
         self._last_hb.clear(), self._hb_state.clear(), self._emcy.clear()
+        self._outstanding = set()
         network = canopen.Network()
         try:
             self._server_answers()
@@ -229,22 +240,18 @@ class CanopenNodes(Device):
         for nid in self.nodes:
             self._check_heartbeat(nid)
 
-    def _check_heartbeat(self, nid: int, settle: bool = False) -> None:
-        """With ``settle``, wait until a new heartbeat proves the node alive or it is overdue."""
-        t0 = time.monotonic()
+    def _check_heartbeat(self, nid: int) -> None:
+        """Raise if node ``nid``'s heartbeat is overdue or says it left OPERATIONAL."""
         with self._cv:
-            while True:
-                age = time.monotonic() - self._last_hb.get(nid, t0)
-                if age > self.heartbeat_timeout:
-                    raise DeviceTimeout(f"heartbeat lost (none for {age:.2f} s, limit {self.heartbeat_timeout:.2f} s)",
-                                        device=self.node_name(nid))
-                state = self._hb_state.get(nid)
-                if state is not None and state != NMT_OPERATIONAL:
-                    label = canopen.nmt.NMT_STATES.get(state, state)
-                    raise DeviceError(f"left OPERATIONAL (heartbeat says {label})", device=self.node_name(nid))
-                if not settle or self._last_hb.get(nid, 0.0) > t0:
-                    return
-                self._cv.wait(0.02)
+            now = time.monotonic()
+            age = now - self._last_hb.get(nid, now)
+            if age > self.heartbeat_timeout:
+                raise DeviceTimeout(f"heartbeat lost (none for {age:.2f} s, limit {self.heartbeat_timeout:.2f} s)",
+                                    device=self.node_name(nid))
+            state = self._hb_state.get(nid)
+            if state is not None and state != NMT_OPERATIONAL:
+                label = canopen.nmt.NMT_STATES.get(state, state)
+                raise DeviceError(f"left OPERATIONAL (heartbeat says {label})", device=self.node_name(nid))
 
     @contextlib.contextmanager
     def _io(self, nid: int, what: str):
@@ -275,56 +282,112 @@ class CanopenNodes(Device):
     def _to_units(self, i: int, increments: int) -> float:
         return increments / self.resolution[i]
 
-    def sync_sample(self, timeout: float | None = None) -> dict[int, tuple]:
-        """Send one SYNC; return each node's TPDO values of that SYNC (``{nid: (values...)}``)."""
+    def sync_sample(self, timeout: float | None = None, window: float | None = None) -> dict[int, tuple]:
+        """Send one SYNC; return each node's TPDO values of that SYNC (``{nid: (values...)}``).
+
+        The TPDOs are awaited ``window`` s (default: all of ``timeout``); a node still
+        missing then is asked over SDO within the rest of ``timeout`` (the barrier,
+        :meth:`_barrier`), and its TPDO is taken if it comes in before the answer.
+        :class:`TpdoLost` where TPDOs are proven lost (the nodes answered), DeviceTimeout
+        where a node did not answer in time or its heartbeat is lost."""
         timeout = self.timeout if timeout is None else float(timeout)
+        return self._sync_once(time.monotonic() + timeout, window, timeout)
+
+    def _sync_once(self, end: float, window: float | None, timeout: float) -> dict[int, tuple]:
+        """:meth:`sync_sample` until ``end`` (``time.monotonic()``); ``timeout`` names it
+        in errors."""
         self.check_health()
+        for nid in sorted(self._outstanding):  # a given-up SYNC's TPDO is in before the answer
+            self._check_heartbeat(nid)
+            if not self._barrier(nid, end):
+                raise DeviceTimeout(f"no SDO answer within {timeout:.3g} s (a TPDO of an earlier "
+                                    "SYNC may still come); stale sample refused",
+                                    device=self.node_name(nid))
         with self._cv:
             self._sync_no += 1
             self._pending, self._fresh = set(self.nodes), {}
+            self._outstanding = set(self.nodes)
             self._sync_t = time.monotonic()   # the drives latch their positions at this SYNC
         try:
             self.network.sync.transmit()
         except (can.CanError, OSError) as e:
+            with self._cv:
+                self._pending = set()
             raise DeviceError(f"cannot send SYNC: {e}", device=self.name) from e
-        end = time.monotonic() + timeout
-        with self._cv:
-            while self._pending and self._cv.wait(max(0.0, end - time.monotonic())):
-                pass
-            missing, fresh = sorted(self._pending), self._fresh
-            self._pending = set()
-        for nid in missing:
-            self._check_heartbeat(nid, settle=True)
+        close = end if window is None else min(end, self._sync_t + max(0.0, float(window)))
+        answered: set[int] = set()
+        in_time = True
+        try:
+            with self._cv:
+                while self._pending and self._cv.wait(max(0.0, close - time.monotonic())):
+                    pass
+                missing = sorted(self._pending)
+            for nid in missing:
+                with self._cv:
+                    if nid not in self._pending:      # came in during an earlier node's barrier
+                        continue
+                self._check_heartbeat(nid)            # a dead node fails at once
+                in_time = self._barrier(nid, end)
+                if not in_time:
+                    break
+                answered.add(nid)
+        finally:
+            with self._cv:
+                missing, fresh = sorted(self._pending), self._fresh
+                self._pending = set()
+                self._outstanding = set(missing) - answered
         if missing:
             also = f" (also nodes {missing[1:]})" if len(missing) > 1 else ""
-            raise DeviceTimeout(f"no TPDO for SYNC #{self._sync_no} within {timeout:.3g} s; stale sample refused"
-                                f"{also}", device=self.node_name(missing[0]))
+            if not in_time:
+                raise DeviceTimeout(f"no TPDO for SYNC #{self._sync_no} within {timeout:.3g} s; "
+                                    f"stale sample refused{also}", device=self.node_name(missing[0]))
+            raise TpdoLost(f"TPDO of SYNC #{self._sync_no} lost (the node answered an SDO request "
+                           f"sent after it); stale sample refused{also}", device=self.node_name(missing[0]))
         return fresh
+
+    def _barrier(self, nid: int, end: float) -> bool:
+        """One SDO exchange with node ``nid`` (device type 0x1000) before ``end``: every
+        frame the node sent before its answer (a TPDO of a SYNC sent before the request)
+        has come in when it returns True; False where time ran out first. A silent node
+        is found by its heartbeat after ``heartbeat_timeout`` (DeviceTimeout)."""
+        sdo = self.remote[nid].sdo
+        try:
+            while True:
+                left = end - time.monotonic()
+                if left <= 0:
+                    return False
+                sdo.RESPONSE_TIMEOUT = min(left, self.heartbeat_timeout)
+                try:
+                    sdo.upload(0x1000, 0)
+                    return True
+                except SdoAbortedError:
+                    return True                   # an answer all the same
+                except SdoCommunicationError:
+                    self._check_heartbeat(nid)    # dead: heartbeat lost; else ask again
+                except (can.CanError, OSError) as e:
+                    raise DeviceError(f"CAN bus error while asking after a TPDO: {e}",
+                                      device=self.node_name(nid)) from e
+        finally:
+            sdo.RESPONSE_TIMEOUT = self.timeout
 
     def _read_internal(self, timeout: float) -> Sample:
         if self.read_via == "sdo":
             return self.read_sdo(timeout)
         end = time.monotonic() + timeout
-        wait = self.sync_wait
-        for attempt in range(self.sync_attempts):
-            last = attempt == self.sync_attempts - 1
-            left = max(0.0, end - time.monotonic())
-            try:   # a lost TPDO costs one more SYNC, not the reading; a dead node still
-                # fails at once (its heartbeat is checked in sync_sample)
-                fresh = self.sync_sample(left if last else min(left, wait))
+        syncs = 0
+        while True:
+            syncs += 1
+            try:   # a lost TPDO costs one more SYNC, not the reading, while time remains; a
+                # dead node still fails at once (its heartbeat is checked in _sync_once)
+                fresh = self._sync_once(end, self.sync_wait, timeout)
                 break
-            except DeviceTimeout as e:
-                if last or time.monotonic() + wait >= end:
-                    raise
+            except TpdoLost as e:
+                if time.monotonic() >= end:
+                    raise TpdoLost(f"no SYNC answered by every node within {timeout:.3g} s ({syncs} "
+                                   f"SYNCs, TPDOs lost on the bus); stale sample refused",
+                                   device=e.device) from e
                 self.resyncs += 1
                 log.info("%s: %s; SYNC again", self.name, e)
-                # let late TPDOs of the abandoned SYNC arrive outside any window (they
-                # are counted as unsolicited, never taken for the next SYNC's); where
-                # some did, the bus is slow rather than lossy: give it twice the time
-                late = self.unsolicited_tpdos
-                time.sleep(wait)
-                if self.unsolicited_tpdos > late:
-                    wait *= 2
         t = time.monotonic()
         pos = [o for o, _ in self.tpdo_objects].index(self.position_object)
         raw = {nid: fresh[nid][pos] for nid in self.nodes}

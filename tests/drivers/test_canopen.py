@@ -184,7 +184,6 @@ def test_lost_tpdos_cost_a_sync_not_the_reading(drives, sim):
     """A flaky bus (10 % of TPDOs lost): readings still succeed, each from one SYNC at
     which every node answered, and the extra SYNCs are counted."""
     before = drives.read()
-    drives.sync_attempts = 10
     sim.call("faults", {"drop_prob": 0.1})
     seqs = []
     for _ in range(20):
@@ -201,6 +200,46 @@ def test_late_answers_within_timeout_are_fine(drives, sim):
     # the machine running it is
     assert drives.read(timeout=3.0).values == expected
     assert drives.read_sdo(timeout=3.0).values == expected
+
+
+def test_tpdos_later_than_the_sync_window_answer_their_own_sync(drives, sim):
+    """TPDOs three times later than a SYNC's first window (``sync_wait``, 0.05 s), and a
+    window that closes at once (the reading thread descheduled through it): each reading
+    is answered by the one SYNC it sent, none sends another, and no TPDO comes in
+    outside the window of the SYNC it answers (the SDO answer a node gives after the
+    window proves its TPDO came first, so it is waited for, never left to a later SYNC)."""
+    expected = drives.read().values
+    resyncs, unsolicited = drives.resyncs, drives.unsolicited_tpdos
+    sim.call("faults", {"late_s": 0.15})
+    syncs = []
+    for wait in (drives.sync_wait, drives.sync_wait, 0.0, 0.0):
+        drives.sync_wait = wait
+        s = drives.read(timeout=3.0)
+        assert s.values == expected and s.info["source"] == "tpdo"
+        syncs.append(s.info["sync"])
+    assert syncs == list(range(syncs[0], syncs[0] + 4))          # one SYNC per reading
+    sim.call("clear")
+    assert sim.call("drain")
+    assert drives.read_sdo().values == expected       # barrier: every TPDO sent is in
+    assert drives.resyncs == resyncs
+    assert drives.unsolicited_tpdos == unsolicited
+
+
+def test_a_tpdo_given_up_never_answers_a_later_sync(drives, sim):
+    """Late (0.15 s) and lost (20 %) TPDOs together: every reading still succeeds, from
+    one SYNC at which every node answered; a SYNC is repeated only once its missing
+    TPDOs are proven lost, so none of them comes in later (where it could be taken
+    for a newer SYNC's)."""
+    expected = drives.read().values
+    unsolicited = drives.unsolicited_tpdos
+    sim.call("faults", {"late_s": 0.15, "drop_prob": 0.2})
+    for _ in range(6):
+        s = drives.read(timeout=10.0)
+        assert s.values == expected and s.info["source"] == "tpdo"
+    sim.call("clear")
+    assert sim.call("drain")
+    assert drives.read_sdo().values == expected       # barrier: every TPDO sent is in
+    assert drives.unsolicited_tpdos == unsolicited
 
 
 def test_late_answers_beyond_timeout_are_timeouts(drives, sim):
