@@ -152,11 +152,35 @@ def minimum_count(method: str, components=None, distance_zero: str = SESSION_ZER
     return minimum_poses(parameter_count(method, distance_zero), p)
 
 
-def reference_pose(method: str, nominal) -> tuple[np.ndarray | None, str | None, str]:
-    """``(qm, role, instructions)`` of the reference step; qm None where the method has none."""
+#: share of an actuator's range kept clear where a suggested reference is brought
+#: inside the config's limits
+REFERENCE_MARGIN = 0.05
+
+
+def inside_limits(qm, qm_range) -> np.ndarray:
+    """``qm`` with each actuator beyond the config's limits (``qm_range``: ``(n, 2)`` or
+    None) brought :data:`REFERENCE_MARGIN` of its range inside them. The nominal
+    model's suggestion of a reference is a suggestion: on a robot whose gear ratio
+    is 30 % off, the nominal's -212.9 for actuator 4 lay beyond a limit of -205, and
+    the session refused to move there."""
+    qm = np.array(qm, dtype=float)
+    if qm_range is None:
+        return qm
+    lo, hi = np.asarray(qm_range, dtype=float).T
+    span = hi - lo
+    pad = np.where(np.isfinite(span), REFERENCE_MARGIN * np.where(np.isfinite(span), span, 0), 0)
+    out = (qm < lo) | (qm > hi)
+    qm[out] = np.clip(qm[out], (lo + pad)[out], (hi - pad)[out])
+    return qm
+
+
+def reference_pose(method: str, nominal, qm_range=None) -> tuple[np.ndarray | None, str | None, str]:
+    """``(qm, role, instructions)`` of the reference step; qm None where the method has
+    none. ``qm_range`` (the config's actuator limits): an actuator the suggestion puts
+    beyond them is brought inside (:func:`inside_limits`)."""
     robot = get_robot(BUILTIN[METHODS[method].kind])
     if method == "sm-distance-tilt":
-        qm = robot.ik(SM_BASE_ORIGIN, nominal, elbow=-1)
+        qm = inside_limits(robot.ik(SM_BASE_ORIGIN, nominal, elbow=-1), qm_range)
         return qm, "base-origin", (
             "Jog the end effector to where the base origin of the calibration should be "
             "(inside the working area, about 0.5 m out, 1 m along the rail, 0.8 m up), attach "
@@ -164,7 +188,7 @@ def reference_pose(method: str, nominal) -> tuple[np.ndarray | None, str | None,
             "actuator values recorded. theta0, a0 and q1_off will refer to this point.")
     if method == "sm-distance":
         off = np.r_[robot.base_offset(nominal), 0.0]
-        qm = robot.ik(SM_REFERENCE_POINT + off, nominal)
+        qm = inside_limits(robot.ik(SM_REFERENCE_POINT + off, nominal), qm_range)
         return qm, "reference-point", (
             "Jog the end effector to the reference point, attach the draw-wire cable there "
             "and capture: the draw-wire is zeroed and the actuator values recorded.")

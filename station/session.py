@@ -352,7 +352,7 @@ class Session:
             return (serial_plan.reference_pose(self.robot, self.nominal,
                                                self.config.envelope.qm_range),
                     self.info.reference, serial_plan.REFERENCE_TEXT)
-        return planner.reference_pose(self.method, self.nominal)
+        return planner.reference_pose(self.method, self.nominal, self.config.envelope.qm_range)
 
     def capture_reference(self) -> np.ndarray:
         """Record the current pose as the reference: zero the draw-wire (the cable is

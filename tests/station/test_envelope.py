@@ -6,6 +6,7 @@ import dataclasses
 import math
 import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -181,3 +182,25 @@ def test_each_reading_is_compared_where_the_actuators_were_when_it_was_sampled()
     tol2 = {"tilt": 0.1, "distance": 0.05}
     assert live_departures({"tilt": (1.0, 0.05, 0.15), "distance": (9.0, 0.05, 0.15)},
                            track, lambda q: {"distance": np.full(len(q), 9.0)}, tol2) == {}
+
+
+def test_a_suggested_reference_beyond_a_limit_is_brought_inside():
+    """The reference the nominal model suggests may lie beyond a drawn arm's limit
+    (sm-distance's actuator 4 at -212.9 against -205): it is brought 5 % of the range
+    inside, the other actuators kept; inside the limits, or without any, it is the
+    nominal's own."""
+    from station.planner import reference_pose
+
+    robot = get_robot("agebot-sm")
+    free, _, _ = reference_pose("sm-distance", robot.nominal)
+    lo = np.array([-50.0, -200.0, -100.0, free[3] + 7.9])
+    hi = np.array([50.0, 200.0, 300.0, 0.0])
+    qm, _, _ = reference_pose("sm-distance", robot.nominal, np.column_stack([lo, hi]))
+    assert limit_violation(qm, SimpleNamespace(qm_min=lo, qm_max=hi)) is None
+    np.testing.assert_allclose(qm[:3], free[:3])
+    assert qm[3] == pytest.approx(lo[3] + 0.05 * (hi[3] - lo[3]))
+    wide = np.column_stack([np.full(4, -1e3), np.full(4, 1e3)])
+    np.testing.assert_allclose(reference_pose("sm-distance", robot.nominal, wide)[0], free)
+    for method in ("sm-distance", "sm-distance-tilt"):
+        np.testing.assert_allclose(reference_pose(method, robot.nominal, None)[0],
+                                   reference_pose(method, robot.nominal)[0])
