@@ -123,7 +123,13 @@ def retry_then_skip(retries: int = 3) -> FaultPolicy:
     device itself is gone (:func:`station.device_loss.probe`: the session stops)."""
     def policy(pose, error, attempt):
         return "retry" if attempt < retries else "skip"
+    policy.retries = retries      # the reference step's retries (Session.reference_retries)
     return policy
+
+
+#: retries of the reference step where the fault policy states none (an operator's,
+#: asked per pose in the wizard): as many as :func:`retry_then_skip`'s default
+REFERENCE_RETRIES = 3
 
 
 class Session:
@@ -168,6 +174,9 @@ class Session:
         self.request = request or PlanRequest()
         self.observer = observer
         self.fault_policy = fault_policy or retry_then_skip()
+        # a transient fault of the reference step (or the wrist's start step) is retried
+        # this many times: the policy's own count where it states one (headless)
+        self.reference_retries = int(getattr(self.fault_policy, "retries", REFERENCE_RETRIES))
         self.rig = rig
         self.touch = touch
         self.station_record = dict(station or {})   # more for the header's station field
@@ -354,14 +363,20 @@ class Session:
                     self.info.reference, serial_plan.REFERENCE_TEXT)
         return planner.reference_pose(self.method, self.nominal, self.config.envelope.qm_range)
 
-    def capture_reference(self) -> np.ndarray:
-        """Record the current pose as the reference: zero the draw-wire (the cable is
-        attached here), then measure the pose as any other (averaged, checked) and write
-        the reference record. The zero is one reading with noise, so the record says
-        ``zero = "reading"`` (the method calibrates ``distance_off``) and keeps the
-        averaged reading there as ``tare`` (checked again on resume). Before any
-        pose is measured the reference may be captured again: the new record (and its
-        zero) replaces the earlier one, in the trace as on resume."""
+    def capture_reference(self, qm=None) -> np.ndarray:
+        """Record the current pose (``qm`` given: drive there first, the headless run)
+        as the reference: zero the draw-wire (the cable is attached here), then measure
+        the pose as any other (averaged, checked) and write the reference record. The
+        zero is one reading with noise, so the record says ``zero = "reading"`` (the
+        method calibrates ``distance_off``) and keeps the averaged reading there as
+        ``tare`` (checked again on resume). Before any pose is measured the reference
+        may be captured again: the new record (and its zero) replaces the earlier one,
+        in the trace as on resume.
+
+        A device fault on the way (the move, the plausibility test move, the zero, a
+        reading of the tare) is retried as a pose's is (:meth:`_reference_retried`):
+        the arm back where the step started and the whole capture again (zero and
+        every reading), so the record never mixes readings from before and after it."""
         if not self.needs_reference:
             raise StationError(f"method {self.method} has no reference step")
         if self.reference_qm is not None and self.measured:
@@ -369,10 +384,24 @@ class Session:
                                "needs a new session folder")
         again = self.reference_qm is not None
         rig = self._rig()
-        found = plausibility.check_reference(self)     # a mis-configured device stops here
-        if rig.drawwire is not None:
-            rig.zero_drawwire()
-        snap = rig.snapshot()
+        where = None if qm is None else [float(v) for v in qm]
+        if where is not None:
+            why = limit_violation(where, self.config.envelope)
+            if why is not None:
+                raise StationError(f"not moved: {why} ([envelope] of the station config)")
+
+        def capture(attempt: int):
+            nonlocal where
+            if where is None:          # here: where the operator left the arm
+                where = [float(v) for v in rig.qm()]
+            elif (attempt or qm is not None) and rig.can_move:
+                rig.move_to(where)     # there, or back after a fault (a test move's)
+            found = plausibility.check_reference(self)   # a mis-configured device stops here
+            if rig.drawwire is not None:
+                rig.zero_drawwire()
+            return found, rig.snapshot()
+
+        found, snap = self._reference_retried("the reference step", capture)
         qm = np.array([snap.mean[f"qm{i + 1}"] for i in range(self.robot.n_actuators)])
         rec = {"record": "reference", "role": self.info.reference, "qm": qm.tolist(),
                "t": utc_now(), "samples": snap.samples}
@@ -394,6 +423,41 @@ class Session:
                        if again else ""))
         return qm
 
+    def _reference_retried(self, what: str, step):
+        """``step(attempt)`` (0-based), retried after a DeviceError the way a pose is
+        (:meth:`_measure`): a ``fault`` event naming the device, a pause
+        (:func:`station.device_loss.backoff`), the rig recovered, and ``step`` again
+        from its start (it returns the arm where it began and takes every reading
+        anew), at most :attr:`reference_retries` times. Then
+        :func:`station.device_loss.probe` tells a device gone (:class:`DeviceLost`,
+        naming it and what to check) from a step that kept failing (its last error).
+        The step cannot be skipped: nothing is measured without it. Faults are
+        recorded in the trace (its header written first where there is none yet: a
+        trace without a reference record resumes with the reference step)."""
+        rig = self._rig()
+        attempt = 0
+        while True:
+            try:
+                closed = device_loss.not_connected(rig)     # a reconnection that failed
+                if closed is not None:
+                    raise closed
+                return step(attempt)
+            except DeviceError as e:
+                self._ensure_trace()
+                self._event("fault", f"{what}, attempt {attempt + 1}: "
+                            f"{describe_error(e, self.units)}", device=e.device, step=what)
+                if attempt >= self.reference_retries:
+                    lost = device_loss.probe(rig, e)         # the device, or this step?
+                    if lost is not None:
+                        self._event("lost", str(lost), device=lost.device)
+                        raise lost from e
+                    raise
+                attempt += 1
+                pause = device_loss.backoff(attempt)
+                self._event("retry", f"{what}: retry {attempt} in {pause:g} s", step=what)
+                time.sleep(pause)                            # a short outage passes
+                self._recover()
+
     def reference_offset(self, qm=None) -> float | None:
         """Distance (m, nominal model) from the reference ``qm`` (default: the captured
         one) to the suggested point; None without a reference step."""
@@ -413,21 +477,30 @@ class Session:
         new zero is another noisy reading, said in an event (docs/methods.md)."""
         if self.reference_qm is None or self._rig().drawwire is None:
             return
-        self.move_to(self.reference_qm)
-        snap = self.rig.snapshot()
-        now = _tare(snap)
         tare = (self.reference_record or {}).get("tare")
-        if tare is not None:
-            se = math.hypot(tare["std"] / math.sqrt(max(tare["samples"], 1)),
-                            now["std"] / math.sqrt(max(now["samples"], 1)))
-            tol = 4 * se + 2 * self.config.drawwire.metres_per_count
-            if abs(now["distance"] - tare["distance"]) <= tol:
-                self._event("reference", f"back at the reference: draw-wire reads "
-                            f"{now['distance']:.6g} m (at capture {tare['distance']:.6g} m): "
-                            "it kept its zero", tare=now)
-                self.zeroed = True
-                return
-        self.rig.zero_drawwire()
+        target = [float(v) for v in self.reference_qm]
+
+        def check(attempt: int):
+            """Back at the reference, read the draw-wire; zero it where it lost its zero.
+            A fault anywhere: all of it again (the zero where it is read anew)."""
+            self.move_to(target)
+            now = _tare(self.rig.snapshot())
+            if tare is not None:
+                se = math.hypot(tare["std"] / math.sqrt(max(tare["samples"], 1)),
+                                now["std"] / math.sqrt(max(now["samples"], 1)))
+                tol = 4 * se + 2 * self.config.drawwire.metres_per_count
+                if abs(now["distance"] - tare["distance"]) <= tol:
+                    return now, True
+            self.rig.zero_drawwire()
+            return now, False
+
+        now, kept = self._reference_retried("the return to the reference", check)
+        if kept:
+            self._event("reference", f"back at the reference: draw-wire reads "
+                        f"{now['distance']:.6g} m (at capture {tare['distance']:.6g} m): "
+                        "it kept its zero", tare=now)
+            self.zeroed = True
+            return
         self._event("warning", f"back at the reference: draw-wire read {now['distance']:.6g} m "
                     f"(at capture {tare['distance'] if tare else float('nan'):.6g} m): it lost "
                     "its zero and was zeroed again; the poses measured from now on carry that "
@@ -541,12 +614,22 @@ class Session:
                 self._set_plan(poses, replace=True, design=designs[0])
                 return poses
         else:
-            found = plausibility.check_wrist(self)      # a flipped sign stops here
+            rig, home = self._rig(), None
+
+            def start_step(attempt: int):
+                nonlocal home
+                if home is None:        # where the wrist stands: its start (home) pose
+                    home = [float(v) for v in rig.qm()]
+                elif rig.can_move:      # back there after a fault (a test move's)
+                    rig.move_to(home)
+                found = plausibility.check_wrist(self)      # a flipped sign stops here
+                return found, np.array(rig.qm()), self._orientation_now()
+
+            found, home_qm, home_X = self._reference_retried("the wrist's start step",
+                                                             start_step)
             if found:
                 self._ensure_trace()
                 self._event("info", found)
-            home_qm = np.array(self._rig().qm())
-            home_X = self._orientation_now()
             self.wrist.request = self.request    # the operator may have changed count, seed
             poses, wrist = self.wrist.scout(home_qm, home_X)
             self._set_plan(poses, replace=True, wrist=wrist)
@@ -1001,8 +1084,7 @@ class Session:
         if todo.capture_reference:
             qm, role, _ = self.reference_target()
             self._event("info", f"moving to the {role} for the reference step")
-            self.move_to(qm)
-            self.capture_reference()
+            self.capture_reference(qm)
         elif todo.rezero:
             self.rezero_at_reference()
         if todo.plan:

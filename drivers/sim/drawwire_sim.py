@@ -11,7 +11,10 @@ Transports: Modbus TCP on ``host:port`` (127.0.0.1, ephemeral by default) and
 Modbus RTU over a pseudo-terminal (:attr:`rtu_port` is the path a client opens;
 the server sits on a second pty, the two masters bridged by a thread).
 Faults from :class:`FaultPlan`: ``modbus_exception``, ``drawwire_down`` (TCP
-listener and connections closed, RTU bytes dropped), ``late_s``.
+listener and connections closed, RTU bytes dropped), ``late_s``,
+``drawwire_unanswered`` (after ``drawwire_answer_first`` answered requests, that
+many requests get no answer at all: the client times out and, over TCP, closes
+the connection; over RTU nothing is ever sent for them either).
 
 Child process: ``python -m drivers.sim.drawwire_sim`` (see :func:`main`).
 """
@@ -74,6 +77,8 @@ class SimDrawWire:
 
     async def _action(self, fc, start, address, count, registers, set_values):
         f = self.faults
+        if not f.drawwire_answers():       # a lost answer: none is ever sent
+            await asyncio.Event().wait()   # (cancelled when the server stops)
         if f.late_s > 0:
             await asyncio.sleep(f.late_s)
         if f.modbus_exception:

@@ -26,6 +26,10 @@ class FaultPlan:
     drawwire_down:    the Modbus server drops its connections and refuses new ones.
     inclinometer_lag_s: the inclinometer's frames show the pose of that many seconds
                       before they are sent (a sensor's filter delay).
+    drawwire_unanswered: the next that many Modbus requests to the draw-wire get no
+                      answer (a lost answer: the client times out); counts down to 0.
+    drawwire_answer_first: how many requests are answered before those (counts down
+                      first): a lost answer at an exact request, e.g. in mid-snapshot.
     seed:             seed of the fault random generator.
     """
 
@@ -38,6 +42,8 @@ class FaultPlan:
     inclinometer_silent: bool = False
     drawwire_down: bool = False
     inclinometer_lag_s: float = 0.0
+    drawwire_unanswered: int = 0
+    drawwire_answer_first: int = 0
     seed: int | None = None
 
     def __post_init__(self):
@@ -59,12 +65,29 @@ class FaultPlan:
                     raise KeyError(f"unknown fault {k!r} (known: {', '.join(sorted(names - {'seed'}))})")
                 if k == "silent_nodes":
                     v = set(int(x) for x in v)
+                if k in ("drawwire_unanswered", "drawwire_answer_first"):
+                    if isinstance(v, bool) or int(v) != v or v < 0:
+                        raise ValueError(f"{k} is a count of requests (0 or more), not {v!r}")
+                    v = int(v)
                 setattr(self, k, v)
+
+    def drawwire_answers(self) -> bool:
+        """Whether the draw-wire answers the request it has just received (counts
+        ``drawwire_answer_first``, then ``drawwire_unanswered``, down)."""
+        with self._lock:
+            if self.drawwire_unanswered <= 0:
+                return True
+            if self.drawwire_answer_first > 0:
+                self.drawwire_answer_first -= 1
+                return True
+            self.drawwire_unanswered -= 1
+            return False
 
     def clear(self) -> None:
         self.update(drop_prob=0.0, corrupt_prob=0.0, late_s=0.0, silent_nodes=set(),
                     drive_fault_node=0, modbus_exception=0, inclinometer_silent=False,
-                    drawwire_down=False, inclinometer_lag_s=0.0)
+                    drawwire_down=False, inclinometer_lag_s=0.0, drawwire_unanswered=0,
+                    drawwire_answer_first=0)
 
     def as_dict(self) -> dict:
         return {f.name: (sorted(getattr(self, f.name)) if f.name == "silent_nodes"

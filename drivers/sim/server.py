@@ -15,6 +15,8 @@ that file; they include ``control``, a JSON-lines TCP port through which tests
 and demos inject faults and look at the simulated truth::
 
     {"faults": {"drop_prob": 0.2}}   {"clear": true}   {"state": true}
+    {"faults": {"drawwire_answer_first": 3, "drawwire_unanswered": 1}}  (the 4th
+                        draw-wire request from now gets no answer; FaultPlan's fields)
     {"move": [qm...]}  (the robot's own controller, for CiA 406 encoders)
     {"drop_drawwire": true}  (close the Modbus TCP connections once)
     {"contact": true}  (what a feeler gauge and the operator's eye tell: the true

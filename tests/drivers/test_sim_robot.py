@@ -130,6 +130,22 @@ def test_faults_are_held_for_the_device_simulators():
     assert isinstance(robot("agebot-pm").faults, FaultPlan)
 
 
+def test_the_draw_wire_s_unanswered_requests_are_counted_exactly():
+    """``drawwire_answer_first`` answered, then ``drawwire_unanswered`` lost, then all
+    answered again; a count that is not one is refused (the control port's error)."""
+    plan = FaultPlan()
+    assert plan.drawwire_answers()
+    plan.update(drawwire_answer_first=2, drawwire_unanswered=3)
+    assert [plan.drawwire_answers() for _ in range(7)] == [True, True, False, False, False,
+                                                           True, True]
+    for bad in (-1, 1.5, True, "2"):
+        with pytest.raises((ValueError, TypeError)):
+            plan.update(drawwire_unanswered=bad)
+    plan.update(drawwire_unanswered=4)
+    plan.clear()
+    assert plan.drawwire_answers() and plan.drawwire_unanswered == 0
+
+
 # -- PM: the physical inclinometer --------------------------------------------------------------
 def test_gravity_tilt_signs():
     assert gravity_tilt(np.eye(3)) == (0.0, 0.0)

@@ -8,6 +8,7 @@ import os
 import signal
 import threading
 
+import numpy as np
 import pytest
 
 from drivers.sim.server import SimulatorProcess
@@ -117,3 +118,142 @@ def test_a_short_outage_is_retried_after_a_pause(tmp_path):
     kinds = [e["kind"] for e in s.events]
     assert "retry" in kinds and "skip" not in kinds and "lost" not in kinds
     assert len(s.measured) == 10
+
+
+def _at_reference_step(ctl, faults: dict, done: list):
+    """An observer that injects ``faults`` as the headless run starts its reference
+    step (its ``moving to the ... for the reference step`` event)."""
+    def observer(kind, payload):
+        if (kind == "event" and payload["kind"] == "info" and not done
+                and "for the reference step" in payload["message"]):
+            done.append(ctl.call(faults=faults))
+    return observer
+
+
+def test_a_lost_answer_in_the_reference_tare_redoes_the_whole_capture(tmp_path, quick_retries,
+                                                                     no_report):
+    """One draw-wire answer lost in the middle of the reference's tare (a flaky cable):
+    a ``fault`` event naming the draw-wire, a retry, and the whole capture again, the
+    zero among it (no reading of before the fault is kept); the session completes."""
+    cfg = fast_config(tmp_path, "agebot-sm")
+    out = tmp_path / "run"
+    with SimulatorProcess("agebot-sm", config=str(cfg), seed=9) as sim:
+        config = _session_config(sim, cfg)
+        n = config.snapshot.samples
+        # the draw-wire's requests of the reference step, in order: the plausibility
+        # check's zero and its two snapshots (before and after the test move), then the
+        # capture's zero and the tare snapshot: the tare's third reading gets no answer
+        first = 1 + 2 * n + 1 + 2
+        with sim.control() as ctl:
+            injected = []
+            with Session(config, "sm-distance-tilt", out, request=REQUEST, **POOR_FIT_OK,
+                         observer=_at_reference_step(
+                             ctl, {"drawwire_answer_first": first, "drawwire_unanswered": 1},
+                             injected)) as s:
+                s.run()
+            state = ctl.call(state=True)
+    assert injected and state["faults"]["drawwire_unanswered"] == 0
+    trace = read_trace(out / "trace.jsonl")
+    faults = [e for e in trace.events if e["kind"] == "fault"]
+    assert len(faults) == 1 and faults[0]["device"] == "draw-wire", faults
+    assert faults[0]["step"] == "the reference step" and "no answer" in faults[0]["message"]
+    assert [e["kind"] for e in trace.events].count("retry") == 1
+    # two zeros an attempt (the plausibility check's, the capture's), both attempts
+    assert state["drawwire_zero_calls"] == 4
+    assert trace.reference["samples"] == n and trace.reference["tare"]["samples"] == n
+    assert sorted(p["plan_index"] for p in trace.poses) == list(range(10))
+    assert s.outcome.result.converged
+
+
+def test_answers_lost_at_the_reference_step_s_first_requests_are_retried(tmp_path,
+                                                                        quick_retries,
+                                                                        no_report):
+    """The plausibility check's zero of the draw-wire unanswered twice: two faults, two
+    retries (each drives back to the base origin first), the third attempt records the
+    reference; the trace resumes as any other (a second session finds it finished)."""
+    cfg = fast_config(tmp_path, "agebot-sm")
+    out = tmp_path / "run"
+    with SimulatorProcess("agebot-sm", config=str(cfg), seed=9) as sim:
+        config = _session_config(sim, cfg)
+        with sim.control() as ctl:
+            injected = []
+            with Session(config, "sm-distance-tilt", out, request=REQUEST, **POOR_FIT_OK,
+                         observer=_at_reference_step(ctl, {"drawwire_unanswered": 2},
+                                                     injected)) as s:
+                s.run()
+            state = ctl.call(state=True)
+        with Session(config, "sm-distance-tilt", out, request=REQUEST, **POOR_FIT_OK) as again:
+            assert again.finished
+    trace = read_trace(out / "trace.jsonl")
+    faults = [e for e in trace.events if e["kind"] == "fault"]
+    assert [f["message"].split(":")[0] for f in faults] == [
+        "the reference step, attempt 1", "the reference step, attempt 2"], faults
+    assert all(f["device"] == "draw-wire" for f in faults)
+    assert state["drawwire_zero_calls"] == 2           # the third attempt's two zeros
+    assert len(trace.poses) == 10 and s.outcome.result.converged
+
+
+@pytest.mark.parametrize("faults, device, check", [
+    ({"silent_nodes": [2]}, "canopen", "check the CAN cable"),
+    ({"modbus_exception": 4}, "draw-wire", "check the Modbus link"),
+    ({"inclinometer_silent": True}, "inclinometer", "check the serial cable"),
+])
+def test_a_device_lost_at_the_reference_step_stops_the_session_named(
+        tmp_path, faults, device, check, quick_retries, no_report):
+    """A device that stays silent from the reference step on: its retries fail, the
+    probe finds it gone, the session stops naming it; once it answers again the
+    session resumes from its trace (header and faults, no reference) and completes."""
+    cfg = fast_config(tmp_path, "agebot-sm")
+    out = tmp_path / "run"
+    with SimulatorProcess("agebot-sm", config=str(cfg), seed=9) as sim:
+        config = _session_config(sim, cfg)
+        with sim.control() as ctl:
+            injected = []
+            with Session(config, "sm-distance-tilt", out, request=REQUEST,
+                         observer=_at_reference_step(ctl, faults, injected)) as s:
+                with pytest.raises(DeviceLost) as lost:
+                    s.run()
+            assert injected
+            msg = str(lost.value)
+            print(msg)
+            assert "\n" not in msg and msg.startswith(device) and check in msg, msg
+            trace = read_trace(out / "trace.jsonl")
+            assert trace.reference is None and not trace.poses
+            tried = [e for e in trace.events if e["kind"] == "fault"
+                     and e.get("step") == "the reference step"]
+            assert len(tried) == 4, tried                  # the first try and 3 retries
+            assert [e for e in trace.events if e["kind"] == "lost"]
+            ctl.call(clear=True)
+        with Session(config, "sm-distance-tilt", out, request=REQUEST, **POOR_FIT_OK) as again:
+            assert again.resumed and again.redo().capture_reference
+            again.run()
+    trace = read_trace(out / "trace.jsonl")
+    assert trace.reference is not None and len(trace.poses) == 10
+    assert again.outcome.result.converged
+
+
+def test_a_fault_at_the_wrist_s_start_step_is_retried(tmp_path, quick_retries):
+    """The wrist's start step (its test move, the home pose's readings): the inclinometer
+    silent until the fault is recorded, then answering again: one fault naming it, the
+    step again from home, the scout round planned."""
+    cfg = fast_config(tmp_path, "agebot-pm")
+    with SimulatorProcess("agebot-pm", config=str(cfg), seed=4) as sim:
+        with sim.control() as ctl:
+            def observer(kind, payload):
+                if kind == "event" and payload["kind"] == "fault":
+                    ctl.call(faults={"inclinometer_silent": False})
+
+            with Session(_session_config(sim, cfg), "pm-fk", tmp_path / "run",
+                         request=PlanRequest(count=24, validation=5, seed=2),
+                         observer=observer) as s:
+                s.connect()
+                home = s.qm()
+                ctl.call(faults={"inclinometer_silent": True})
+                poses = s.plan()
+                assert np.allclose(s.qm(), home, atol=1e-3)   # back home after the test move
+    faults = [e for e in s.events if e["kind"] == "fault"]
+    assert len(faults) == 1 and faults[0]["device"] == "inclinometer", faults
+    assert faults[0]["step"] == "the wrist's start step"
+    assert poses and s.plan_poses == poses
+    trace = read_trace(tmp_path / "run" / "trace.jsonl")
+    assert [e["kind"] for e in trace.events][:3] == ["fault", "retry", "info"]
