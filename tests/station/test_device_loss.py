@@ -24,6 +24,14 @@ REQUEST = PlanRequest(count=8, validation=2, seed=3)
 POOR_FIT_OK = {"accept_poor_fit": True}
 
 
+#: a device that stops answering: the fault, the device named, what the operator checks
+LOST_DEVICES = [
+    ({"silent_nodes": [2]}, "canopen", "check the CAN cable"),
+    ({"modbus_exception": 4}, "draw-wire", "check the Modbus link"),
+    ({"inclinometer_silent": True}, "inclinometer", "check the serial cable"),
+]
+
+
 def _inject_after(ctl, n: int, faults: dict, done: list):
     """An observer that injects ``faults`` once ``n`` poses are recorded."""
     def observer(kind, payload):
@@ -32,11 +40,7 @@ def _inject_after(ctl, n: int, faults: dict, done: list):
     return observer
 
 
-@pytest.mark.parametrize("faults, device, check", [
-    ({"silent_nodes": [2]}, "canopen", "check the CAN cable"),
-    ({"modbus_exception": 4}, "draw-wire", "check the Modbus link"),
-    ({"inclinometer_silent": True}, "inclinometer", "check the serial cable"),
-])
+@pytest.mark.parametrize("faults, device, check", LOST_DEVICES)
 def test_a_lost_device_stops_the_session_and_the_resume_finishes_it(
         tmp_path, faults, device, check, quick_retries, no_report):
     cfg = fast_config(tmp_path, "agebot-sm")
@@ -193,11 +197,7 @@ def test_answers_lost_at_the_reference_step_s_first_requests_are_retried(tmp_pat
     assert len(trace.poses) == 10 and s.outcome.result.converged
 
 
-@pytest.mark.parametrize("faults, device, check", [
-    ({"silent_nodes": [2]}, "canopen", "check the CAN cable"),
-    ({"modbus_exception": 4}, "draw-wire", "check the Modbus link"),
-    ({"inclinometer_silent": True}, "inclinometer", "check the serial cable"),
-])
+@pytest.mark.parametrize("faults, device, check", LOST_DEVICES)
 def test_a_device_lost_at_the_reference_step_stops_the_session_named(
         tmp_path, faults, device, check, quick_retries, no_report):
     """A device that stays silent from the reference step on: its retries fail, the
