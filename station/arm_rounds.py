@@ -54,6 +54,11 @@ EARLY_SHARE = 8          # the scout and the middle round: an eighth of the coun
 #: envelope's tolerance, or better than the model in use (a model that cannot explain
 #: what was measured cannot be trusted to predict where the arm goes next)
 EXPLAIN = 0.2
+#: what an sm-distance session's planning fit by distance and tilt (in the reference's
+#: frame) hands over to the session's model: the parameters that do not depend on the
+#: frame, and q2_off, which distances do not see (it turns the reference and the tool
+#: alike) and which the canonical form turns by pi with L4's sign
+PHYSICAL = ("q2_off", "q3_off", "q4_off", "k1", "k2", "k3", "k4", "L2", "L3", "L4")
 #: what a refit on fewer poses than parameters learns, in this order
 LEARN_FIRST = ("k1", "k2", "k3", "k4", "q4_off", "q3_off", "q2_off", "q1_off", "L4", "L3", "L2")
 
@@ -154,18 +159,27 @@ class ArmRounds:
         recs = [r for r in s.measured.values() if r.get("use", "fit") == "fit"]
         if len(recs) < 2:
             return
-        stops = self._stops()
+        tilt_ref = self._tilt_ref()
+        chans = tuple(s.info.channels)
+        if tilt_ref is not None and all("tilt" in r for r in recs):
+            chans += ("tilt",)
+        stops = self._stops(chans)
         recs += stops
         what = f"{len(recs) - len(stops)} poses" + (f" and {len(stops)} envelope stop(s)"
                                                     if stops else "")
         ref = s.reference_record or {}
         data = MethodData(qm=np.array([r["qm"] for r in recs]),
-                          channels={ch: np.array([r[ch] for r in recs]) for ch in s.info.channels},
+                          channels={ch: np.array([r[ch] for r in recs]) for ch in chans},
                           reference_qm=s.reference_qm, distance_zero=ref.get("zero", "exact"))
-        start = self._start_model()
+        # sm-distance beside an inclinometer: planned with the fit of distance and tilt
+        # (distance alone cannot tell a mirrored arm: seed 9160's middle round went 0.27 m
+        # beyond its box with every distance as predicted)
+        fit_method = "sm-distance-tilt" if "tilt" in chans and s.method == "sm-distance" \
+            else s.method
+        start = told_start(fit_method, s.robot, s.nominal, s.reference_qm, ref.get("tilt"))
         starts = [start]
         if len(recs) >= 8:
-            staged = staged_start(s.method, s.robot, data, start)
+            staged = staged_start(fit_method, s.robot, data, start)
             if staged is not None:
                 starts.insert(0, staged)
         best, why = None, "no fit"
@@ -173,7 +187,7 @@ class ArmRounds:
         bar = max(EXPLAIN, self._unexplained(self.xi, self.distance_off, data))
         for x0 in starts:
             try:
-                model = build(s.method, s.robot, data, x0)
+                model = build(fit_method, s.robot, data, x0)
                 res = solve(model, SolverOptions(max_iter=1000, fixed=fixed_for_rows(model)))
             except (CalibrationError, np.linalg.LinAlgError, ValueError) as e:
                 why = str(e)
@@ -184,7 +198,7 @@ class ArmRounds:
             # a fit of few poses may not meet the solver's step tolerance (the noise
             # weights estimated on a few degrees of freedom wander); for planning it
             # is judged by what it explains, a converged one preferred
-            xi, off = self._model_of(res.x)
+            xi, off = self._model_of(res.x, fit_method)
             worst = self._unexplained(xi, off, data)
             if worst > bar:
                 why = (f"{'' if res.converged else res.message + '; '}it leaves a recorded "
@@ -205,13 +219,22 @@ class ArmRounds:
         s._event("info", f"model refitted on {what} ({res.n_identifiable} parameters "
                  f"identifiable): {res.message}")
 
-    def _stops(self) -> list[dict]:
+    def _tilt_ref(self) -> float | None:
+        """sm-distance at a station with an inclinometer: its reading at the reference
+        (the watch predicts the tilt from there, :func:`station.envelope.sm_predictor`);
+        else None."""
+        s = self.s
+        if s.method != "sm-distance" or getattr(s, "serial", False):
+            return None
+        tilt = (s.reference_record or {}).get("tilt")
+        return None if tilt is None else float(tilt)
+
+    def _stops(self, chans) -> list[dict]:
         """Where the envelope stopped the arm: its qm and the sensors' readings at rest
         there (the ``envelope`` events'), rows of the planning refits. The pose was not
         reached and is not recorded for the calibration, but where the arm went instead
         is what the model did not know (a scout of small steps cannot tell a gear ratio
         30 % off from a length; the stop 15 cm off can)."""
-        chans = tuple(self.s.info.channels)
         out = []
         for ev in self.s.events:
             got = ev.get("readings") if ev.get("kind") == "envelope" else None
@@ -219,17 +242,28 @@ class ArmRounds:
                 out.append({"qm": ev["qm"], **{ch: float(got[ch]) for ch in chans}})
         return out
 
-    def _model_of(self, x) -> tuple[np.ndarray, float]:
-        """A solver's ``x`` as the robot's canonical parameters and the distance offset."""
-        n = self.s.robot.n_params
-        xi = self.s.robot.canonical(np.asarray(x[:n], dtype=float), frame_free=True)[0]
-        return xi, (float(x[n]) if len(x) > n else 0.0)
+    def _model_of(self, x, fit_method: str | None = None) -> tuple[np.ndarray, float]:
+        """A solver's ``x`` as the robot's canonical parameters and the distance offset.
+        An sm-distance session's fit by distance and tilt (``fit_method``) is in the
+        reference's frame: its physical parameters (:data:`PHYSICAL`) go into the
+        session's start values, whose frame sm-distance plans in."""
+        robot = self.s.robot
+        n = robot.n_params
+        xi = robot.canonical(np.asarray(x[:n], dtype=float), frame_free=True)[0]
+        off = float(x[n]) if len(x) > n else 0.0
+        if fit_method is not None and fit_method != self.s.method:
+            world = self._start_model()
+            idx = [robot.index(name) for name in PHYSICAL]
+            world[idx] = xi[idx]
+            xi = world
+        return xi, off
 
     def _unexplained(self, xi, distance_off: float, data: MethodData) -> float:
         """The largest departure of a recorded reading from the model's prediction at its
         pose, as a multiple of the envelope's tolerance (the watch's own measure)."""
         s = self.s
-        pred = sm_predictor(s.method, s.robot, xi, s.reference_qm, distance_off)(data.qm)
+        pred = sm_predictor(s.method, s.robot, xi, s.reference_qm, distance_off,
+                            self._tilt_ref())(data.qm)
         worst = 0.0
         for ch, tol in s.config.envelope.tolerance.items():
             if ch in pred and ch in data.channels:
@@ -246,7 +280,8 @@ class ArmRounds:
             return None
         if self.fitted_on == 0 and s.measured:     # a resumed session: learn from its poses
             self.refit()
-        return sm_predictor(s.method, s.robot, self.xi, s.reference_qm, self.distance_off)
+        return sm_predictor(s.method, s.robot, self.xi, s.reference_qm, self.distance_off,
+                            self._tilt_ref())
 
     # -- counts ------------------------------------------------------------------------
     def totals(self) -> tuple[int, int]:

@@ -243,13 +243,19 @@ def watched_move(rig, target, predict: Predict, env, timeout: float) -> int:
         time.sleep(env.poll)
 
 
-def sm_predictor(method: str, robot, xi, reference_qm, distance_off: float = 0.0) -> Predict:
+def sm_predictor(method: str, robot, xi, reference_qm, distance_off: float = 0.0,
+                 tilt_ref: float | None = None) -> Predict:
     """What the arm's sensors should read at ``qm`` (one pose ``(n,)``: floats; a stack
     ``(m, n)``: arrays) under the model ``xi``: the draw-wire's distance from the
     reference (plus ``distance_off``) and, for sm-distance-tilt, the tilt of the last
-    link."""
+    link. sm-distance at a station with an inclinometer (``tilt_ref``: its reading at
+    the reference): the tilt too, as the reference's reading turned by the model's
+    change of the last link's angle from the reference (the inclinometer's own zero and
+    the unidentified offsets cancel)."""
     xi = np.array(xi, dtype=float)
     ref = np.asarray(reference_qm, dtype=float)
+    phi_ref = (float(robot.fk(ref[None, :], xi)[0, 3])
+               if method == "sm-distance" and tilt_ref is not None else None)
 
     def predict(qm):
         qm = np.asarray(qm, dtype=float)
@@ -257,5 +263,8 @@ def sm_predictor(method: str, robot, xi, reference_qm, distance_off: float = 0.0
         out = {ch: np.asarray(v, dtype=float).reshape(-1) + (distance_off if ch == "distance"
                                                               else 0.0)
                for ch, v in m.items()}
+        if phi_ref is not None:
+            phi = robot.fk(np.atleast_2d(qm), xi)[:, 3]
+            out["tilt"] = tilt_ref + _wrap(phi - phi_ref)
         return out if qm.ndim == 2 else {ch: float(v[0]) for ch, v in out.items()}
     return predict

@@ -948,6 +948,8 @@ class Session:
             rec["distance"] = m["distance"]
         if self.method == "sm-distance-tilt":     # a robot file's: the tool inclinometer's two axes
             rec["tilt"] = [m["roll"], m["pitch"]] if self.serial else m["tilt"]
+        elif self.method == "sm-distance" and not self.serial and "tilt" in m:
+            rec["tilt"] = m["tilt"]    # beside: the rounds' watch learns from it (not fitted)
         if self.method == "pm-tilt":
             rec["tilt"] = [m["roll"], m["pitch"]]
         if self.method in ("pm-ik", "pm-fk"):

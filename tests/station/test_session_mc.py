@@ -56,6 +56,25 @@ def test_a_far_off_arm_completes_inside_the_envelope(tmp_path):
                    if e["kind"] in ("info", "warning") and "refit" in e["message"])
 
 
+def test_a_distance_session_beside_an_inclinometer_is_watched_in_tilt(tmp_path):
+    """sm-distance on a drawn arm whose distances alone admit a mirrored model after the
+    scout (bench seed 9160: its middle round went 0.27 m and 0.18 rad beyond the box,
+    every distance as predicted). The station's inclinometer is recorded beside each
+    pose, the rounds are planned with the fit of distance and tilt and the tilt is
+    watched: every pose planned in the box stays within the tolerance of it, and the
+    calibration (distance only) is within its std."""
+    seed = 9160
+    score = run_session(station_truth("agebot-sm", seed), tmp_path, seed=seed,
+                        method="sm-distance",
+                        request=PlanRequest(count=30, validation=4, seed=seed))
+    assert score.completed, score.error
+    assert score.worst < 5.0, dict(zip(score.names, np.round(score.z, 2)))
+    assert max(score.excursion[c] for c in "xyz") <= 0.06 and score.excursion["phi"] <= 0.0873
+    trace = read_trace(tmp_path / "run" / "trace.jsonl")
+    assert all("tilt" in p for p in trace.poses) and "tilt" in trace.reference
+    assert any("refitted" in e["message"] for e in trace.events if e["kind"] == "info")
+
+
 @pytest.mark.slow
 def test_ten_drawn_arms_are_calibrated_within_their_std(tmp_path):
     """Ten arms: every session completes; every calibrated parameter lies within 5 std
