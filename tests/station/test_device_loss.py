@@ -197,7 +197,11 @@ def test_answers_lost_at_the_reference_step_s_first_requests_are_retried(tmp_pat
     assert len(trace.poses) == 10 and s.outcome.result.converged
 
 
-@pytest.mark.parametrize("faults, device, check", LOST_DEVICES)
+# the reference step's own retry path is one for every device: the CAN node in the
+# default suite, the serial and Modbus devices with the slow tests (the default suite
+# stays under ten minutes)
+@pytest.mark.parametrize("faults, device, check", [
+    LOST_DEVICES[0], *(pytest.param(*d, marks=pytest.mark.slow) for d in LOST_DEVICES[1:])])
 def test_a_device_lost_at_the_reference_step_stops_the_session_named(
         tmp_path, faults, device, check, quick_retries, no_report):
     """A device that stays silent from the reference step on: its retries fail, the
