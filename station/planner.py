@@ -168,7 +168,7 @@ def inside_limits(qm, qm_range) -> np.ndarray:
         return qm
     lo, hi = np.asarray(qm_range, dtype=float).T
     span = hi - lo
-    pad = np.where(np.isfinite(span), REFERENCE_MARGIN * np.where(np.isfinite(span), span, 0), 0)
+    pad = REFERENCE_MARGIN * np.where(np.isfinite(span), span, 0.0)   # none on an open side
     out = (qm < lo) | (qm > hi)
     qm[out] = np.clip(qm[out], (lo + pad)[out], (hi - pad)[out])
     return qm

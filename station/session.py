@@ -447,16 +447,27 @@ class Session:
                 self._event("fault", f"{what}, attempt {attempt + 1}: "
                             f"{describe_error(e, self.units)}", device=e.device, step=what)
                 if attempt >= self.reference_retries:
-                    lost = device_loss.probe(rig, e)         # the device, or this step?
-                    if lost is not None:
-                        self._event("lost", str(lost), device=lost.device)
-                        raise lost from e
+                    self._raise_if_lost(rig, e)              # the device, or this step?
                     raise
                 attempt += 1
-                pause = device_loss.backoff(attempt)
-                self._event("retry", f"{what}: retry {attempt} in {pause:g} s", step=what)
-                time.sleep(pause)                            # a short outage passes
-                self._recover()
+                self._pause_to_retry(what, attempt, step=what)
+
+    def _raise_if_lost(self, rig, error: DeviceError) -> None:
+        """After retries: raise :class:`DeviceLost` (with a ``lost`` event) where the
+        device itself is gone (:func:`station.device_loss.probe`), else return."""
+        lost = device_loss.probe(rig, error)
+        if lost is not None:
+            self._event("lost", str(lost), device=lost.device)
+            raise lost from error
+
+    def _pause_to_retry(self, what: str, attempt: int, **extra) -> None:
+        """Before retry ``attempt`` (1-based) of ``what``: a ``retry`` event, the backoff
+        pause (:func:`station.device_loss.backoff`: a short outage passes) and the rig
+        recovered."""
+        pause = device_loss.backoff(attempt)
+        self._event("retry", f"{what}: retry {attempt} in {pause:g} s", **extra)
+        time.sleep(pause)
+        self._recover()
 
     def reference_offset(self, qm=None) -> float | None:
         """Distance (m, nominal model) from the reference ``qm`` (default: the captured
@@ -840,18 +851,11 @@ class Session:
                     self._event("abort", f"aborted at pose {pose.index} after a fault")
                     raise SessionAborted(f"aborted after a fault: {e}") from e
                 if action == "skip":
-                    lost = device_loss.probe(rig, e)     # the device, or only this pose?
-                    if lost is not None:
-                        self._event("lost", str(lost), device=lost.device)
-                        raise lost from e
+                    self._raise_if_lost(rig, e)          # the device, or only this pose?
                     self._skip(pose, f"pose {pose.index} skipped", resume.FAULT)
                     return False
                 attempt += 1
-                pause = device_loss.backoff(attempt)
-                self._event("retry", f"pose {pose.index}: retry {attempt} in {pause:g} s",
-                            plan_index=pose.index)
-                time.sleep(pause)                        # a short outage passes
-                self._recover()
+                self._pause_to_retry(f"pose {pose.index}", attempt, plan_index=pose.index)
         self._next_index += 1
         rest = [p for p in self.group_of(pose) if p.index != pose.index
                 and p.index not in self.measured and p.index not in self._held]

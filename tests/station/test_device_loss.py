@@ -32,6 +32,21 @@ LOST_DEVICES = [
 ]
 
 
+def _stopped_lost(config, out, observer, device: str, check: str):
+    """Run a session that must stop with :class:`DeviceLost`: its one-line message names
+    ``device`` and says ``check``, and the trace has a ``lost`` event. ``(message,
+    trace)``."""
+    with Session(config, "sm-distance-tilt", out, request=REQUEST, observer=observer) as s:
+        with pytest.raises(DeviceLost) as lost:
+            s.run()
+    msg = str(lost.value)
+    print(msg)
+    assert "\n" not in msg and msg.startswith(device) and check in msg, msg
+    trace = read_trace(out / "trace.jsonl")
+    assert [e for e in trace.events if e["kind"] == "lost"]
+    return msg, trace
+
+
 def _inject_after(ctl, n: int, faults: dict, done: list):
     """An observer that injects ``faults`` once ``n`` poses are recorded."""
     def observer(kind, payload):
@@ -49,20 +64,13 @@ def test_a_lost_device_stops_the_session_and_the_resume_finishes_it(
         config = _session_config(sim, cfg)
         with sim.control() as ctl:
             injected = []
-            with Session(config, "sm-distance-tilt", out, request=REQUEST,
-                         observer=_inject_after(ctl, 3, faults, injected)) as s:
-                with pytest.raises(DeviceLost) as lost:
-                    s.run()
+            msg, trace = _stopped_lost(config, out, _inject_after(ctl, 3, faults, injected),
+                                       device, check)
             assert injected
-            msg = str(lost.value)
-            print(msg)
-            assert "\n" not in msg and msg.startswith(device) and check in msg, msg
             assert "run the session again" in msg
-            trace = read_trace(out / "trace.jsonl")
             assert len(trace.poses) == 3, "the session went on measuring without the device"
             assert not [e for e in trace.events if e["kind"] == "skip"], \
                 "poses were skipped instead of stopping"
-            assert [e for e in trace.events if e["kind"] == "lost"]
             ctl.call(clear=True)                         # the fault is cleared
         with Session(config, "sm-distance-tilt", out, request=REQUEST, **POOR_FIT_OK) as again:
             assert len(again.pending) == 10 - 3
@@ -213,20 +221,13 @@ def test_a_device_lost_at_the_reference_step_stops_the_session_named(
         config = _session_config(sim, cfg)
         with sim.control() as ctl:
             injected = []
-            with Session(config, "sm-distance-tilt", out, request=REQUEST,
-                         observer=_at_reference_step(ctl, faults, injected)) as s:
-                with pytest.raises(DeviceLost) as lost:
-                    s.run()
+            _, trace = _stopped_lost(config, out, _at_reference_step(ctl, faults, injected),
+                                     device, check)
             assert injected
-            msg = str(lost.value)
-            print(msg)
-            assert "\n" not in msg and msg.startswith(device) and check in msg, msg
-            trace = read_trace(out / "trace.jsonl")
             assert trace.reference is None and not trace.poses
             tried = [e for e in trace.events if e["kind"] == "fault"
                      and e.get("step") == "the reference step"]
             assert len(tried) == 4, tried                  # the first try and 3 retries
-            assert [e for e in trace.events if e["kind"] == "lost"]
             ctl.call(clear=True)
         with Session(config, "sm-distance-tilt", out, request=REQUEST, **POOR_FIT_OK) as again:
             assert again.resumed and again.redo().capture_reference
