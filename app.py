@@ -32,7 +32,8 @@ def _cmd_batch(args) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         outcome = calibrate_trace(args.trace, method=args.method, residual=args.residual,
-                                  options=opts, accept_poor_fit=args.accept_poor_fit)
+                                  options=opts, accept_poor_fit=args.accept_poor_fit,
+                                  exclude=_exclusions(args.exclude, args.exclude_reason))
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
     print(format_table(outcome))
@@ -41,6 +42,27 @@ def _cmd_batch(args) -> int:
         print(f"report written to {args.report}")
     print(f"parameter file written to {args.out} ({outcome.document['checksum']})")
     return 0
+
+
+def _exclusions(text: str | None, reason: str | None) -> dict | None:
+    """``--exclude 5,12`` with ``--exclude-reason TEXT`` as ``{5: TEXT, 12: TEXT}``."""
+    from calibration.errors import ConfigError
+
+    if not text:
+        if reason:
+            raise ConfigError("--exclude-reason goes with --exclude POSE,...")
+        return None
+    if not reason or not reason.strip():
+        raise ConfigError("--exclude needs --exclude-reason \"why\" (recorded in the parameter "
+                          "file)")
+    out = {}
+    for item in text.split(","):
+        item = item.strip()
+        if not item.isdigit():
+            raise ConfigError(f"--exclude: {item[:20]!r} is not a pose index (the trace's "
+                              f"pose indices, e.g. --exclude 5,12)")
+        out[int(item)] = " ".join(reason.split())
+    return out
 
 
 def _check_outputs(*outputs, inputs=()) -> None:
@@ -82,11 +104,26 @@ def _cmd_params_export(args) -> int:
 def _cmd_trace_import(args) -> int:
     from station.trace_import import import_command
 
+    _check_outputs((args.out, "the trace"),
+                   inputs=(args.csv, args.robot, args.validation, args.joint_map))
     print(import_command(args))
     return 0
 
 
 def _cmd_trace_generate(args) -> int:
+    from drivers.urdf_file import is_urdf
+
+    if args.robot and is_urdf(args.robot):
+        from station.tracegen_urdf import generate_command
+
+        _check_outputs((args.out, "the trace"), inputs=(args.robot, args.truth))
+        print(generate_command(args))
+        return 0
+    if args.method == "sm-markers":
+        from calibration.errors import ConfigError
+
+        raise ConfigError("sm-markers takes a URDF robot: --robot FILE.urdf --base-link B "
+                          "--tip-link T")
     if args.robot and args.robot not in ("agebot-sm", "agebot-pm"):
         from station.tracegen_serial import generate_command
 
@@ -147,6 +184,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--accept-poor-fit", action="store_true",
                    help="write the parameter file even if the fit fails the quality gate "
                         "(recorded in its fit.quality)")
+    b.add_argument("--exclude", metavar="POSE,...",
+                   help="leave these poses (trace indices) out of the fit and the held-out "
+                        "set, with --exclude-reason (recorded in the parameter file)")
+    b.add_argument("--exclude-reason", metavar="TEXT", help="why --exclude's poses are left out")
     b.set_defaults(func=_cmd_batch)
 
     pa = sub.add_parser("params", help="parameter files")
@@ -166,7 +207,10 @@ def build_parser() -> argparse.ArgumentParser:
     g = tsub.add_parser("generate", help="simulate a trace from a truth file plus noise")
     g.add_argument("--method", required=True, choices=tuple(METHODS), metavar="METHOD",
                    help="one of: " + ", ".join(METHODS))
-    g.add_argument("--robot", help="a robot file (TOML); default: the method's built-in robot")
+    g.add_argument("--robot", help="a robot file (TOML) or a URDF (with --base-link, "
+                                   "--tip-link; sm-markers); default: the method's built-in robot")
+    g.add_argument("--base-link", help="URDF robot: the link the chain starts at")
+    g.add_argument("--tip-link", help="URDF robot: the link the chain ends at")
     g.add_argument("--out", required=True)
     g.add_argument("--truth", help="simulator truth file (default: the report's true values)")
     g.add_argument("--noise", action="append", metavar="CHANNEL=STD",
@@ -182,18 +226,30 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--known", help="parameters whose true values go into the nominal, e.g. "
                                    "L4 (sm-self-redundancy) or L4,theta0,a0,plane_a,plane_b,plane_c")
     g.set_defaults(func=_cmd_trace_generate)
-    im = tsub.add_parser("import", help="a robot file's trace from a CSV of joint values and "
-                                        "measurements (columns: docs/robot-files.md)")
+    im = tsub.add_parser("import", help="a trace from a CSV of joint values and measurements "
+                                        "(robot files: docs/robot-files.md; URDF robots and "
+                                        "points on the tool: docs/urdf-robots.md)")
     im.add_argument("csv")
-    im.add_argument("--robot", required=True, help="the robot file (TOML)")
+    im.add_argument("--robot", required=True, help="the robot file (TOML) or URDF")
+    im.add_argument("--base-link", help="URDF robot: the link the chain starts at")
+    im.add_argument("--tip-link", help="URDF robot: the link the chain ends at")
     im.add_argument("--method", required=True)
     im.add_argument("--out", required=True)
     im.add_argument("--length-unit", choices=("m", "mm"), default="m",
-                    help="unit of x, y, z and distance in the CSV")
+                    help="unit of x, y, z, distance, points and prismatic joints in the CSV")
     im.add_argument("--angle-unit", choices=("rad", "deg"), default="rad",
-                    help="unit of roll, pitch, yaw, tilt_roll, tilt_pitch in the CSV")
+                    help="unit of roll, pitch, yaw, tilt_roll, tilt_pitch and (URDF robots) "
+                         "revolute joints in the CSV")
     im.add_argument("--sigma", action="append", metavar="CHANNEL=STD",
-                    help="std of one reading in SI units (repeatable), e.g. position=1e-4")
+                    help="std of one reading in SI units (repeatable), e.g. position=1e-4, "
+                         "marker=2e-4 (sm-markers: one point's x, y, z each)")
+    im.add_argument("--validation", metavar="CSV",
+                    help="sm-markers: rows of another file (same instrument frame) held out")
+    im.add_argument("--ignore-columns", metavar="A,B,...",
+                    help="sm-markers: columns to skip (timestamps, the instrument's figures)")
+    im.add_argument("--joint-map", metavar="FILE",
+                    help="sm-markers: how the URDF's joints follow from the controller's "
+                         "columns (signs, zeros, couplings; docs/urdf-robots.md)")
     im.set_defaults(func=_cmd_trace_import)
 
     s = sub.add_parser("simulate", help="run the simulated devices until stopped")

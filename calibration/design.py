@@ -100,7 +100,8 @@ def pose_information(model, x, sigma: dict | None = None, *, group=None,
     if names is None:
         fixed = set(getattr(getattr(model, "robot", None), "fixed", ()) or ())
         cand = np.array([n not in fixed for n in model.names]) if fixed else None
-        status = ident.analyze(W, model.names, weights=g, candidates=cand)
+        status = ident.analyze(W, model.names, weights=g, candidates=cand,
+                               order=model.identify_order)
         cols = np.array([j for j, s in enumerate(status) if s.identifiable], dtype=int)
     else:
         cols = np.array([list(model.names).index(n) for n in names], dtype=int)

@@ -60,7 +60,7 @@ class ParameterStatus:
 
 def analyze(W: np.ndarray, names, *, weights: np.ndarray | None = None,
             candidates: np.ndarray | None = None, residual: np.ndarray | None = None,
-            rank_tol: float = 1e-8, kappa: float = 3.0) -> list[ParameterStatus]:
+            rank_tol: float = 1e-8, kappa: float = 3.0, order=None) -> list[ParameterStatus]:
     """Classify every parameter (see module doc).
 
     W:          ``(rows, N)`` observation matrix.
@@ -69,16 +69,21 @@ def analyze(W: np.ndarray, names, *, weights: np.ndarray | None = None,
                 (others are reported not identifiable, no influence, and do not
                 enter the QR).
     residual:   ``(rows,)`` residual at the solution, enabling the statistical test.
+    order:      the order in which the columns are judged (a permutation of ``range(N)``;
+                default the parameter order): of two dependent parameters the one
+                judged first is kept (:attr:`calibration.model.MeasurementModel.identify_order`).
     """
     ident, dep, rdiag, norms = classify(W, weights=weights, candidates=candidates,
-                                        residual=residual, rank_tol=rank_tol, kappa=kappa)
+                                        residual=residual, rank_tol=rank_tol, kappa=kappa,
+                                        order=order)
     return [ParameterStatus(*row) for row in zip(names, ident.tolist(), dep.tolist(),
                                                  rdiag.tolist(), norms.tolist())]
 
 
 def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
              candidates: np.ndarray | None = None, residual: np.ndarray | None = None,
-             rank_tol: float = 1e-8, kappa: float = 3.0, return_r: bool = False):
+             rank_tol: float = 1e-8, kappa: float = 3.0, return_r: bool = False,
+             order=None):
     """:func:`analyze` as arrays ``(identifiable, influences, r_diag, column_norm)``,
     each ``(N,)``; ``W`` may also be given already weighted (``weights`` None).
     ``return_r``: append the triangle ``R`` of the QR of the unit columns of
@@ -93,8 +98,18 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
     (the span of the kept ones projected away) and the QR resumes on the
     columns after it. One QR of the tall matrix in any case; the restarts
     after dependent columns work on its ``(q, q)`` triangle (same distances).
+    ``order``: judge the columns in this order instead (:func:`analyze`); ``R`` is
+    then None.
     """
     W = np.asarray(W, dtype=float)
+    if order is not None and not np.array_equal(order, np.arange(W.shape[1])):
+        perm = np.asarray(order, dtype=np.intp)
+        inv = np.argsort(perm)
+        out = classify(W[:, perm], weights=weights,
+                       candidates=None if candidates is None else np.asarray(candidates)[perm],
+                       residual=residual, rank_tol=rank_tol, kappa=kappa)
+        out = tuple(a[inv] for a in out)
+        return (*out, None) if return_r else out
     n = W.shape[1]
     if weights is None:
         g, Wg = None, W

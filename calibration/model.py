@@ -40,6 +40,11 @@ class MeasurementModel:
     # gives them one sigma where the data cannot tell their noise levels apart)
     noise_groups: tuple[tuple[str, ...], ...] = ()
     notes: tuple[str, ...] = ()
+    # the order in which the identifiability analysis judges the parameters (indices
+    # into ``names``; None: their own order). Of dependent parameters the one judged
+    # first is calibrated: a method whose instrument frame and tool are unknown
+    # judges them first, so that what they absorb is theirs, not the robot's.
+    identify_order: np.ndarray | None = None
 
     @property
     def n_params(self) -> int:

@@ -89,6 +89,133 @@ def prediction_leverage(W: np.ndarray, weights: np.ndarray, active: np.ndarray,
     return np.einsum("ij,ij->i", Z, Z)
 
 
+def hat_basis(W: np.ndarray, weights: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """Orthonormal basis ``U (rows, rank)`` of the weighted, scaled identifiable columns:
+    the weighted hat matrix is ``U U^T`` (its diagonal :func:`leverage`)."""
+    if not np.any(active):
+        return np.zeros((W.shape[0], 0))
+    return _scaled_svd(W, weights, active)[1]
+
+
+def _group_rows(groups) -> tuple[np.ndarray, int]:
+    """``(rows (G, k), k)``: the rows of each group (equal sizes, e.g. a point's x, y, z)."""
+    g = np.asarray(groups)
+    order = np.argsort(g, kind="stable")
+    counts = np.bincount(g)
+    k = int(counts.max())
+    if np.any(counts != k):
+        raise CalibrationError("row groups must all have the same number of rows")
+    return order.reshape(-1, k), k
+
+
+def _f_isf(q: float, k: int, dof: float) -> float:
+    """The upper-``q`` point of the F distribution ``F(k, dof)``."""
+    from scipy.special import fdtri
+
+    return float(fdtri(k, dof, 1.0 - q))
+
+
+def worst_group(r, U, weights, row_channel, channels, groups, *,
+                alpha: float = OUTLIER_ALPHA) -> tuple[Outlier | None, int]:
+    """:func:`worst_row` for groups of rows read together (a point's x, y, z: one
+    reading). A group's externally studentized statistic ``T^2 = r_g^T (I - H_g)^-1
+    r_g / s_(g)^2`` (``H_g`` its block of the weighted hat matrix ``U U^T``, ``s_(g)^2``
+    the channel's noise without the group) gives ``T^2 / k ~ F(k, dof_c - k)``; it does
+    not depend on how the group's rows are turned (an instrument's frame). Returns the
+    most significant group beyond the Bonferroni threshold over the groups tested
+    (``Outlier.row`` its first row, ``residual`` its norm, ``t = sqrt(T^2)`` against
+    ``threshold``), and the number of groups tested."""
+    from scipy.special import fdtrc
+
+    r = np.asarray(r, dtype=float)
+    rw = r * np.sqrt(weights)
+    rc = np.asarray(row_channel)
+    rows, k = _group_rows(groups)
+    h = np.einsum("ij,ij->i", U, U)
+    dof = channel_dof(rc, len(channels), h)
+    rss = np.bincount(rc, weights=rw * rw, minlength=len(channels))
+    Ug = U[rows]                                          # (G, k, rank)
+    I_H = np.eye(k) - np.einsum("gir,gjr->gij", Ug, Ug)
+    rg = rw[rows]
+    ch = rc[rows[:, 0]]
+    big = np.linalg.eigvalsh(np.eye(k) - I_H).max(axis=1) if len(rows) else np.zeros(0)
+    ok = (big < MAX_LEVERAGE) & (np.linalg.norm(r[rows], axis=1) > ROUNDOFF)
+    ok &= dof[ch] - k > 3
+    n_test = int(ok.sum())
+    if n_test == 0:
+        return None, 0
+    qg = np.zeros(len(rows))
+    qg[ok] = np.einsum("gi,gi->g", rg[ok], np.linalg.solve(I_H[ok], rg[ok][..., None])[..., 0])
+    s2 = (rss[ch] - qg) / np.maximum(dof[ch] - k, 1)
+    s2 = np.maximum(s2, (rss[ch] / np.maximum(dof[ch], 1)) * 1e-12 + 1e-300)
+    T2 = np.where(ok, qg / s2, 0.0)
+    p = np.where(ok, fdtrc(k, np.maximum(dof[ch] - k, 1.0), T2 / k), 1.0)
+    i = int(np.argmin(p))
+    q_bonf = alpha / n_test
+    if not p[i] < q_bonf:
+        return None, n_test
+    thr = math.sqrt(k * _f_isf(q_bonf, k, float(dof[ch[i]] - k)))
+    row = int(rows[i, 0])
+    return Outlier(row, channels[ch[i]], float(np.linalg.norm(r[rows[i]])),
+                   float(math.sqrt(T2[i])), thr), n_test
+
+
+def prediction_blocks(model, result, W_new, row_channel_new, groups_new):
+    """For groups of rows not in the fit (held-out points): each group's prediction
+    error covariance ``s_c^2 (I + B_g (A^T A)^+ B_g^T)`` (:func:`prediction_std` for
+    the whole group), ``(G, k, k)``; the groups' rows ``(G, k)``; and ``dof_c``
+    per group."""
+    r, W = model.evaluate(result.x)
+    channels = tuple(model.channels)
+    active = np.array([s.identifiable for s in result.status])
+    w = row_weights(model.row_channel, channels, result.sigma)
+    s2, dof = channel_noise(r, leverage(W, w, active), model.row_channel, len(channels))
+    rc = np.asarray(row_channel_new, dtype=int)
+    rows, k = _group_rows(groups_new)
+    W_new = np.atleast_2d(np.asarray(W_new, dtype=float))
+    w_new = row_weights(rc, channels, result.sigma)
+    if np.any(active):
+        norms, _, sv, Vt = _scaled_svd(W, w, active)
+        B = W_new[:, active] * np.sqrt(w_new)[:, None] / norms
+        Z = ((B @ Vt.T) / sv)[rows]                          # (G, k, rank)
+        Hn = np.einsum("gir,gjr->gij", Z, Z)
+    else:
+        Hn = np.zeros((len(rows), k, k))
+    ch = rc[rows[:, 0]]
+    # a group's rows share one channel: noise s2_c each, parameters' part s2_c Hn
+    cov = s2[ch][:, None, None] * (np.eye(k) + Hn)
+    return cov, rows, dof[ch]
+
+
+def worst_prediction_group(e, cov, rows, dof, row_channel_new, channels, *,
+                           alpha: float = OUTLIER_ALPHA) -> tuple[Outlier | None, int]:
+    """:func:`worst_prediction` for groups: ``T^2 = e_g^T C_g^-1 e_g``, ``T^2 / k ~
+    F(k, dof_c)``; the group with the smallest p-value if below ``alpha / groups
+    tested``. ``Outlier.row`` is the group's first row, ``residual`` its error's norm,
+    ``t = sqrt(T^2)``."""
+    from scipy.special import fdtrc
+
+    e = np.asarray(e, dtype=float)
+    k = rows.shape[1]
+    eg = e[rows]
+    d = np.asarray(dof, dtype=float)
+    ok = (d > 3) & np.all(np.isfinite(eg), axis=1)
+    n_test = int(ok.sum())
+    if n_test == 0:
+        return None, 0
+    T2 = np.zeros(len(rows))
+    T2[ok] = np.einsum("gi,gi->g", eg[ok], np.linalg.solve(cov[ok], eg[ok][..., None])[..., 0])
+    p = np.where(ok, fdtrc(k, np.where(ok, d, 4.0), T2 / k), 1.0)
+    i = int(np.argmin(p))
+    q_bonf = alpha / n_test
+    if not p[i] < q_bonf:
+        return None, n_test
+    rc = np.asarray(row_channel_new)
+    thr = math.sqrt(k * _f_isf(q_bonf, k, float(d[i])))
+    return Outlier(int(rows[i, 0]), channels[rc[rows[i, 0]]], float(np.linalg.norm(eg[i])),
+                   float(math.sqrt(T2[i])), thr), n_test
+
+
 def row_weights(row_channel, channels, sigma: dict) -> np.ndarray:
     s = np.array([float(sigma.get(ch) or 1.0) for ch in channels])
     s = np.where(np.isfinite(s) & (s > 0), s, 1.0)
@@ -210,49 +337,91 @@ def distinct_poses(qm: np.ndarray) -> int:
     return len(np.unique(np.round(qm / (scale * 1e-6)), axis=0))
 
 
-def robust_worst_row(model, x0, sigma_stated: dict | None = None, *,
+def robust_worst_row(model, x0, sigma_stated: dict | None = None, *, free=None,
                      alpha: float = OUTLIER_ALPHA) -> tuple[Outlier | None, np.ndarray | None]:
     """Where least squares is thrown off by a gross reading (it does not converge),
     the reading a robust fit rejects: ``scipy.optimize.least_squares`` with the
     soft-L1 loss from ``x0``, scaled per channel by the stated sigma or the
-    residual's median absolute deviation (refitted once with it). The row with
-    the largest residual in robust sigmas, if beyond the Bonferroni threshold of
-    the normal distribution, else None; and the robust solution (None if the
+    residual's median absolute deviation (refitted once with it). Only the ``free``
+    parameters move (a bool mask; default all): the fixed and the not identifiable
+    ones keep their values, as in every fit of the station. A model whose rows come
+    in groups read together (``row_group``: a point's x, y, z) is judged per group,
+    on the norm of its residual. The row (a group's first) with the largest
+    residual in robust sigmas, if beyond the Bonferroni threshold of the normal (a
+    group: chi) distribution, else None; and the robust solution (None if the
     robust fit fails), a start for the refit without that reading."""
     from scipy.optimize import least_squares
+    from scipy.special import chdtri, ndtri
 
     channels = tuple(model.channels)
     rc = np.asarray(model.row_channel)
     stated = sigma_stated or {}
+    x_start = np.asarray(x0, dtype=float)
+    mask = np.ones(len(x_start), bool) if free is None else np.asarray(free, bool)
+    groups = getattr(model, "row_group", None)
+    if groups is not None:
+        rows, k = _group_rows(groups)
+        gch = rc[rows[:, 0]]
+        med_chi = math.sqrt(float(chdtri(k, 0.5)))
+    else:
+        rows, k, gch, med_chi = None, 1, rc, 1.0
+
+    def unit(r):   # per reading: |r| (a group: its norm)
+        return np.abs(r) if rows is None else np.linalg.norm(r[rows], axis=1)
 
     def scales(r):
+        u = unit(r)
         s = np.ones(len(channels))
-        for k, ch in enumerate(channels):
-            rk = np.abs(r[rc == k])
-            mad = 1.4826 * float(np.median(rk)) if rk.size else 1.0
-            s[k] = float(stated[ch]) if stated.get(ch) else max(mad, ROUNDOFF)
-        return s[rc]
+        for c, ch in enumerate(channels):
+            uc = u[gch == c]
+            mad = float(np.median(uc)) / (med_chi if rows is not None else 1 / 1.4826) \
+                if uc.size else 1.0
+            s[c] = float(stated[ch]) if stated.get(ch) else max(mad, ROUNDOFF)
+        return s[gch]
 
-    x = np.asarray(x0, dtype=float)
+    def full(v):
+        x = x_start.copy()
+        x[mask] = v
+        return x
+
+    def fun(v, s):
+        r = model.evaluate(full(v))[0]
+        return (r / s) if rows is None else unit(r) / s
+
+    def jac(v, s):
+        r, W = model.evaluate(full(v))
+        W = W[:, mask]
+        if rows is None:
+            return -W / s[:, None]
+        n = np.maximum(np.linalg.norm(r[rows], axis=1), ROUNDOFF)
+        J = -np.einsum("gi,gij->gj", r[rows], W[rows]) / n[:, None]
+        return J / s[:, None]
+
+    if not mask.any():
+        return None, None
+    v = x_start[mask]
     try:
-        r0 = model.evaluate(x)[0]
+        r0 = model.evaluate(x_start)[0]
         s = scales(r0)
         for _ in range(2):
-            sol = least_squares(lambda v: model.evaluate(v)[0] / s, x,
-                                jac=lambda v: -model.evaluate(v)[1] / s[:, None],
-                                loss="soft_l1", x_scale="jac", method="trf",
-                                tr_solver="exact", max_nfev=200 * (len(x) + 1))
-            x = sol.x
-            r = model.evaluate(x)[0]
+            sol = least_squares(fun, v, jac=jac, args=(s,), loss="soft_l1", x_scale="jac",
+                                method="trf", tr_solver="exact", max_nfev=200 * (len(v) + 1))
+            v = sol.x
+            r = model.evaluate(full(v))[0]
             if all(stated.get(ch) for ch in channels):
                 break
             s = scales(r)
     except (ValueError, np.linalg.LinAlgError, FloatingPointError, CalibrationError):
         return None, None
-    z = np.abs(r) / s
-    z[np.abs(r) <= ROUNDOFF] = 0.0
+    x = full(v)
+    z = unit(r) / s
+    z[unit(r) <= ROUNDOFF] = 0.0
     i = int(np.argmax(z))
-    thr = float(stats.norm.isf(alpha / (2 * len(r))))
+    n = len(z)
+    thr = (float(-ndtri(alpha / (2 * n))) if rows is None
+           else math.sqrt(float(chdtri(k, alpha / n))))
     if not z[i] > thr:
         return None, x
-    return Outlier(i, channels[rc[i]], float(r[i]), float(z[i]), thr), x
+    row = i if rows is None else int(rows[i, 0])
+    res = float(r[row]) if rows is None else float(np.linalg.norm(r[rows[i]]))
+    return Outlier(row, channels[rc[row]], res, float(z[i]), thr), x

@@ -107,9 +107,10 @@ def load_robot_file(path) -> SerialSpec:
     return parse_robot_file(text, path)
 
 
-def spec_from_source(src, where: str = "robot_file") -> SerialSpec:
-    """The spec of a trace header's ``robot_file`` object ``{name, sha256, text}``;
-    the checksum must match the text."""
+def spec_from_source(src, where: str = "robot_file"):
+    """The spec of a trace header's ``robot_file`` object ``{name, sha256, text}``
+    (a URDF robot's also ``base_link``, ``tip_link``: a
+    :class:`calibration.robots.urdf.UrdfSpec`); the checksum must match the text."""
     if not isinstance(src, dict) or not isinstance(src.get("text"), str):
         raise ConfigError("must be an object with the robot file's name, sha256 and text",
                           source=where)
@@ -117,6 +118,10 @@ def spec_from_source(src, where: str = "robot_file") -> SerialSpec:
     if src.get("sha256") != digest:
         raise ConfigError("sha256 does not match the robot file's text (damaged or edited)",
                           source=where)
+    if "base_link" in src or str(src.get("name", "")).lower().endswith(".urdf"):
+        from drivers.urdf_file import urdf_from_source
+
+        return urdf_from_source(src, where)
     return parse_robot_file(src["text"], f"{where} ({src.get('name', '?')})",
                             name=str(src.get("name") or "robot.toml"))
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from calibration import identifiability as ident
 from calibration.errors import CalibrationError
-from calibration.methods import METHODS, build, extra_params
+from calibration.methods import METHODS, build
 from calibration.robots import get_robot
 from calibration.robots.base import canonical_result
 from calibration.solver import CalibrationResult, SolverOptions, solve
@@ -73,7 +73,7 @@ def make_model(trace: Trace, *, method: str | None = None, residual: str | None 
     method = method or trace.method
     mi = METHODS[method]
     robot = trace.robot_model()
-    nominal = trace.nominal_vector(robot, extra_params(method, robot))
+    nominal = trace.nominal_vector(robot, trace.extra_params(method))
     options = {}
     if residual:
         if method not in ("sm-distance", "sm-distance-tilt"):
@@ -97,11 +97,24 @@ def frame_statement(trace: Trace) -> dict | None:
 
 def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | None = None,
                     residual: str | None = None, options: SolverOptions | None = None,
-                    callback=None, accept_poor_fit: bool = False) -> BatchOutcome:
+                    callback=None, accept_poor_fit: bool = False,
+                    exclude: dict | None = None) -> BatchOutcome:
     """Read a trace file and :func:`calibrate` it."""
     trace = read_trace(trace_path, method_override=method)
     return calibrate(trace, out=out, method=method, residual=residual, options=options,
-                     callback=callback, accept_poor_fit=accept_poor_fit)
+                     callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
+
+
+def exclude_poses(trace: Trace, exclude: dict) -> Trace:
+    """``trace`` with the poses the operator excludes (``{index: reason}``) left out of
+    the fit and of the held-out set; an index the trace does not hold is an error."""
+    known = {p["index"] for p in trace.poses}
+    missing = sorted(set(exclude) - known)
+    if missing:
+        raise CalibrationError(f"--exclude: the trace has no pose {missing[0]} (its poses are "
+                               f"{min(known)}..{max(known)})")
+    poses = [dict(p, use="excluded") if p["index"] in exclude else p for p in trace.poses]
+    return dataclasses.replace(trace, poses=poses)
 
 
 def _fit(trace: Trace, method, residual, opts, callback, model=None, start=None):
@@ -146,14 +159,18 @@ def _fit(trace: Trace, method, residual, opts, callback, model=None, start=None)
 
 def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None,
               residual: str | None = None, options: SolverOptions | None = None,
-              callback=None, accept_poor_fit: bool = False) -> BatchOutcome:
+              callback=None, accept_poor_fit: bool = False,
+              exclude: dict | None = None) -> BatchOutcome:
     """Calibrate the fit poses of ``trace`` and pass the fit-quality gate
     (:mod:`station.gate`: outliers left out and refitted, noise, validation, pose
     spread); write the parameter file ``out`` if given. A failed gate raises
     :class:`station.gate.FitQualityError` (nothing written) unless
     ``accept_poor_fit``. ``callback(k, iteration)`` is called after every
-    iteration of the first fit (live plots)."""
+    iteration of the first fit (live plots). ``exclude``: poses the operator leaves out
+    (``{index: reason}``), recorded in ``fit.quality.excluded``."""
     trace_path = trace.path
+    if exclude:
+        trace = exclude_poses(trace, exclude)
     model, _ = make_model(trace, method=method, residual=residual)
     opts = options or SolverOptions()
     fixed = tuple(getattr(model.robot, "fixed", ()) or ())
@@ -179,7 +196,9 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
         trace, model, first=lambda: _fit(trace, method, residual, opts, callback, model),
         refit=lambda tr, start: _fit(tr, method, residual, opts, None, start=start),
         stated_sigma=stated,
-        validate=validate)
+        validate=validate, fixed=opts.fixed)
+    if exclude:
+        quality.excluded = [{"pose": int(k), "reason": str(v)} for k, v in sorted(exclude.items())]
     outcome = BatchOutcome(trace, model, result, model.x0, None, quality, validation)
     if not quality.passed:
         if not accept_poor_fit:
@@ -231,6 +250,19 @@ def outcome_document(outcome: BatchOutcome, trace_path: str | None,
     quality = outcome.quality.as_dict() if outcome.quality is not None else None
     src = outcome.trace.header.get("robot_file")
     extra = {"robot_file": src} if src else {}
+    robot = outcome.model.robot
+    if hasattr(robot, "calibrated_origins"):
+        from station.export_urdf import urdf_summary
+
+        extra["urdf"] = urdf_summary(robot, outcome.result.x[:robot.n_params])
+    pts = fit_point_errors(outcome)
+    if pts:
+        n = robot.n_params
+        u = outcome.result.x[n:].reshape(-1, 3)
+        extra["points_on_tool"] = {
+            f"point{j}": {"xyz": [float(v) for v in p], "frame": outcome.model.robot.spec.tip_link}
+            for j, p in enumerate(u, start=1)}
+        extra["fit_points"] = pts
     unseen = not_identified(outcome)
     if unseen:
         extra["not_identified"] = unseen
@@ -320,17 +352,35 @@ def _fmt(v, width=13):
     return f"{v:{width}.6g}"
 
 
+def fit_point_errors(outcome: BatchOutcome) -> dict | None:
+    """3D errors of the fit's points on the tool (sm-markers): RMS, max and the worst
+    three by pose and point (m); None for other methods."""
+    model, res = outcome.model, outcome.result
+    if not hasattr(model, "point_errors"):
+        return None
+    e = model.point_errors(model.evaluate(res.x)[0])
+    poses = outcome.trace.fit_poses
+    order = np.argsort(-e)[:3]
+    return {"n": int(e.size), "rms": float(np.sqrt(np.mean(e ** 2))), "max": float(e.max()),
+            "worst": [{"pose": int(poses[int(model.pose_of[g])]["index"]),
+                       "point": int(model.marker_of[g]) + 1, "error": float(e[g])}
+                      for g in order]}
+
+
 def format_table(outcome: BatchOutcome) -> str:
     """The parameter table (nominal, calibrated, std, identifiability) and fit figures."""
     res, model = outcome.result, outcome.model
     lines = [f"{'parameter':<10}{'start':>13}{'calibrated':>13}{'std':>13}  identifiability",
              "-" * 72]
+    held = getattr(model.robot, "held_reason", lambda _n: "the robot file's fixed")
+    width = max([10] + [len(n) + 1 for n in res.names])
+    lines[0] = f"{'parameter':<{width}}" + lines[0][10:]
     for j, (name, st) in enumerate(zip(res.names, res.status)):
         std = res.std[j] if st.identifiable else None
         infl = "influences the model" if st.influences_model else "no influence"
         label = "identifiable" if st.identifiable else (
-            f"held (the robot file's fixed), {infl}" if st.fixed else f"not identifiable, {infl}")
-        lines.append(f"{name:<10}{_fmt(outcome.nominal[j])}{_fmt(res.x[j])}{_fmt(std)}  {label}")
+            f"held ({held(name)}), {infl}" if st.fixed else f"not identifiable, {infl}")
+        lines.append(f"{name:<{width}}{_fmt(outcome.nominal[j])}{_fmt(res.x[j])}{_fmt(std)}  {label}")
     need = ident.minimum_poses(res.n_identifiable, model.p)
     lines.append("-" * 72)
     lines.append(f"method {res.method}: {res.message}")
@@ -340,6 +390,16 @@ def format_table(outcome: BatchOutcome) -> str:
     rms = ", ".join(f"{k} {v:.4g}" for k, v in res.residual_rms.items())
     lines.append(f"sigma ({'from the trace' if res.sigma_known else 'estimated, eq. 51'}): {sig}")
     lines.append(f"residual RMS: {rms}")
+    pts = fit_point_errors(outcome)
+    if pts:
+        w = pts["worst"][0]
+        lines.append(f"fit: points' 3D RMS {pts['rms'] * 1e3:.3g} mm, max {pts['max'] * 1e3:.3g} mm "
+                     f"(pose {w['pose']} point {w['point']}); {pts['n']} points of "
+                     f"{model.n_poses} poses")
+    label = getattr(model.robot, "joint_label", None)
+    if label is not None:
+        lines.append("joints: " + ", ".join(f"{i} {label(i)}"
+                                            for i in range(1, model.robot.n_actuators + 1)))
     for d in not_identified(outcome):
         lines.append(describe_not_identified(d))
     for note in getattr(model, "notes", ()) or ():

@@ -152,7 +152,15 @@ def export_command(args) -> list[str]:
     doc = read_params(args.file)
     robot, xi = calibrated_model(doc, args.file)
     outs = []
-    if args.urdf:
+    urdf_robot = hasattr(robot, "calibrated_origins")
+    if urdf_robot and args.robot_file:
+        raise ConfigError(f"{robot.name} is a URDF robot: its calibration is exported into its "
+                          f"own URDF (--urdf OUT.urdf), not as a robot file", source=args.file)
+    if args.urdf and urdf_robot:
+        from station.export_urdf import calibrated_urdf
+
+        outs.append((args.urdf, calibrated_urdf(robot, xi), "calibrated URDF"))
+    elif args.urdf:
         outs.append((args.urdf, urdf_text(robot, xi), "URDF"))
     if args.robot_file:
         note = (f"{robot.name} calibrated by {doc['method']} ({doc['created']}), from "

@@ -60,6 +60,7 @@ class Quality:
     outliers: list[dict] = field(default_factory=list)
     checks: list[dict] = field(default_factory=list)
     accepted: bool = False
+    excluded: list[dict] = field(default_factory=list)   # by the operator: pose, reason
 
     @property
     def passed(self) -> bool:
@@ -73,15 +74,19 @@ class Quality:
         self.checks.append({"check": name, "ok": bool(ok), "message": message, **figures})
 
     def as_dict(self) -> dict:
-        return {"passed": self.passed, "accepted": self.accepted,
-                "outliers": [dict(o) for o in self.outliers],
-                "checks": [dict(c) for c in self.checks]}
+        out = {"passed": self.passed, "accepted": self.accepted,
+               "outliers": [dict(o) for o in self.outliers],
+               "checks": [dict(c) for c in self.checks]}
+        if self.excluded:
+            out["excluded"] = [dict(e) for e in self.excluded]
+        return out
 
     def lines(self) -> list[str]:
         """Human-readable lines (CLI table, GUI)."""
-        out = []
+        out = [f"excluded by the operator: pose {e['pose']} ({e['reason']})"
+               for e in self.excluded]
         for o in self.outliers:
-            out.append(f"outlier excluded: pose {o['pose']} {o['channel']} (residual "
+            out.append(f"outlier excluded: {describe(o)} (residual "
                        f"{o['residual']:.4g}, studentized {o['t']:.3g} > {o['threshold']:.3g})")
         for c in self.checks:
             out.append(("ok: " if c["ok"] else "FAILED: ") + c["message"])
@@ -102,9 +107,25 @@ def max_outliers(n_poses: int) -> int:
     return max(1, n_poses // 10)
 
 
+def point_of_row(model, row: int) -> int | None:
+    """The point on the tool (1-based) a residual row of sm-markers reads, else None."""
+    groups, marker = getattr(model, "row_group", None), getattr(model, "marker_of", None)
+    if groups is None or marker is None:
+        return None
+    return int(marker[int(groups[row])]) + 1
+
+
+def describe(o: dict) -> str:
+    """``pose 5 marker`` (sm-markers: ``pose 5 point 2``) for an outlier entry."""
+    return f"pose {o['pose']} point {o['point']}" if "point" in o else \
+        f"pose {o['pose']} {o['channel']}"
+
+
 def row_poses(model) -> np.ndarray | None:
     """For each residual row, the position of its pose among the model's poses
     (sm-self-redundancy: the second pose of the pair); None if unknown."""
+    if getattr(model, "row_pose", None) is not None:
+        return np.asarray(model.row_pose)
     rows = len(model.row_channel)
     if hasattr(model, "other") and hasattr(model, "n_pose_rows"):
         return np.repeat(np.asarray(model.other), rows // max(model.n_pose_rows, 1))
@@ -135,12 +156,27 @@ def _entry(trace, model, row: q.Outlier, rows_tested: int | None = None) -> dict
     pose = trace.fit_poses[int(row_poses(model)[row.row])]
     e = {"pose": int(pose["index"]), "channel": row.channel, "residual": row.residual,
          "t": row.t, "threshold": row.threshold}
+    point = point_of_row(model, row.row)
+    if point is not None:
+        e["point"] = point
     if rows_tested is not None:
         e["rows_tested"] = rows_tested
     return e
 
 
-def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | None):
+def _free_at(model, x, fixed) -> np.ndarray:
+    """The parameters a fit from ``x`` calibrates: not ``fixed`` and identifiable
+    there (structurally, in the model's identification order)."""
+    cand = np.array([n not in set(fixed) for n in model.names])
+    try:
+        W = model.evaluate(np.asarray(x, dtype=float))[1]
+    except CalibrationError:
+        return cand
+    return ident.classify(W, candidates=cand, order=model.identify_order)[0]
+
+
+def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | None,
+           fixed=()):
     """A fit that did not converge: leave out the readings a robust fit rejects
     (:func:`calibration.quality.robust_worst_row`), one at a time, until the fit
     converges. Returns ``(trace, model, result, outliers)``; raises ``error`` (with
@@ -148,7 +184,8 @@ def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | Non
     outliers: list[dict] = []
     limit = max_outliers(len(trace.fit_poses))
     while len(outliers) < limit and row_poses(model) is not None:
-        worst, x_robust = q.robust_worst_row(model, model.x0, stated_sigma)
+        worst, x_robust = q.robust_worst_row(model, model.x0, stated_sigma,
+                                             free=_free_at(model, model.x0, fixed))
         if worst is None:
             break
         entry = dict(_entry(trace, model, worst), test="robust fit")
@@ -167,8 +204,7 @@ def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | Non
         except CalibrationError:
             break
     if outliers:
-        named = ", ".join(f"pose {o['pose']} {o['channel']} ({o['t']:.3g} robust sigmas)"
-                          for o in outliers)
+        named = ", ".join(f"{describe(o)} ({o['t']:.3g} robust sigmas)" for o in outliers)
         raise CalibrationError(f"{error}; readings that do not fit a robust fit: {named}; "
                                f"check them (the fit does not converge without them either)")
     raise error
@@ -191,17 +227,19 @@ def check_spread(trace, model) -> None:
                               f"distinct poses (eq. 60): the robot did not move between readings")
 
 
-def gated_fit(trace, model, *, first, refit, stated_sigma, validate):
+def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
     """The gate around a calibration: ``first()`` fits ``model`` (raising a
     :class:`CalibrationError` with ``.model`` if it does not converge),
-    ``refit(trace, start)`` fits a trace copy from ``start``. Returns ``(quality, trace, model, result,
-    validation)`` of the fit that passed, else of the last one tried."""
+    ``refit(trace, start)`` fits a trace copy from ``start``; ``fixed`` names the
+    parameters every fit holds (the robust fits too). Returns ``(quality, trace, model,
+    result, validation)`` of the fit that passed, else of the last one tried."""
     check_spread(trace, model)
     try:
         model0, result = first()
         pre = []
     except NotConverged as e:
-        trace, model0, result, pre = rescue(trace, model, e, refit=refit, stated_sigma=stated_sigma)
+        trace, model0, result, pre = rescue(trace, model, e, refit=refit, stated_sigma=stated_sigma,
+                                            fixed=fixed)
     got = run_gate(trace, model0, result, refit=refit, stated_sigma=stated_sigma,
                    validate=validate, outliers=pre)
     quality, trace1, model1 = got[:3]
@@ -210,7 +248,8 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate):
     # least squares may spread a gross reading over every residual: ask a robust fit,
     # started where least squares ended (from the bare start values a robot far from
     # its nominal lands in another minimum, where every reading looks gross)
-    worst, x_robust = q.robust_worst_row(model1, got[3].x, stated_sigma)
+    worst, x_robust = q.robust_worst_row(model1, got[3].x, stated_sigma,
+                                         free=[st.identifiable for st in got[3].status])
     if worst is None and x_robust is not None:
         # no gross reading: least squares found a local minimum; start again where
         # the robust fit ended
@@ -238,14 +277,14 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate):
     try:
         model2, result2 = refit(new_trace, x_robust)
     except CalibrationError:
-        quality.check("outliers", False, f"outliers: pose {entry['pose']} {entry['channel']} does "
+        quality.check("outliers", False, f"outliers: {describe(entry)} does "
                       f"not fit a robust fit ({worst.t:.3g} robust sigmas) and the fit without it "
                       "does not converge", next=entry)
         return got
     got2 = run_gate(new_trace, model2, result2, refit=refit, stated_sigma=stated_sigma,
                     validate=validate, outliers=[*quality.outliers, entry])
     if not got2[0].passed:
-        got2[0].check("outliers", False, f"outliers: pose {entry['pose']} {entry['channel']} "
+        got2[0].check("outliers", False, f"outliers: {describe(entry)} "
                       f"does not fit a robust fit ({worst.t:.3g} robust sigmas), and the fit "
                       "still fails without it", next=entry)
     return got2
@@ -268,16 +307,40 @@ def _confirmed(model, model_without, result_without, worst: q.Outlier) -> bool:
     (``model_without``, ``result_without``): its prediction error there in its own
     std, the noise of that fit plus its parameters' uncertainty at that row
     (:func:`calibration.quality.prediction_std`; a high-leverage row's prediction
-    is the less certain), against the same threshold?"""
+    is the less certain), against the same threshold? A reading of several rows (a
+    point's x, y, z) is judged whole (:func:`calibration.quality.prediction_blocks`)."""
+    groups = getattr(model, "row_group", None)
     try:
         r, W = model.evaluate(result_without.x)
+        if groups is not None:
+            rows = np.flatnonzero(np.asarray(groups) == groups[worst.row])
+            rc = np.asarray(model.row_channel)[rows]
+            cov, _rows, _dof = q.prediction_blocks(model_without, result_without, W[rows], rc,
+                                                   np.zeros(len(rows), dtype=int))
+            e = r[rows]
+            t2 = float(e @ np.linalg.solve(cov[0], e))
+            return not math.isfinite(t2) or math.sqrt(max(t2, 0.0)) > worst.threshold
         rc = np.asarray(model.row_channel)[[worst.row]]
         std = q.prediction_std(model_without, result_without, W[[worst.row]], rc)[0][0]
-    except CalibrationError:
+    except (CalibrationError, np.linalg.LinAlgError):
         return True
     if not std > 0 or not math.isfinite(std):
         return True
     return abs(float(r[worst.row])) > worst.threshold * std
+
+
+def _worst(model, result):
+    """The most significant fit reading (:func:`calibration.quality.worst_row`, or
+    :func:`calibration.quality.worst_group` where the rows come in groups read
+    together) and the number tested."""
+    r, W = model.evaluate(result.x)
+    active = np.array([s.identifiable for s in result.status])
+    w = q.row_weights(model.row_channel, model.channels, result.sigma)
+    groups = getattr(model, "row_group", None)
+    if groups is None:
+        return q.worst_row(r, q.leverage(W, w, active), model.row_channel, model.channels)
+    return q.worst_group(r, q.hat_basis(W, w, active), w, model.row_channel, model.channels,
+                         groups)
 
 
 def _statistics(model, result):
@@ -301,20 +364,18 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
     limit = max_outliers(len(trace.fit_poses) + len(excluded))
     restarts = 0
     while True:
-        r, h = _statistics(model, result)
-        rp = row_poses(model)
-        if rp is None:
+        if row_poses(model) is None:
             break
-        worst, n_test = q.worst_row(r, h, model.row_channel, model.channels)
+        worst, n_test = _worst(model, result)
         if worst is None:
             break
         entry = _entry(trace, model, worst, n_test)
         if len(quality.outliers) >= limit:
-            named = ", ".join(f"pose {o['pose']} {o['channel']}" for o in quality.outliers)
+            named = ", ".join(describe(o) for o in quality.outliers)
             quality.check("outliers", False,
                           f"outliers: more than {limit} readings do not fit the others "
-                          f"({named + ', ' if named else ''}pose {entry['pose']} "
-                          f"{entry['channel']}: studentized residual {worst.t:.3g} > "
+                          f"({named + ', ' if named else ''}{describe(entry)}: studentized "
+                          f"residual {worst.t:.3g} > "
                           f"{worst.threshold:.3g})", limit=limit, next=entry)
             break
         new_trace, partners = _excluded(trace, excluded | {entry["pose"]})
@@ -322,7 +383,7 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
             new_model, new_result = refit(new_trace, result.x)
         except CalibrationError as e:
             quality.check("outliers", False,
-                          f"outliers: pose {entry['pose']} {entry['channel']} does not fit "
+                          f"outliers: {describe(entry)} does not fit "
                           f"(studentized residual {worst.t:.3g} > {worst.threshold:.3g}) and the "
                           f"fit without it fails: {e}", next=entry)
             break
@@ -346,7 +407,7 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
     if quality.outliers:
         quality.check("outliers", True, f"outliers: {len(quality.outliers)} reading(s) excluded "
                       "and the trace refitted: " + ", ".join(
-                          f"pose {o['pose']} {o['channel']}" for o in quality.outliers))
+                          describe(o) for o in quality.outliers))
     elif not quality.checks:
         quality.check("outliers", True, "outliers: none")
     r, h = _statistics(model, result)
@@ -370,23 +431,58 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
             if before is None or after is None or not math.isfinite(after):
                 continue
             ok = after <= VALIDATION_TOLERANCE * before
-            quality.check("validation", ok,
-                          f"validation: {v['channel']} RMS on {v['n']} held-out rows "
-                          f"{'went' if ok else 'is worse than the start:'} {before:.4g} -> "
-                          f"{after:.4g} {v['unit']}", channel=v["channel"],
-                          rms_before=before, rms_after=after)
+            pts = v.get("points")
+            if pts:
+                w = pts["worst"][0]
+                verb = "went" if ok else "is worse than the start:"
+                text = (f"validation: held-out points' 3D RMS {verb} "
+                        f"{mm(pts.get('rms_before'))} -> {mm(pts['rms_after'])} mm "
+                        f"(max {mm(pts['max_after'])} mm at pose {w['pose']} point {w['point']}; "
+                        f"{pts['n']} points of {pts['poses']} poses)")
+            else:
+                text = (f"validation: {v['channel']} RMS on {v['n']} held-out rows "
+                        f"{'went' if ok else 'is worse than the start:'} {before:.4g} -> "
+                        f"{after:.4g} {v['unit']}")
+            quality.check("validation", ok, text, channel=v["channel"], rms_before=before,
+                          rms_after=after)
+        for v in validation:
+            out = v.get("outside_range")
+            if out:
+                named = ", ".join(f"pose {p['pose']} ({p['why']})" for p in out["poses"][:3])
+                more = f" and {len(out['poses']) - 3} more" if len(out["poses"]) > 3 else ""
+                unit = "mm" if v.get("points") else v["unit"]
+                fig = ((mm(out["rms"]), mm(out["max"])) if v.get("points")
+                       else (f"{out['rms']:.4g}", f"{out['max']:.4g}"))
+                quality.check("extrapolation", True,
+                              f"validation: {len(out['poses'])} held-out pose(s) lie outside "
+                              f"the fitted poses' joint ranges: {named}{more}; their errors "
+                              f"(RMS {fig[0]}, max {fig[1]} {unit}) are an extrapolation, "
+                              "reported and not judged", channel=v["channel"],
+                              outside_range=out)
         for v in validation:
             o = v.get("outlier")
             if o:
                 where = f"pose {o['pose']}" if o.get("pose") is not None else "a held-out pose"
-                quality.check("validation", False,
-                              f"validation: held-out {where} {v['channel']} is {o['residual']:.4g} "
-                              f"{v['unit']} off the calibration's prediction, {o['t']:.3g} times "
-                              f"its predicted std {o['std']:.3g} {v['unit']} (threshold "
-                              f"{o['threshold']:.3g} over {o['rows_tested']} held-out rows): a bad "
-                              "reading or a model that does not predict; check that pose's "
-                              "reading", channel=v["channel"], heldout=dict(o))
+                if "point" in o:
+                    what = (f"validation: held-out {where} point {o['point']} is "
+                            f"{mm(o['residual'])} mm off the calibration's prediction, "
+                            f"{o['t']:.3g} times its predicted std (threshold "
+                            f"{o['threshold']:.3g} over {o['rows_tested']} held-out points)")
+                else:
+                    what = (f"validation: held-out {where} {v['channel']} is "
+                            f"{o['residual']:.4g} {v['unit']} off the calibration's "
+                            f"prediction, {o['t']:.3g} times its predicted std {o['std']:.3g} "
+                            f"{v['unit']} (threshold {o['threshold']:.3g} over "
+                            f"{o['rows_tested']} held-out rows)")
+                quality.check("validation", False, what + ": a bad reading or a model that "
+                              "does not predict; check that pose's reading",
+                              channel=v["channel"], heldout=dict(o))
     return quality, trace, model, result, validation
+
+
+def mm(v) -> str:
+    """A length in metres as millimetres for people (``-`` where unknown)."""
+    return "-" if v is None or not math.isfinite(v) else f"{v * 1e3:.3g}"
 
 
 def _spread(quality, trace, model, result) -> None:

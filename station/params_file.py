@@ -228,7 +228,10 @@ def _check_values(doc: dict, path: str) -> None:
         model = get_robot(robot)
     if method not in METHODS or METHODS[method].kind != model.kind:
         fail(f"method: {_short(method)} is not a method of {robot}")
-    names = set(model.param_names) | set(extra_params(method, model))
+    from calibration.methods.sm_markers import marker_count
+
+    names = set(model.param_names) | set(extra_params(method, model,
+                                                      marker_count(doc["parameters"])))
     if "distance" in METHODS[method].channels:
         names.add(DISTANCE_OFF)       # a draw-wire zero that was a reading
     extra = set(doc["parameters"]) - names

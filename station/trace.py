@@ -20,6 +20,7 @@ import numpy as np
 from calibration.errors import CalibrationError, ConfigError, StationError, TraceFormatError
 from calibration.methods import METHODS, MethodData, extra_params
 from calibration.methods.sm_distance import ZEROS   # the reference's ``zero`` (added field)
+from calibration.methods.sm_markers import points_array
 from calibration.robots import ROBOTS, get_robot
 from drivers.atomic import write_atomic
 from drivers.robot_file import spec_from_source
@@ -110,6 +111,9 @@ class Trace:
         mi = METHODS[method]
         channels = {}
         for ch in mi.channels:
+            if ch == "markers":
+                channels[ch] = points_array([p[ch] for p in poses], self.n_markers)
+                continue
             channels[ch] = np.array([p[ch] for p in poses], dtype=float)
         group = None
         if any("group" in p for p in poses):
@@ -119,6 +123,15 @@ class Trace:
         return MethodData(qm=qm, channels=channels, group=group, reference_qm=ref,
                           components=tuple(comps) if comps else None,
                           distance_zero=self.distance_zero)
+
+    @property
+    def n_markers(self) -> int:
+        """Points on the tool of an sm-markers trace (header ``markers``), else 0."""
+        return int(self.header.get("markers") or 0)
+
+    def extra_params(self, method: str | None = None) -> tuple[str, ...]:
+        """The method's parameters after the robot's (sm-markers: per point on the tool)."""
+        return extra_params(method or self.method, self.robot_model(), self.n_markers)
 
     @property
     def distance_zero(self) -> str:
@@ -265,7 +278,14 @@ def _check_header(rec, fail, method_override):
     nominal = rec.get("nominal", {})
     if not isinstance(nominal, dict):
         fail("nominal must be an object: parameter name -> value")
-    known = set(model.param_names) | set(extra_params(method, model))
+    markers = rec.get("markers")
+    if method == "sm-markers":
+        if not isinstance(markers, int) or isinstance(markers, bool) or not 1 <= markers <= 1000:
+            fail(f"markers must be the number of points on the tool (1 to 1000), not "
+                 f"{_short(markers)}")
+    elif markers is not None:
+        fail(f"markers is for sm-markers traces, not {method}")
+    known = set(model.param_names) | set(extra_params(method, model, markers or 0))
     for k, v in nominal.items():
         if k not in known:
             fail(f"nominal: unknown parameter {k!r} for {robot}/{method}")
@@ -301,6 +321,16 @@ def _check_pose_channels(rec, trace, fail):
             _check_vector(v, 3, ch, fail)
         elif ch == "orientation":
             _check_vector(v, len(comps) if method == "pm-fk" else 3, ch, fail)
+        elif ch == "markers":
+            n = trace.n_markers
+            if not isinstance(v, list) or len(v) != n:
+                fail(f"markers must be a list of {n} points ([x, y, z] or null)")
+            for p in v:
+                if p is not None:
+                    _check_vector(p, 3, "a point of markers", fail)
+            if all(p is None for p in v):
+                fail("markers: no point seen in this pose")
+            continue
         elif ch == "tilt" and (method == "pm-tilt" or not builtin):
             _check_vector(v, 2, "tilt ([roll, pitch])", fail)
         elif not _num(v):

@@ -149,18 +149,56 @@ def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit
     return header, reference, poses
 
 
-def import_command(args) -> str:
-    """``app.py trace import``: write the trace atomically; returns a summary line."""
+def parse_sigma(items, channels) -> dict | None:
+    """``--sigma CHANNEL=STD`` items as ``{channel: std}`` (SI); the channel must be one
+    of ``channels`` and the std a positive finite number."""
     sigma = {}
-    for item in args.sigma or ():
-        k, _, v = item.partition("=")
+    for item in items or ():
+        k, sep, v = item.partition("=")
+        k = k.strip()
+        if not sep or k not in channels:
+            raise ConfigError(f"--sigma {item}: give CHANNEL=STD with CHANNEL one of "
+                              f"{', '.join(channels)}")
         try:
-            sigma[k] = float(v)
+            x = float(v)
         except ValueError:
             raise ConfigError(f"--sigma {item}: {v!r} is not a number (CHANNEL=STD, SI units)") \
                 from None
+        if not (math.isfinite(x) and x > 0):
+            raise ConfigError(f"--sigma {item}: the std must be a positive number")
+        sigma[k] = x
+    return sigma or None
+
+
+# --sigma channels of each method: the solver's row channels and the trace's vector ones
+SIGMA_CHANNELS = {"sm-position": ("position", "x", "y", "z"),
+                  "sm-full-pose": ("pose", "x", "y", "z", "roll", "pitch", "yaw"),
+                  "sm-distance": ("distance",),
+                  "sm-distance-tilt": ("distance", "tilt", "roll", "pitch"),
+                  "sm-plane": (), "sm-self-redundancy": ()}
+
+
+def import_command(args) -> str:
+    """``app.py trace import``: write the trace atomically; returns a summary line."""
+    from drivers.urdf_file import is_urdf
+
+    if is_urdf(args.robot) or args.method == "sm-markers":
+        if not is_urdf(args.robot):
+            raise ConfigError(f"sm-markers takes a URDF robot (--robot FILE.urdf --base-link B "
+                              f"--tip-link T), not {args.robot}")
+        if args.method != "sm-markers":
+            raise ConfigError(f"a URDF robot's measurements are imported as sm-markers (points "
+                              f"on the tool), not {args.method}")
+        from station.import_markers import import_markers_command
+
+        return import_markers_command(args)
+    for opt in ("base_link", "tip_link", "validation", "joint_map", "ignore_columns"):
+        if getattr(args, opt, None):
+            raise ConfigError(f"--{opt.replace('_', '-')} is for a URDF robot (sm-markers); "
+                              f"{args.robot} is a robot file")
+    sigma = parse_sigma(args.sigma, SIGMA_CHANNELS.get(args.method, ()))
     header, reference, poses = import_csv(args.csv, args.robot, args.method,
                                           length_unit=args.length_unit,
-                                          angle_unit=args.angle_unit, sigma=sigma or None)
+                                          angle_unit=args.angle_unit, sigma=sigma)
     write_trace(args.out, header, reference, poses)
     return f"trace written to {args.out} ({len(poses)} poses of {header['robot']}, {args.method})"

@@ -51,6 +51,7 @@ class MethodInfo:
     section: str = ""
     file_cls: str | None = None  # the class for a robot file, where it differs
     file_extra: tuple[str, ...] = ()  # extra parameters on a robot file
+    urdf_only: bool = False  # needs a URDF robot (its instrument frame is a free rigid frame)
 
 
 def is_robot_file(robot) -> bool:
@@ -58,9 +59,14 @@ def is_robot_file(robot) -> bool:
     return getattr(robot, "spec", None) is not None
 
 
-def extra_params(name: str, robot) -> tuple[str, ...]:
-    """The method's parameters after the robot's, on ``robot`` (a model)."""
+def extra_params(name: str, robot, markers: int = 0) -> tuple[str, ...]:
+    """The method's parameters after the robot's, on ``robot`` (a model); sm-markers
+    has three per point on the tool (``markers`` of them)."""
     mi = info(name)
+    if name == "sm-markers":
+        from calibration.methods.sm_markers import marker_names
+
+        return marker_names(markers)
     return mi.extra_params + (mi.file_extra if is_robot_file(robot) else ())
 
 
@@ -81,6 +87,9 @@ METHODS: dict[str, MethodInfo] = {m.name: m for m in (
     MethodInfo("pm-fk", "parallel-wrist", "pm_fk", "ForwardKinematics", ("orientation",), section="10.2"),
     MethodInfo("pm-tilt", "parallel-wrist", "pm_tilt", "Tilt", ("tilt",),
                extra_params=("mount_x", "mount_y"), section="10.2 + physical inclinometer"),
+    MethodInfo("sm-markers", "serial", "sm_markers", "Markers", ("markers",),
+               section="7.1, points on the tool in the instrument's frame (a tracker's "
+                       "reflectors, motion-capture markers)", urdf_only=True),
 )}
 
 
@@ -91,17 +100,26 @@ def info(name: str) -> MethodInfo:
         raise CalibrationError(f"unknown method {name!r} (known: {', '.join(METHODS)})") from None
 
 
+def is_urdf_robot(robot) -> bool:
+    """Whether ``robot`` (a model) is a URDF robot's chain."""
+    return hasattr(robot, "calibrated_origins")
+
+
 def check_kind(name: str, robot) -> None:
     """CalibrationError unless method ``name`` takes ``robot`` (its kind)."""
     mi = info(name)
     if robot.kind != mi.kind:
         raise CalibrationError(f"method {name} needs a {mi.kind} robot; {robot.name} is "
                                f"a {robot.kind} one")
+    if mi.urdf_only and not is_urdf_robot(robot):
+        raise CalibrationError(f"method {name} takes a URDF robot (--robot FILE.urdf "
+                               f"--base-link B --tip-link T); {robot.name} is not one")
 
 
 def methods_for(robot) -> tuple[str, ...]:
     """The methods that take ``robot`` (a model), in registry order."""
-    return tuple(n for n, mi in METHODS.items() if mi.kind == robot.kind)
+    return tuple(n for n, mi in METHODS.items() if mi.kind == robot.kind
+                 and (is_urdf_robot(robot) or not mi.urdf_only))
 
 
 def build(name: str, robot, data: MethodData, nominal: np.ndarray, **options):

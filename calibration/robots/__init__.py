@@ -15,7 +15,8 @@ BUILTIN = {"serial": "agebot-sm", "parallel-wrist": "agebot-pm"}
 
 def get_robot(robot) -> RobotModel:
     """The robot model of ``robot``: a built-in name (``agebot-sm``, ``agebot-pm``),
-    a parsed robot file (``SerialSpec``) or a model (returned as is)."""
+    a parsed robot file (``SerialSpec``), a URDF robot's chain (``UrdfSpec``) or a
+    model (returned as is)."""
     if isinstance(robot, RobotModel):
         return robot
     if robot == "agebot-sm":
@@ -27,8 +28,11 @@ def get_robot(robot) -> RobotModel:
 
         return AgebotPM()
     from calibration.robots.serial import SerialRobot, SerialSpec
+    from calibration.robots.urdf import UrdfRobot, UrdfSpec
 
     if isinstance(robot, SerialSpec):
         return SerialRobot(robot)
+    if isinstance(robot, UrdfSpec):
+        return UrdfRobot(robot)
     raise ConfigError(f"unknown robot {robot!r} (known: {', '.join(ROBOTS)}, or a robot file)",
                       key="robot")

@@ -192,7 +192,8 @@ def _final_status(run, sigma, weights):
     if cls is None:
         cls = ident.classify(run.W, weights=weights, candidates=run.candidates,
                              residual=run.r if opt.recheck else None,
-                             rank_tol=opt.rank_tol, kappa=opt.kappa)
+                             rank_tol=opt.rank_tol, kappa=opt.kappa,
+                             order=run.model.identify_order)
     ok, dep, rdiag, norms = cls
     # a fixed parameter's column against the zero floor of the classification
     # (rank and, at the solution, the residual): strong, a wrong value biases the others

@@ -98,12 +98,14 @@ class Algorithm2(Weighting, Stepping):
         if twin is model:
             g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
             Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
-            cls = ident.classify(Wg, candidates=self.candidates, rank_tol=opt.rank_tol)
+            cls = ident.classify(Wg, candidates=self.candidates, rank_tol=opt.rank_tol,
+                                 order=model.identify_order)
         else:
             r_t, W_t = twin.evaluate(self.x)
             self.nfev += 1
             cls = ident.classify(W_t, candidates=self.candidates, residual=r_t,
-                                 rank_tol=opt.rank_tol, kappa=opt.kappa)
+                                 rank_tol=opt.rank_tol, kappa=opt.kappa,
+                                 order=model.identify_order)
         ok, dep = cls[0], cls[1]
         self._set_active(ok)
         if self.n_active == 0:
@@ -143,7 +145,8 @@ class Algorithm2(Weighting, Stepping):
             sigma, weights = None, np.ones(self.rows)
         cand = self.active & self.candidates
         *cls, R = ident.classify(self.W, weights=weights, candidates=cand, residual=r,
-                                 rank_tol=opt.rank_tol, kappa=opt.kappa, return_r=True)
+                                 rank_tol=opt.rank_tol, kappa=opt.kappa, return_r=True,
+                                 order=self.model.identify_order)
         self.last_check = Check(self.W, r, sigma, weights, cand, cls, R)
         new_active = cls[0] & self.active
         if np.array_equal(new_active, self.active):

@@ -29,7 +29,12 @@ def test_methods_for_each_kind_in_registry_order():
     assert methods_for(get_robot("agebot-sm")) == SM
     assert methods_for(AgebotPM()) == ("pm-ik", "pm-fk", "pm-tilt")
     assert methods_for(robot("scara-like")) == SM          # a robot file is a serial arm
-    assert set(methods_for(get_robot("agebot-sm"))) | {"pm-ik", "pm-fk", "pm-tilt"} == set(METHODS)
+    # points on the tool in an unknown instrument frame: URDF robots only
+    from tests.calibration.test_urdf import arm
+
+    assert methods_for(arm()) == SM + ("sm-markers",)
+    assert set(methods_for(get_robot("agebot-sm"))) | {"pm-ik", "pm-fk", "pm-tilt",
+                                                       "sm-markers"} == set(METHODS)
 
 
 @pytest.mark.parametrize("method, builtin, on_file", [

@@ -47,7 +47,7 @@ def test_generate_from_truth_noise_and_atomic(tmp_path):
     assert 1e-6 < np.std(np.subtract(d1, d0)) < 1e-3
 
 
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", sorted(m for m, mi in METHODS.items() if not mi.urdf_only))
 def test_every_method_generates_on_its_built_in_robot_and_calibrates(tmp_path, method):
     """`app.py trace generate --method M` works for every method on its built-in
     robot (sm-position once failed with a bare "error: sm-position"), and the trace
@@ -78,3 +78,22 @@ def test_every_method_generates_on_its_built_in_robot_and_calibrates(tmp_path, m
                 assert err < 6 * r.std[j], (name, err / r.std[j])
             else:                              # the touching methods: noise-free
                 assert err < 1e-6, (name, err)
+
+
+def test_sm_markers_generates_on_a_urdf_robot_and_not_on_a_built_in_one(tmp_path):
+    """sm-markers has no built-in robot: a URDF robot's trace generates and calibrates
+    through the gate with its stated noise; without a URDF, one line says what it takes."""
+    from station.batch import calibrate_trace
+    from tests.station.test_cli import app
+    from tests.station.urdf_helpers import URDF
+
+    out = tmp_path / "m.jsonl"
+    r = app("trace", "generate", "--robot", str(URDF), "--base-link", "base_link", "--tip-link",
+            "tool0", "--method", "sm-markers", "--noise", "marker=2e-5", "--seed", "3",
+            "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    outcome = calibrate_trace(str(out))
+    assert outcome.quality.passed, outcome.quality.failures
+    assert any(c["check"] == "noise" and c["ok"] for c in outcome.quality.checks)
+    r = app("trace", "generate", "--method", "sm-markers", "--out", str(tmp_path / "x.jsonl"))
+    assert r.returncode == 2 and r.stderr.startswith("error: sm-markers takes a URDF robot")

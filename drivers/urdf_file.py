@@ -1,0 +1,149 @@
+"""URDF robots: a URDF file and the chain to calibrate in it, from ``--base-link`` to
+``--tip-link`` (docs/urdf-robots.md), read into a :class:`calibration.robots.urdf.UrdfSpec`.
+
+The URDF is parsed by ``yourdfpy`` (joint types, origins, axes, limits, the tree);
+the text is first checked as XML by the standard library so that a malformed file
+gets a one-line error with its line and column. The spec carries its own source
+``{name, sha256, text, base_link, tip_link}``, which is what a trace's header stores
+as ``robot_file`` (as it stores a robot file) and :func:`urdf_from_source` reads back.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import logging
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from calibration.errors import ConfigError
+
+MOVABLE = {"revolute": "R", "continuous": "R", "prismatic": "P"}
+
+
+def is_urdf(robot: str) -> bool:
+    """Whether a ``--robot`` value names a URDF file."""
+    return str(robot).lower().endswith((".urdf", ".xml"))
+
+
+def _nested(T) -> tuple:
+    return tuple(tuple(float(v) for v in row) for row in np.asarray(T, dtype=float))
+
+
+def _names(items, limit: int = 12) -> str:
+    items = list(items)
+    text = ", ".join(items[:limit])
+    return text + (f", ... ({len(items)} in all)" if len(items) > limit else "")
+
+
+def parse_urdf(text: str, source: str, base_link: str | None, tip_link: str | None,
+               name: str | None = None):
+    """The :class:`UrdfSpec` of the chain from ``base_link`` to ``tip_link`` in the URDF
+    ``text``; ``source`` names the file in errors, ``name`` (default its base name)
+    becomes the source's name."""
+    from calibration.robots.urdf import UrdfJoint, UrdfSpec
+
+    if not base_link or not tip_link:
+        raise ConfigError("a URDF robot needs --base-link and --tip-link (the chain to "
+                          "calibrate)", source=source)
+    try:
+        ET.fromstring(text)
+    except ET.ParseError as e:
+        line, col = e.position
+        raise ConfigError(f"not valid XML at line {line}, column {col + 1}: "
+                          f"{str(e).split(':')[0]}", source=source) from None
+    import yourdfpy
+
+    log = logging.getLogger("yourdfpy")
+    level, log.level = log.level, logging.CRITICAL
+    try:
+        urdf = yourdfpy.URDF.load(io.BytesIO(text.encode("utf-8")), load_meshes=False,
+                                  build_scene_graph=False, load_collision_meshes=False)
+    except Exception as e:  # yourdfpy raises what its XML walk meets
+        raise ConfigError(f"not a URDF yourdfpy can read: {type(e).__name__}: {e}",
+                          source=source) from None
+    finally:
+        log.level = level
+    links = [lk.name for lk in urdf.robot.links]
+    for what, link in (("base link", base_link), ("tip link", tip_link)):
+        if link not in links:
+            raise ConfigError(f"{what} {link!r} is not a link of robot "
+                              f"{urdf.robot.name!r} (links: {_names(links)})", source=source)
+    by_child = {}
+    for j in urdf.robot.joints:
+        by_child[j.child] = j
+    chain, link = [], tip_link
+    while link != base_link:
+        j = by_child.get(link)
+        if j is None:
+            raise ConfigError(f"tip link {tip_link!r} is not below base link {base_link!r} in "
+                              f"the URDF's tree", source=source)
+        chain.append(j)
+        link = j.parent
+    chain.reverse()
+    joints, before = [], np.eye(4)
+    for j in chain:
+        where = f"joint {j.name!r}"
+        origin = np.eye(4) if j.origin is None else np.asarray(j.origin, dtype=float)
+        if j.type == "fixed":
+            before = before @ origin
+            continue
+        if j.type not in MOVABLE:
+            raise ConfigError(f"{where} is {j.type}: the chain to calibrate takes revolute, "
+                              f"continuous, prismatic and fixed joints", source=source)
+        if j.mimic is not None:
+            raise ConfigError(f"{where} mimics {j.mimic.joint!r}: a mimic joint in the chain "
+                              f"to calibrate is not supported", source=source)
+        axis = np.array([1.0, 0.0, 0.0]) if j.axis is None else np.asarray(j.axis, float)
+        norm = float(np.linalg.norm(axis))
+        if not norm > 0 or not math.isfinite(norm):
+            raise ConfigError(f"{where}: its axis {axis.tolist()} is not a direction",
+                              source=source)
+        continuous = j.type == "continuous"
+        lim = j.limit
+        if continuous or lim is None or lim.lower is None or lim.upper is None:
+            if not continuous:
+                raise ConfigError(f"{where} ({j.type}) has no <limit lower upper>",
+                                  source=source)
+            limits = (-math.pi, math.pi)
+        else:
+            limits = (float(lim.lower), float(lim.upper))
+            if not limits[0] < limits[1]:
+                raise ConfigError(f"{where}: limit lower {limits[0]:g} is not below upper "
+                                  f"{limits[1]:g}", source=source)
+        joints.append(UrdfJoint(name=j.name, kind=MOVABLE[j.type], before=_nested(before @ origin),
+                                origin=_nested(origin), axis=tuple(float(v) for v in axis / norm),
+                                limits=limits, continuous=continuous))
+        before = np.eye(4)
+    if not joints:
+        raise ConfigError(f"no movable joint between {base_link!r} and {tip_link!r}",
+                          source=source)
+    src = {"name": name or Path(source).name,
+           "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest(), "text": text,
+           "base_link": base_link, "tip_link": tip_link}
+    robot_name = urdf.robot.name or Path(src["name"]).stem
+    if robot_name in ("agebot-sm", "agebot-pm"):
+        robot_name += "-urdf"
+    return UrdfSpec(name=robot_name, base_link=base_link, tip_link=tip_link,
+                    joints=tuple(joints), tail=_nested(before), source=src)
+
+
+def load_urdf(path, base_link: str | None, tip_link: str | None):
+    """Read and parse a URDF file; errors name the file."""
+    path = str(path)
+    try:
+        text = Path(path).read_bytes().decode("utf-8-sig")
+    except OSError as e:
+        raise ConfigError(f"cannot read the URDF: {e.strerror or e}", source=path) from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"not UTF-8 text: {e}", source=path) from None
+    return parse_urdf(text, path, base_link, tip_link)
+
+
+def urdf_from_source(src: dict, where: str):
+    """The spec of a trace header's ``robot_file`` of a URDF robot (checksum checked
+    by the caller)."""
+    return parse_urdf(src["text"], f"{where} ({src.get('name', '?')})", src.get("base_link"),
+                      src.get("tip_link"), name=str(src.get("name") or "robot.urdf"))
