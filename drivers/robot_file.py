@@ -98,6 +98,11 @@ def parse_robot_file(text: str, source: str = "<robot file>", name: str | None =
 def load_robot_file(path) -> SerialSpec:
     """Read and parse a robot file; errors name the file."""
     path = str(path)
+    if path.lower().endswith(".urdf"):
+        raise ConfigError("a URDF robot is calibrated from its measurements: trace import "
+                          "--robot FILE.urdf --base-link B --tip-link T --method sm-markers, then "
+                          "batch (docs/urdf-robots.md); sessions, the simulator and studies take "
+                          "AGEBOT and robot files (TOML)", source=path)
     try:
         text = Path(path).read_text(encoding="utf-8")
     except OSError as e:
