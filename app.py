@@ -29,6 +29,11 @@ def _cmd_batch(args) -> int:
     _check_outputs((args.out, "the parameter file"), (args.report, "the report"),
                    inputs=(args.trace,))
     opts = SolverOptions(max_iter=args.max_iter)
+    if args.hold:
+        from station.batch import hold_patterns
+
+        opts = SolverOptions(max_iter=args.max_iter,
+                             fixed=hold_patterns(args.trace, args.hold, args.method))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         outcome = calibrate_trace(args.trace, method=args.method, residual=args.residual,
@@ -188,6 +193,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="leave these poses (trace indices) out of the fit and the held-out "
                         "set, with --exclude-reason (recorded in the parameter file)")
     b.add_argument("--exclude-reason", metavar="TEXT", help="why --exclude's poses are left out")
+    b.add_argument("--hold", metavar="NAME,...",
+                   help="hold these parameters at their start values besides the robot's "
+                        "fixed ones (shell patterns, e.g. 'j*' for a URDF robot's joint "
+                        "origins: a joint-offset calibration)")
     b.set_defaults(func=_cmd_batch)
 
     pa = sub.add_parser("params", help="parameter files")

@@ -105,6 +105,26 @@ def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | No
                      callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
 
 
+def hold_patterns(trace_path: str, text: str, method: str | None = None) -> tuple[str, ...]:
+    """``--hold a*,b``: the trace's parameters these shell patterns name, and the robot's
+    own fixed ones (a pattern that names nothing is an error)."""
+    import fnmatch
+
+    trace = read_trace(trace_path, method_override=method)
+    robot = trace.robot_model()
+    names = tuple(robot.param_names) + trace.extra_params(method)
+    held = list(getattr(robot, "fixed", ()) or ())
+    for pat in (p.strip() for p in text.split(",")):
+        if not pat:
+            continue
+        hit = [n for n in names if fnmatch.fnmatchcase(n, pat)]
+        if not hit:
+            raise CalibrationError(f"--hold {pat}: no parameter of {robot.name} "
+                                   f"({trace.method}) matches it")
+        held += [n for n in hit if n not in held]
+    return tuple(held)
+
+
 def exclude_poses(trace: Trace, exclude: dict) -> Trace:
     """``trace`` with the poses the operator excludes (``{index: reason}``) left out of
     the fit and of the held-out set; an index the trace does not hold is an error."""
@@ -115,6 +135,12 @@ def exclude_poses(trace: Trace, exclude: dict) -> Trace:
                                f"{min(known)}..{max(known)})")
     poses = [dict(p, use="excluded") if p["index"] in exclude else p for p in trace.poses]
     return dataclasses.replace(trace, poses=poses)
+
+
+def _holding(opts: SolverOptions, hold) -> SolverOptions:
+    """``opts`` also holding ``hold`` (names) at their start values."""
+    extra = tuple(n for n in hold if n not in opts.fixed)
+    return dataclasses.replace(opts, fixed=tuple(opts.fixed) + extra) if extra else opts
 
 
 def _fit(trace: Trace, method, residual, opts, callback, model=None, start=None):
@@ -194,7 +220,8 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
 
     quality, trace, model, result, validation = gated_fit(
         trace, model, first=lambda: _fit(trace, method, residual, opts, callback, model),
-        refit=lambda tr, start: _fit(tr, method, residual, opts, None, start=start),
+        refit=lambda tr, start, hold=(): _fit(tr, method, residual, _holding(opts, hold), None,
+                                             start=start),
         stated_sigma=stated,
         validate=validate, fixed=opts.fixed)
     if exclude:
@@ -222,6 +249,8 @@ def write_outputs(outcome: BatchOutcome, trace_path: str | None, out, report=Non
     if report:
         from station.report import write_report
 
+        if "validation" not in report_options and outcome.validation:
+            report_options = dict(report_options, validation=outcome.validation)
         write_report(report, outcome, **report_options)
     try:
         write_params(out, doc)

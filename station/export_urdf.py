@@ -9,7 +9,9 @@ other byte of the file is kept: names, other joints, visuals, collisions, inerti
 transmissions, comments, formatting. The elements are located with the standard
 library's expat parser (byte positions), and the new values are written with 17
 significant digits; rpy is solved to round-off, also at pitch = +-pi/2 where URDF's
-angles are degenerate.
+angles are degenerate (there a small turn can change roll and yaw by a lot while the
+rotation barely moves: the values differ, the frame does not). An origin the
+calibration left where it was is not rewritten.
 """
 from __future__ import annotations
 
@@ -20,6 +22,11 @@ import numpy as np
 
 from calibration.errors import ConfigError
 from calibration.robots.serial import rpy_matrix, rpy_of
+
+
+# An origin within this of the URDF's (round-off of turning it back and forth) is
+# left exactly as it was written.
+UNCHANGED = 1e-15
 
 
 def rpy_exact(R: np.ndarray) -> np.ndarray:
@@ -125,7 +132,10 @@ def calibrated_urdf(robot, xi) -> str:
     spans = joint_origin_spans(text, origins)
     data = text.encode("utf-8")
     edits = []
+    originals = {jt.name: np.asarray(jt.origin, dtype=float) for jt in robot.spec.joints}
     for name, T in origins.items():
+        if np.max(np.abs(T - originals[name])) <= UNCHANGED:
+            continue             # not calibrated (or calibrated to its value): left as written
         s, e, ins = spans[name]
         elem = origin_element(T).encode("utf-8")
         edits.append((s, e, elem) if s is not None else (ins, ins, b"\n    " + elem))

@@ -86,8 +86,10 @@ class Quality:
         out = [f"excluded by the operator: pose {e['pose']} ({e['reason']})"
                for e in self.excluded]
         for o in self.outliers:
-            out.append(f"outlier excluded: {describe(o)} (residual "
-                       f"{o['residual']:.4g}, studentized {o['t']:.3g} > {o['threshold']:.3g})")
+            res = (f"{o['residual'] * 1e3:.4g} mm from its prediction" if "point" in o
+                   else f"residual {o['residual']:.4g}")
+            out.append(f"outlier excluded: {describe(o)} ({res}, studentized {o['t']:.3g} > "
+                       f"{o['threshold']:.3g})")
         for c in self.checks:
             out.append(("ok: " if c["ok"] else "FAILED: ") + c["message"])
         if not self.passed:
@@ -175,6 +177,19 @@ def _free_at(model, x, fixed) -> np.ndarray:
     return ident.classify(W, candidates=cand, order=model.identify_order)[0]
 
 
+def not_identified(result) -> tuple[str, ...]:
+    """Names a fit left at their start values (fixed or not identifiable): every refit
+    from that fit holds them there (item 5 of the gate's contract: what a fit held
+    stays held; freed again, a parameter the solution showed to be no better than the
+    noise turns a refit of fewer poses into a crawl along a flat valley)."""
+    return tuple(s.name for s in result.status if not s.identifiable)
+
+
+def _held_names(model, x, fixed) -> tuple[str, ...]:
+    free = _free_at(model, x, fixed)
+    return tuple(n for n, f in zip(model.names, free) if not f)
+
+
 def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | None,
            fixed=()):
     """A fit that did not converge: leave out the readings a robust fit rejects
@@ -197,7 +212,7 @@ def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | Non
             entry["partners"] = partners
         outliers.append(entry)
         try:
-            model, result = refit(new_trace, x_robust)
+            model, result = refit(new_trace, x_robust, hold=_held_names(model, model.x0, fixed))
             return new_trace, model, result, outliers
         except NotConverged as e:
             trace, model = new_trace, e.model
@@ -230,7 +245,8 @@ def check_spread(trace, model) -> None:
 def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
     """The gate around a calibration: ``first()`` fits ``model`` (raising a
     :class:`CalibrationError` with ``.model`` if it does not converge),
-    ``refit(trace, start)`` fits a trace copy from ``start``; ``fixed`` names the
+    ``refit(trace, start, hold=names)`` fits a trace copy from ``start`` holding
+    ``hold`` (what the fit it starts from did not calibrate) besides ``fixed``, the
     parameters every fit holds (the robust fits too). Returns ``(quality, trace, model,
     result, validation)`` of the fit that passed, else of the last one tried."""
     check_spread(trace, model)
@@ -254,7 +270,7 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
         # no gross reading: least squares found a local minimum; start again where
         # the robust fit ended
         try:
-            model2, result2 = refit(trace1, x_robust)
+            model2, result2 = refit(trace1, x_robust, hold=not_identified(got[3]))
         except CalibrationError:
             return got
         got2 = run_gate(trace1, model2, result2, refit=refit, stated_sigma=stated_sigma,
@@ -275,7 +291,7 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
     if partners:
         entry["partners"] = partners
     try:
-        model2, result2 = refit(new_trace, x_robust)
+        model2, result2 = refit(new_trace, x_robust, hold=not_identified(got[3]))
     except CalibrationError:
         quality.check("outliers", False, f"outliers: {describe(entry)} does "
                       f"not fit a robust fit ({worst.t:.3g} robust sigmas) and the fit without it "
@@ -353,7 +369,7 @@ def _statistics(model, result):
 
 def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
              validate=None, outliers=()):
-    """Run the gate on a converged fit. ``refit(trace, start) -> (model, result)``
+    """Run the gate on a converged fit. ``refit(trace, start, hold=names) -> (model, result)``
     calibrates a trace copy from the start values ``start`` (the fit's so far); ``validate(trace, model, result)`` gives the held-out rows
     (:func:`station.validation.validation_errors`). Returns ``(quality, trace,
     model, result, validation)``, the last four those of the final fit."""
@@ -380,7 +396,7 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
             break
         new_trace, partners = _excluded(trace, excluded | {entry["pose"]})
         try:
-            new_model, new_result = refit(new_trace, result.x)
+            new_model, new_result = refit(new_trace, result.x, hold=not_identified(result))
         except CalibrationError as e:
             quality.check("outliers", False,
                           f"outliers: {describe(entry)} does not fit "
@@ -391,7 +407,7 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
             # the reading fits the fit made without it: the first fit was in a local
             # minimum, not thrown off by this reading; refit every pose from there
             try:
-                model, result = refit(trace, new_result.x)
+                model, result = refit(trace, new_result.x, hold=not_identified(new_result))
             except CalibrationError:
                 pass
             restarts += 1
@@ -443,8 +459,9 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
                 text = (f"validation: {v['channel']} RMS on {v['n']} held-out rows "
                         f"{'went' if ok else 'is worse than the start:'} {before:.4g} -> "
                         f"{after:.4g} {v['unit']}")
+            extra = {"points": dict(pts)} if pts else {}
             quality.check("validation", ok, text, channel=v["channel"], rms_before=before,
-                          rms_after=after)
+                          rms_after=after, **extra)
         for v in validation:
             out = v.get("outside_range")
             if out:

@@ -403,6 +403,13 @@ def validation_headline(validation, units=MM_DEG) -> str:
     parts = []
     for v in rows:
         si = str(v.get("unit") or "")
+        pts = v.get("points")
+        if pts:   # points on the tool: their 3D errors, as engineers read them
+            parts.append(f"points' 3D RMS {units.text(pts.get('rms_before'), 'm')} \u2192 "
+                         f"{units.text(pts.get('rms_after'), 'm')} (max "
+                         f"{units.text(pts.get('max_after'), 'm')}) over {pts.get('n')} "
+                         f"held-out points of {pts.get('poses')} poses")
+            continue
         after = units.text(v.get("rms_after"), si)
         if _finite(v.get("rms_before")):
             before = units.text(v["rms_before"], si)
