@@ -26,8 +26,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from calibration.methods import MethodData, build  # noqa: E402
-from calibration.solver import SolverOptions, solve  # noqa: E402
 from station import tracegen_urdf as tg  # noqa: E402
 from station.batch import calibrate_trace  # noqa: E402
 from station.import_markers import import_markers  # noqa: E402
@@ -35,12 +33,6 @@ from station.trace import write_trace  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF = ROOT / "fixtures" / "robots" / "m10ia-like.urdf"
-MAP = """format = "calstation-joint-map"
-version = 1
-[[joint]]
-urdf = "joint_3"
-terms = { J2 = 1.0, J3 = 1.0 }
-""" + "".join(f'[[joint]]\nurdf = "joint_{i}"\ncolumn = "J{i}"\n' for i in (1, 2, 4, 5, 6))
 
 
 def one(seed: int, tmp: Path, fit: int, held: int, noise: float):
@@ -48,39 +40,12 @@ def one(seed: int, tmp: Path, fit: int, held: int, noise: float):
     from drivers.urdf_file import load_urdf
 
     rob = get_robot(load_urdf(URDF, "base_link", "tool0"))
-    rng = np.random.default_rng(seed)
-    x = tg.frame_parameters(rob, tg.draw_truth(rob, rng), *tg.draw_frame(rng, vertical_tilt_deg=0.6))
-    u = tg.draw_points(rng, 3)
-    qm = tg.draw_poses(rob, fit + held, rng)
-    P = tg.readings(rob, x, u, qm, rng, noise, unseen=0.05)
-    deg = np.degrees(qm)
-    cols = {"J1": deg[:, 0], "J2": deg[:, 1], "J3": deg[:, 2] - deg[:, 1], "J4": deg[:, 3],
-            "J5": deg[:, 4], "J6": deg[:, 5]}
-    (tmp / "m.csv").write_text(tg.write_csv(cols, P, length_scale=1e-3,
-                                            use=["fit"] * fit + ["validation"] * held))
-    (tmp / "map.toml").write_text(MAP)
-    got = import_markers(tmp / "m.csv", URDF, base_link="base_link", tip_link="tool0",
+    x, _qm, _P = tg.tracker_export(tmp, rob, seed, fit=fit, held=held, noise=noise)
+    got = import_markers(tmp / "meas.csv", URDF, base_link="base_link", tip_link="tool0",
                          length_unit="mm", angle_unit="deg", joint_map=tmp / "map.toml")
     write_trace(tmp / "t.jsonl", got.header, None, got.poses)
     out = calibrate_trace(str(tmp / "t.jsonl"))
-    # the truth in the fit's terms: noise-free readings of the same fit poses
-    tr = out.trace
-    data = tr.method_data()
-    T = rob.frames(data.qm, x)
-    P0 = T[:, None, :3, 3] + np.einsum("mij,kj->mki", T[:, :3, :3], u)
-    P0[np.isnan(data.channels["markers"])] = np.nan
-    model = build("sm-markers", rob, MethodData(qm=data.qm, channels={"markers": P0}),
-                  tr.nominal_vector(rob, tr.extra_params()))
-    eq = solve(model, SolverOptions(fixed=rob.fixed))
-    res = out.result
-    idx = [j for j, s in enumerate(res.status) if s.identifiable]
-    e = res.x[idx] - eq.x[idx]
-    C = np.asarray(res.covariance)
-    names = list(res.covariance_names)
-    ci = [names.index(res.names[j]) for j in idx]
-    C = C[np.ix_(ci, ci)]
-    z = e / res.std[idx]
-    d2 = float(e @ np.linalg.solve(C, e))
+    z, d2 = tg.errors_against_truth(out, x)
     held_rms = [v for v in out.validation or [] if v.get("points")]
     return z, d2, out.quality.passed, (held_rms[0]["points"]["rms_after"] if held_rms else None)
 

@@ -203,3 +203,75 @@ def generate_command(args) -> str:
     write_trace(args.out, header, None, poses)
     return (f"trace written to {args.out} ({count} poses of {robot.name}, sm-markers, "
             f"{len(u)} points; {drawn})")
+
+
+FANUC_MAP = """format = "calstation-joint-map"
+version = 1
+# the controller's J3 is counted from the horizontal: the URDF's joint_3 is J2 + J3
+[[joint]]
+urdf = "joint_3"
+terms = { J2 = 1.0, J3 = 1.0 }
+""" + "".join(f'[[joint]]\nurdf = "joint_{i}"\ncolumn = "J{i}"\n' for i in (1, 2, 4, 5, 6))
+
+
+def tracker_export(folder, robot, seed: int, *, fit: int = 60, held: int = 20,
+                   noise: float = 3e-5, points: int = 3, unseen: float = 0.05, tilt=0.6,
+                   readings_override=None, edit=None):
+    """A 6-axis arm with a FANUC controller (``joint_1 .. joint_6``) measured by a laser
+    tracker, exported as a user gets it: ``folder/meas.csv`` (the tracker's raw frame in
+    mm, three reflectors, beams broken at random, joint values in degrees with J3 from
+    the horizontal, ``use`` fit/validation) and ``folder/map.toml`` (the joint map).
+    Returns ``(truth x with the points, joint values (m, 6) rad, readings (m, M, 3) m)``.
+    ``edit(qm)`` changes the drawn poses first; ``readings_override`` replaces the
+    simulated readings (same poses)."""
+    from pathlib import Path
+
+    folder = Path(folder)
+    rng = np.random.default_rng(seed)
+    x = draw_truth(robot, rng)
+    R, t = draw_frame(rng, vertical_tilt_deg=tilt)
+    x = frame_parameters(robot, x, R, t)
+    u = draw_points(rng, points)
+    qm = draw_poses(robot, fit + held, rng)
+    if edit is not None:
+        edit(qm)
+    P = (readings(robot, x, u, qm, rng, noise, unseen=unseen) if readings_override is None
+         else readings_override)
+    deg = np.degrees(qm)
+    cols = {"J1": deg[:, 0], "J2": deg[:, 1], "J3": deg[:, 2] - deg[:, 1], "J4": deg[:, 3],
+            "J5": deg[:, 4], "J6": deg[:, 5]}
+    (folder / "meas.csv").write_text(write_csv(cols, P, length_scale=1e-3,
+                                               use=["fit"] * fit + ["validation"] * held))
+    (folder / "map.toml").write_text(FANUC_MAP)
+    return np.r_[x, u.reshape(-1)], qm, P
+
+
+def equivalent_truth(trace, x_true):
+    """The truth in a fit's terms: the fit of noise-free readings of the trace's fit
+    poses (points unseen where the trace's are), from the trace's own start values:
+    what the calibrated parameters must take for the truth. Its residual is zero."""
+    from calibration.methods import MethodData, build
+    from calibration.solver import SolverOptions, solve
+
+    rob = trace.robot_model()
+    data = trace.method_data()
+    n = rob.n_params
+    T = rob.frames(data.qm, x_true[:n])
+    P = T[:, None, :3, 3] + np.einsum("mij,kj->mki", T[:, :3, :3], x_true[n:].reshape(-1, 3))
+    P[np.isnan(data.channels["markers"])] = np.nan
+    model = build("sm-markers", rob, MethodData(qm=data.qm, channels={"markers": P}),
+                  trace.nominal_vector(rob, trace.extra_params()))
+    return solve(model, SolverOptions(fixed=rob.fixed)), model
+
+
+def errors_against_truth(outcome, x_true):
+    """``(z, d2)``: a calibration's errors against the truth's equivalent over its
+    identifiable parameters, divided by their reported std, and ``e^T C^-1 e``."""
+    eq, _ = equivalent_truth(outcome.trace, x_true)
+    res = outcome.result
+    idx = [j for j, s in enumerate(res.status) if s.identifiable]
+    e = res.x[idx] - eq.x[idx]
+    names = list(res.covariance_names)
+    ci = [names.index(res.names[j]) for j in idx]
+    C = np.asarray(res.covariance)[np.ix_(ci, ci)]
+    return e / res.std[idx], float(e @ np.linalg.solve(C, e))
