@@ -341,9 +341,9 @@ def start_values(robot, qm, pts, where: str) -> dict:
         raise ConfigError(f"the points do not follow the robot: after the best placement of "
                           f"the instrument's frame they are {proper * 1e3:.3g} mm from the "
                           f"URDF's prediction (median), {proper / spread:.0%} of their spread: "
-                          f"check the "
-                          f"joint columns' order, units (--angle-unit, --length-unit) and signs "
-                          f"and zeros (--joint-map), and that the points are fixed on the tool",
+                          f"check the joint columns' order, units (--angle-unit, --length-unit), "
+                          f"signs and zeros (--joint-map), that the points are fixed on the "
+                          f"tool, and that the URDF describes this robot",
                           source=where)
     R, t, u, _rms = register(robot, qm, pts, xi)
     roll, pitch, yaw = rpy_of(R[None])[0]

@@ -114,7 +114,9 @@ def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit
         for i, (v, (lo, hi)) in enumerate(zip(qm, robot.limits), start=1):
             if not lo <= v <= hi:
                 raise ConfigError(f"column qm{i}: {v!r} is outside the joint's limits "
-                                  f"[{lo!r}, {hi!r}] of {Path(str(robot_path)).name}", source=where)
+                                  f"[{float(lo)!r}, {float(hi)!r}] of {Path(str(robot_path)).name} "
+                                  f"(actuator units: the robot file's limits and k)",
+                                  source=where)
         if use == "reference":
             if METHODS[method].reference is None:
                 raise ConfigError(f"{method} has no reference row", source=where)
@@ -125,6 +127,8 @@ def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit
         rec = {"index": len(poses), "qm": qm}
         for ch, cols in COLUMNS[method].items():
             vals = [num(c) * scale[c] for c in cols]
+            for c, v in zip(cols, vals):
+                _sensor_range(c, v, where, length_unit, angle_unit)
             rec[ch] = vals[0] if ch == "distance" else vals
         if method == "sm-self-redundancy":
             g = row[col["group"]].strip()
@@ -147,6 +151,34 @@ def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit
     if sigma:
         header["sigma"] = sigma
     return header, reference, poses
+
+
+# What the channels' sensors can read (SI): beyond it a reading is in another unit.
+DISTANCE_READS = (-0.01, 100.0)     # a draw-wire zeroed at the reference, m
+POSITION_READS = 100.0              # a tracker's range, m
+TILT_READS = (math.pi * (1 + 1e-9), math.pi / 2 * (1 + 1e-9))  # an inclinometer's roll, pitch
+ANGLE_READS = math.pi * (1 + 1e-9)  # roll, pitch, yaw, rad
+
+
+def _sensor_range(col: str, v: float, where: str, length_unit: str, angle_unit: str) -> None:
+    """A reading (SI) no sensor of its channel reads is an error naming its column
+    and the likely unit (the trace would only be refused later, by line number)."""
+    deg = " (are they in degrees? --angle-unit deg)" if angle_unit == "rad" else ""
+    mm = " (are they in mm? --length-unit mm)" if length_unit == "m" else ""
+    if col == "distance" and not DISTANCE_READS[0] <= v <= DISTANCE_READS[1]:
+        raise ConfigError(f"column distance: {v:.6g} m is not a distance a draw-wire zeroed "
+                          f"at the reference reads ({DISTANCE_READS[0]:g} to "
+                          f"{DISTANCE_READS[1]:g} m){mm if v > 0 else ''}", source=where)
+    if col in ("x", "y", "z") and abs(v) > POSITION_READS:
+        raise ConfigError(f"column {col}: {v:.6g} m is beyond a tracker's range "
+                          f"({POSITION_READS:g} m){mm}", source=where)
+    if col in ("tilt_roll", "tilt_pitch") and abs(v) > TILT_READS[col == "tilt_pitch"]:
+        raise ConfigError(f"column {col}: {v:.6g} rad is beyond what a dual-axis "
+                          f"inclinometer reads (roll +-180 deg, pitch +-90 deg){deg}",
+                          source=where)
+    if col in ("roll", "pitch", "yaw") and abs(v) > ANGLE_READS:
+        raise ConfigError(f"column {col}: {v:.6g} rad is not an angle of -pi..pi{deg}",
+                          source=where)
 
 
 def parse_sigma(items, channels) -> dict | None:
