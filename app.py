@@ -38,7 +38,8 @@ def _cmd_batch(args) -> int:
         warnings.simplefilter("always")
         outcome = calibrate_trace(args.trace, method=args.method, residual=args.residual,
                                   options=opts, accept_poor_fit=args.accept_poor_fit,
-                                  exclude=_exclusions(args.exclude, args.exclude_reason))
+                                  exclude=_exclusions(args.exclude, args.exclude_reason),
+                                  compliance=_compliance(args.compliance, args.payload))
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
     print(format_table(outcome))
@@ -47,6 +48,28 @@ def _cmd_batch(args) -> int:
         print(f"report written to {args.report}")
     print(f"parameter file written to {args.out} ({outcome.document['checksum']})")
     return 0
+
+
+def _compliance(offered: bool, payload: str | None) -> dict | None:
+    """``--compliance [--payload MASS[,X,Y,Z]]`` as ``{"payload": {...}}`` (or None)."""
+    from calibration.errors import ConfigError
+
+    if payload and not offered:
+        raise ConfigError("--payload goes with --compliance")
+    if not offered:
+        return None
+    if not payload:
+        return {}
+    try:
+        vals = [float(v) for v in payload.split(",")]
+    except ValueError:
+        raise ConfigError(f"--payload {payload[:40]}: give MASS[,X,Y,Z] (kg, m in the tip "
+                          "link's frame)") from None
+    if len(vals) not in (1, 4) or not all(v == v and abs(v) < 1e4 for v in vals) \
+            or vals[0] < 0:
+        raise ConfigError(f"--payload {payload[:40]}: give MASS[,X,Y,Z] (kg >= 0, m in the "
+                          "tip link's frame)")
+    return {"payload": {"mass": vals[0], "com": vals[1:] or [0.0, 0.0, 0.0]}}
 
 
 def _exclusions(text: str | None, reason: str | None) -> dict | None:
@@ -193,6 +216,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="leave these poses (trace indices) out of the fit and the held-out "
                         "set, with --exclude-reason (recorded in the parameter file)")
     b.add_argument("--exclude-reason", metavar="TEXT", help="why --exclude's poses are left out")
+    b.add_argument("--compliance", action="store_true",
+                   help="URDF robots: also fit each joint's compliance under gravity (the "
+                        "URDF's inertials) and keep it only where the data support it "
+                        "(docs/compliance.md)")
+    b.add_argument("--payload", metavar="MASS[,X,Y,Z]",
+                   help="with --compliance: the payload on the tip link (kg; its centre in "
+                        "the tip link's frame, m)")
     b.add_argument("--hold", metavar="NAME,...",
                    help="hold these parameters at their start values besides the robot's "
                         "fixed ones (shell patterns, e.g. 'j*' for a URDF robot's joint "

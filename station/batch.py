@@ -46,6 +46,7 @@ class BatchOutcome:
     document: dict | None
     quality: Quality | None = None
     validation: list | None = None
+    comparison: dict | None = None   # rigid against compliant (station.compliance)
 
 
 def solver_sigma(model, trace: Trace) -> dict | None:
@@ -98,11 +99,25 @@ def frame_statement(trace: Trace) -> dict | None:
 def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | None = None,
                     residual: str | None = None, options: SolverOptions | None = None,
                     callback=None, accept_poor_fit: bool = False,
-                    exclude: dict | None = None) -> BatchOutcome:
-    """Read a trace file and :func:`calibrate` it."""
+                    exclude: dict | None = None, compliance: dict | None = None) -> BatchOutcome:
+    """Read a trace file and :func:`calibrate` it; ``compliance`` (``{"payload": ...}``)
+    offers a URDF robot's joint compliance and keeps it only where the data support it
+    (:func:`station.compliance.compare`)."""
     trace = read_trace(trace_path, method_override=method)
-    return calibrate(trace, out=out, method=method, residual=residual, options=options,
-                     callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
+    if compliance is None:
+        return calibrate(trace, out=out, method=method, residual=residual, options=options,
+                         callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
+    from station.compliance import compare
+
+    def one(tr):
+        return calibrate(tr, method=method, residual=residual, options=options,
+                         callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
+
+    chosen, info = compare(trace, one, payload=compliance.get("payload"))
+    chosen = dataclasses.replace(chosen, comparison=info)
+    if out:
+        chosen = write_outputs(chosen, trace_path, out)
+    return chosen
 
 
 def hold_patterns(trace_path: str, text: str, method: str | None = None) -> tuple[str, ...]:
@@ -141,6 +156,17 @@ def _holding(opts: SolverOptions, hold) -> SolverOptions:
     """``opts`` also holding ``hold`` (names) at their start values."""
     extra = tuple(n for n in hold if n not in opts.fixed)
     return dataclasses.replace(opts, fixed=tuple(opts.fixed) + extra) if extra else opts
+
+
+def _refit(trace, method, residual, opts, hold, start):
+    """A gate's refit from ``start`` holding ``hold`` besides ``opts.fixed``; what it holds
+    only because the model cannot identify it is reported as not identifiable (with its
+    column's influence), not as fixed."""
+    model, result = _fit(trace, method, residual, _holding(opts, hold), None, start=start)
+    own = set(opts.fixed)
+    status = tuple(dataclasses.replace(st, fixed=False) if st.fixed and st.name not in own
+                   else st for st in result.status)
+    return model, dataclasses.replace(result, status=status)
 
 
 def _fit(trace: Trace, method, residual, opts, callback, model=None, start=None):
@@ -220,8 +246,7 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
 
     quality, trace, model, result, validation = gated_fit(
         trace, model, first=lambda: _fit(trace, method, residual, opts, callback, model),
-        refit=lambda tr, start, hold=(): _fit(tr, method, residual, _holding(opts, hold), None,
-                                             start=start),
+        refit=lambda tr, start, hold=(): _refit(tr, method, residual, opts, hold, start),
         stated_sigma=stated,
         validate=validate, fixed=opts.fixed)
     if exclude:
@@ -284,6 +309,8 @@ def outcome_document(outcome: BatchOutcome, trace_path: str | None,
         from station.export_urdf import urdf_summary
 
         extra["urdf"] = urdf_summary(robot, outcome.result.x[:robot.n_params])
+    if outcome.comparison is not None:
+        extra["model_comparison"] = dict(outcome.comparison)
     pts = fit_point_errors(outcome)
     if pts:
         n = robot.n_params
@@ -437,4 +464,15 @@ def format_table(outcome: BatchOutcome) -> str:
         lines.append("note: theta0, a0 and q1_off refer to the captured base origin")
     if outcome.quality is not None:
         lines.extend(outcome.quality.lines())
+    c = outcome.comparison
+    if c is not None:
+        for key in ("rigid", "compliant"):
+            f = c.get(key)
+            if f:
+                held = f["held_out_rms"]
+                lines.append(f"model {key:>9}: {f['identifiable']} identifiable, fit RMS "
+                             f"{f['fit_rms'] * 1e3:.4g} mm, held-out "
+                             f"{'-' if held is None else f'{held * 1e3:.4g} mm'}, gate {f['gate']}")
+        lines.append(f"{c['statement']}; written: the "
+                     f"{'compliant' if c.get('supported') else 'rigid'} model")
     return "\n".join(lines)
