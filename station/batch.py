@@ -311,6 +311,7 @@ def outcome_document(outcome: BatchOutcome, trace_path: str | None,
         extra["urdf"] = urdf_summary(robot, outcome.result.x[:robot.n_params])
     if outcome.comparison is not None:
         extra["model_comparison"] = dict(outcome.comparison)
+    absorbs = absorbed_names(outcome)
     pts = fit_point_errors(outcome)
     if pts:
         n = robot.n_params
@@ -322,10 +323,13 @@ def outcome_document(outcome: BatchOutcome, trace_path: str | None,
     unseen = not_identified(outcome)
     if unseen:
         extra["not_identified"] = unseen
-    return params_document(outcome.result, robot=outcome.trace.robot,
-                           nominal=outcome.model.x0, trace_path=trace_path,
-                           poses=outcome.model.n_poses, frame=frame_statement(outcome.trace), notes=notes, quality=quality,
-                           extra=extra or None)
+    doc = params_document(outcome.result, robot=outcome.trace.robot,
+                          nominal=outcome.model.x0, trace_path=trace_path,
+                          poses=outcome.model.n_poses, frame=frame_statement(outcome.trace),
+                          notes=notes, quality=quality, extra=extra or None)
+    for name, hs in absorbs.items():   # identifiable only with these held: a combination
+        doc["parameters"][name]["absorbs"] = hs
+    return doc
 
 
 def describe_not_identified(d: dict) -> str:
@@ -408,6 +412,26 @@ def _fmt(v, width=13):
     return f"{v:{width}.6g}"
 
 
+def absorbed_names(outcome: BatchOutcome) -> dict[str, list[str]]:
+    """Per identifiable parameter, the held parameters whose errors its value absorbs
+    (:func:`calibration.identifiability.absorbed`, at the solution, weighted by the fit's
+    sigma): its value and std are those of a combination."""
+    res, model = outcome.result, outcome.model
+    try:
+        W = model.evaluate(res.x)[1]
+    except CalibrationError:
+        return {}
+    from calibration.quality import row_weights
+
+    w = row_weights(model.row_channel, model.channels, res.sigma)
+    ident_mask = [s.identifiable for s in res.status]
+    # the held ones the analysis found dependent (not the fixed: their columns may be
+    # independent, and their error then biases rather than is absorbed)
+    infl = [s.influences_model and not s.fixed for s in res.status]
+    got = ident.absorbed(W, w, ident_mask, infl)
+    return {res.names[j]: [res.names[h] for h in hs] for j, hs in got.items()}
+
+
 def fit_point_errors(outcome: BatchOutcome) -> dict | None:
     """3D errors of the fit's points on the tool (sm-markers): RMS, max and the worst
     three by pose and point (m); None for other methods."""
@@ -429,6 +453,7 @@ def format_table(outcome: BatchOutcome) -> str:
     lines = [f"{'parameter':<10}{'start':>13}{'calibrated':>13}{'std':>13}  identifiability",
              "-" * 72]
     held = getattr(model.robot, "held_reason", lambda _n: "the robot file's fixed")
+    absorbs = absorbed_names(outcome)
     width = max([10] + [len(n) + 1 for n in res.names])
     lines[0] = f"{'parameter':<{width}}" + lines[0][10:]
     for j, (name, st) in enumerate(zip(res.names, res.status)):
@@ -436,6 +461,10 @@ def format_table(outcome: BatchOutcome) -> str:
         infl = "influences the model" if st.influences_model else "no influence"
         label = "identifiable" if st.identifiable else (
             f"held ({held(name)}), {infl}" if st.fixed else f"not identifiable, {infl}")
+        if name in absorbs:
+            hs = absorbs[name]
+            label += ("; with " + ", ".join(hs[:4]) + (f" and {len(hs) - 4} more" if len(hs) > 4
+                                                        else "") + " held: a combination")
         lines.append(f"{name:<{width}}{_fmt(outcome.nominal[j])}{_fmt(res.x[j])}{_fmt(std)}  {label}")
     need = ident.minimum_poses(res.n_identifiable, model.p)
     lines.append("-" * 72)

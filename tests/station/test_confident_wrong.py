@@ -150,3 +150,30 @@ def test_a_urdf_joint_origin_far_from_the_urdf_is_implausible(tmp_path, capsys):
     line = one_line(err)
     assert rc == 2 and "URDF" in line, line
     assert not (tmp_path / "p.json").exists()
+
+
+@pytest.mark.parametrize("name", ["ur5-like-hayati", "ur5-like-dh"])
+def test_a_parameter_identifiable_only_in_combination_says_so(name):
+    """A drawn UR5-like arm's sm-distance-tilt: d6 came out hundreds of its std from the
+    truth with a plain std (it absorbs the held tool_d and tool_b). Now every
+    parameter that absorbs a held one is named a combination (``absorbs``), and every
+    other identifiable parameter is within its std of the truth."""
+    from station.batch import BatchOutcome, absorbed_names
+    from station.trace import Trace
+    from tests.calibration.serial_helpers import data_of, fit, model_of, perturbed, robot
+
+    rob = robot(name)
+    rng = np.random.default_rng(5)
+    xi = perturbed(rob, [n for n in rob.param_names if n not in rob.fixed], rng, 0.01)
+    data, _ = data_of(rob, "sm-distance-tilt", xi, seed=2, count=60,
+                      noise={"distance": 1e-5, "tilt": 1e-4})
+    model = model_of(rob, "sm-distance-tilt", data, distance_zero="exact")
+    res = fit(model, rob)
+    outcome = BatchOutcome(Trace("x", {}), model, res, model.x0, None)
+    absorbs = absorbed_names(outcome)
+    assert "d6" in absorbs and "tool_d" in absorbs["d6"]
+    honest = [(n, (res.x[j] - xi[j]) / res.std[j]) for j, (n, s) in
+              enumerate(zip(res.names, res.status))
+              if s.identifiable and n in rob.param_names and n not in absorbs]
+    assert len(honest) >= 10
+    assert max(abs(z) for _n, z in honest) < 5, honest
