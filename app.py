@@ -39,7 +39,8 @@ def _cmd_batch(args) -> int:
         outcome = calibrate_trace(args.trace, method=args.method, residual=args.residual,
                                   options=opts, accept_poor_fit=args.accept_poor_fit,
                                   exclude=_exclusions(args.exclude, args.exclude_reason),
-                                  compliance=_compliance(args.compliance, args.payload))
+                                  compliance=_compliance(args.compliance, args.payload),
+                                  distance_scale=_distance_scale(args.distance_scale))
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
     print(format_table(outcome))
@@ -48,6 +49,25 @@ def _cmd_batch(args) -> int:
         print(f"report written to {args.report}")
     print(f"parameter file written to {args.out} ({outcome.document['checksum']})")
     return 0
+
+
+def _distance_scale(text: str | None):
+    """``--distance-scale S[,STD]`` as ``(s, std, source)`` (or None)."""
+    import math
+
+    from calibration.errors import ConfigError
+
+    if not text:
+        return None
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) not in (1, 2) or not all(math.isfinite(v) for v in vals) \
+            or not 0.5 < vals[0] < 2 or (len(vals) == 2 and not 0 <= vals[1] < 0.1):
+        raise ConfigError(f"--distance-scale {text[:40]}: give S[,STD], the draw-wire's scale "
+                          "factor (0.5 to 2, e.g. 1.0012 from its certificate) and its std")
+    return vals[0], (vals[1] if len(vals) == 2 else 0.0), "--distance-scale"
 
 
 def _compliance(offered: bool, payload: str | None) -> dict | None:
@@ -252,6 +272,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="leave these poses (trace indices) out of the fit and the held-out "
                         "set, with --exclude-reason (recorded in the parameter file)")
     b.add_argument("--exclude-reason", metavar="TEXT", help="why --exclude's poses are left out")
+    b.add_argument("--distance-scale", metavar="S[,STD]",
+                   help="the draw-wire's scale factor and its std (a calibration certificate, "
+                        "a known reference length): distance and tilt do not observe it; "
+                        "every calibrated length carries it")
     b.add_argument("--compliance", action="store_true",
                    help="URDF robots: also fit each joint's compliance under gravity (the "
                         "URDF's inertials) and keep it only where the data support it "

@@ -99,11 +99,14 @@ def frame_statement(trace: Trace) -> dict | None:
 def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | None = None,
                     residual: str | None = None, options: SolverOptions | None = None,
                     callback=None, accept_poor_fit: bool = False,
-                    exclude: dict | None = None, compliance: dict | None = None) -> BatchOutcome:
+                    exclude: dict | None = None, compliance: dict | None = None,
+                    distance_scale: tuple | None = None) -> BatchOutcome:
     """Read a trace file and :func:`calibrate` it; ``compliance`` (``{"payload": ...}``)
     offers a URDF robot's joint compliance and keeps it only where the data support it
     (:func:`station.compliance.compare`)."""
     trace = read_trace(trace_path, method_override=method)
+    if distance_scale is not None:
+        trace = with_distance_scale(trace, *distance_scale)
     if compliance is None:
         return calibrate(trace, out=out, method=method, residual=residual, options=options,
                          callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
@@ -138,6 +141,50 @@ def hold_patterns(trace_path: str, text: str, method: str | None = None) -> tupl
                                    f"({trace.method}) matches it")
         held += [n for n in hit if n not in held]
     return tuple(held)
+
+
+def with_distance_scale(trace: Trace, value: float, std: float, source: str) -> Trace:
+    """``trace`` whose draw-wire readings are multiplied by ``value`` (``std``: its
+    uncertainty, ``source``: a certificate, a reference length), recorded in the header
+    (``distance_scale``)."""
+    if "distance" not in METHODS[trace.method].channels:
+        raise CalibrationError(f"--distance-scale is for the draw-wire's methods, not "
+                               f"{trace.method}")
+    header = dict(trace.header, distance_scale={"value": float(value), "std": float(std),
+                                                "source": source})
+    return dataclasses.replace(trace, header=header)
+
+
+def scale_uncertainty(outcome: BatchOutcome) -> BatchOutcome:
+    """The draw-wire scale's std added to the calibrated parameters' covariance: the
+    parameters' sensitivity to the scale at the solution, ``dx/ds = (W^T L W)^-1 W^T L
+    dr/ds`` with ``dr/ds`` the distance rows' readings divided by the scale (each
+    calibrated length moves with it; angles do not), times its variance."""
+    s, u = outcome.trace.distance_scale
+    model, res = outcome.model, outcome.result
+    if not u or "distance" not in model.channels:
+        return outcome
+    from calibration.quality import row_weights
+
+    r, W = model.evaluate(res.x)
+    active = np.array([st.identifiable for st in res.status])
+    k = model.channels.index("distance")
+    rows = np.asarray(model.row_channel) == k
+    data = outcome.trace.method_data(model.method)
+    D = np.asarray(data.channels["distance"], dtype=float)
+    if getattr(model, "residual", "plain") == "squared":
+        drds = np.zeros(len(r))
+        drds[rows] = 2 * D * D / s
+    else:
+        drds = np.zeros(len(r))
+        drds[rows] = D / s
+    w = row_weights(model.row_channel, model.channels, res.sigma)
+    A = W[:, active] * np.sqrt(w)[:, None]
+    dxds = np.linalg.lstsq(A, np.sqrt(w) * drds, rcond=None)[0]
+    cov = np.asarray(res.covariance, dtype=float) + u * u * np.outer(dxds, dxds)
+    std = res.std.copy()
+    std[active] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return dataclasses.replace(outcome, result=dataclasses.replace(res, covariance=cov, std=std))
 
 
 def exclude_poses(trace: Trace, exclude: dict) -> Trace:
@@ -251,7 +298,8 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
         validate=validate, fixed=opts.fixed)
     if exclude:
         quality.excluded = [{"pose": int(k), "reason": str(v)} for k, v in sorted(exclude.items())]
-    outcome = BatchOutcome(trace, model, result, model.x0, None, quality, validation)
+    outcome = scale_uncertainty(BatchOutcome(trace, model, result, model.x0, None, quality,
+                                             validation))
     if not quality.passed:
         if not accept_poor_fit:
             raise FitQualityError(f"the fit failed the quality gate: {quality.summary()} "
@@ -447,6 +495,20 @@ def fit_point_errors(outcome: BatchOutcome) -> dict | None:
                       for g in order]}
 
 
+def scale_note(outcome: BatchOutcome) -> list[str]:
+    """What the draw-wire's scale means for the lengths (distance methods)."""
+    if "distance" not in getattr(outcome.model, "channels", ()):
+        return []
+    s, u = outcome.trace.distance_scale
+    src = (outcome.trace.header.get("distance_scale") or {}).get("source")
+    if src:
+        return [f"note: the draw-wire's scale {s:.8g} +- {u:.2g} ({src}) is in every "
+                "calibrated length and its std"]
+    return ["note: distance and tilt do not observe the draw-wire's scale: the calibrated "
+            "lengths and ratios carry its error (1 % of scale, 1 % of L2..L4 and k1); pin "
+            "it with batch --distance-scale S,STD from its certificate or a known length"]
+
+
 def format_table(outcome: BatchOutcome) -> str:
     """The parameter table (nominal, calibrated, std, identifiability) and fit figures."""
     res, model = outcome.result, outcome.model
@@ -491,6 +553,7 @@ def format_table(outcome: BatchOutcome) -> str:
         lines.append(f"note: {note}")
     if outcome.trace.method == "sm-distance-tilt" and "robot_file" not in outcome.trace.header:
         lines.append("note: theta0, a0 and q1_off refer to the captured base origin")
+    lines.extend(scale_note(outcome))
     if outcome.quality is not None:
         lines.extend(outcome.quality.lines())
     c = outcome.comparison

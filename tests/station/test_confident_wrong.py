@@ -177,3 +177,28 @@ def test_a_parameter_identifiable_only_in_combination_says_so(name):
               if s.identifiable and n in rob.param_names and n not in absorbs]
     assert len(honest) >= 10
     assert max(abs(z) for _n, z in honest) < 5, honest
+
+
+def test_the_draw_wire_s_scale_is_named_and_can_be_pinned(tmp_path, capsys):
+    """Distance and tilt do not observe the draw-wire's scale: a 1 % scale moves L2..L4
+    and k1 by 1 % and every check passes. The table says so; --distance-scale S,STD
+    (a certificate) is applied to the readings and its std added to the lengths'."""
+    from tests.station.test_cli import TRACES
+
+    trace = f"{TRACES}/sm-distance-tilt.jsonl"
+    rc, out0, _ = run(capsys, "batch", trace, "--out", tmp_path / "a.json")
+    assert rc == 0 and "do not observe the draw-wire's scale" in out0
+    rc, out1, _ = run(capsys, "batch", trace, "--out", tmp_path / "b.json",
+                      "--distance-scale", "1.01,0.001")
+    assert rc == 0 and "scale 1.01 +- 0.001" in out1
+    a = json.loads((tmp_path / "a.json").read_text())["parameters"]
+    b = json.loads((tmp_path / "b.json").read_text())["parameters"]
+    for n in ("L2", "L3", "L4", "k1"):
+        assert b[n]["value"] / a[n]["value"] == pytest.approx(1.01, rel=2e-4)
+        # its std: the fit's and the scale's (0.1 % of the value) in quadrature
+        assert b[n]["std"] == pytest.approx(np.hypot(a[n]["std"], 1e-3 * a[n]["value"] / 1.0),
+                                            rel=0.05)
+    assert b["q2_off"]["value"] == pytest.approx(a["q2_off"]["value"], abs=5 * a["q2_off"]["std"])
+    rc, _o, err = run(capsys, "batch", trace, "--out", tmp_path / "c.json",
+                      "--distance-scale", "1000")
+    assert rc == 2 and "--distance-scale" in one_line(err)
