@@ -359,6 +359,8 @@ def outcome_document(outcome: BatchOutcome, trace_path: str | None,
         extra["urdf"] = urdf_summary(robot, outcome.result.x[:robot.n_params])
     if outcome.comparison is not None:
         extra["model_comparison"] = dict(outcome.comparison)
+    if outcome.trace.header.get("distance_scale"):
+        extra["distance_scale"] = dict(outcome.trace.header["distance_scale"])
     absorbs = absorbed_names(outcome)
     pts = fit_point_errors(outcome)
     if pts:
