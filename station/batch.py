@@ -16,7 +16,6 @@ import numpy as np
 from calibration import identifiability as ident
 from calibration.errors import CalibrationError
 from calibration.methods import METHODS, build
-from calibration.robots import get_robot
 from calibration.robots.base import canonical_result
 from calibration.solver import CalibrationResult, SolverOptions, solve
 from station.arm_rounds import ROUND_METHODS, staged_start, told_start

@@ -45,6 +45,25 @@ ANGLES = {"roll", "pitch", "yaw", "tilt_roll", "tilt_pitch"}
 USES = ("fit", "validation", "reference")
 
 
+def open_csv(src: str):
+    """``(raw bytes, header cells, row reader)`` of a CSV file; its errors name the file."""
+    try:
+        raw = Path(src).read_bytes()
+        text = raw.decode("utf-8-sig")
+    except OSError as e:
+        raise ConfigError(f"cannot read: {e.strerror or e}", source=src) from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"not UTF-8 text: {e}", source=src) from None
+    rows = csv.reader(io.StringIO(text))
+    try:
+        head = [c.strip() for c in next(rows)]
+    except StopIteration:
+        raise ConfigError("empty file: the first line must name the columns", source=src) from None
+    except csv.Error as e:
+        raise ConfigError(f"not a CSV file: {e}", source=f"{src}:1") from None
+    return raw, head, rows
+
+
 def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit="rad",
                sigma: dict | None = None) -> tuple[dict, dict | None, list[dict]]:
     """``(header, reference, poses)`` of the trace (see module doc)."""
@@ -58,18 +77,7 @@ def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit
     if length_unit not in LENGTH or angle_unit not in ANGLE:
         raise ConfigError(f"units must be {'/'.join(LENGTH)} and {'/'.join(ANGLE)}, not "
                           f"{length_unit!r}, {angle_unit!r}", source=src)
-    try:
-        raw = Path(src).read_bytes()
-        text = raw.decode("utf-8-sig")
-    except OSError as e:
-        raise ConfigError(f"cannot read: {e.strerror or e}", source=src) from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"not UTF-8 text: {e}", source=src) from None
-    rows = csv.reader(io.StringIO(text))
-    try:
-        head = [c.strip() for c in next(rows)]
-    except StopIteration:
-        raise ConfigError("empty file: the first line must name the columns", source=src) from None
+    raw, head, rows = open_csv(src)
     qcols = [f"qm{i}" for i in range(1, robot.n_actuators + 1)]
     need = qcols + [c for cols in COLUMNS[method].values() for c in cols]
     if method == "sm-self-redundancy":
