@@ -450,12 +450,17 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
     validation = None
     if validate is not None and trace.validation_poses:
         validation = validate(trace, model, result)
+        by_points = any(v.get("points") for v in validation)
         for v in validation:
             before, after = v.get("rms_before"), v.get("rms_after")
+            pts = v.get("points")
+            if by_points and not pts:
+                continue              # points on the tool: judged once, by their 3D errors
+            if pts:
+                before, after = pts.get("rms_before"), pts.get("rms_after")
             if before is None or after is None or not math.isfinite(after):
                 continue
             ok = after <= VALIDATION_TOLERANCE * before
-            pts = v.get("points")
             if pts:
                 w = pts["worst"][0]
                 verb = "went" if ok else "is worse than the start:"

@@ -62,7 +62,7 @@ def validation_errors(outcome: BatchOutcome) -> list[dict]:
                        max_before=float(np.abs(b).max()))
         else:
             rec.update(rms_before=None, max_before=None, note=before_note)
-        if hasattr(model, "point_errors"):
+        if hasattr(model, "point_errors") and k == 0:   # the points' 3D errors, once
             rec["points"] = point_record(model, trace.validation_poses, after,
                                          None if before is None else before)
         if outside and rp is not None:
