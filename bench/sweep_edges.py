@@ -6,11 +6,17 @@ would destroy inputs, hung devices and silently wrong commands, each run as
     python bench/sweep_edges.py                     # this checkout, ~5 min
     python bench/sweep_edges.py --root /tmp/old     # another checkout (before/after)
     python bench/sweep_edges.py --only out- -v      # cases whose name starts so
+    python bench/sweep_edges.py --only data- -v     # the data cases only, ~6 min
 
 Each case says what a careful tool does: ``refuse`` (a one-line ``error: ...`` on
-stderr, exit 2), ``ok`` (exit 0) or ``either``. Counted:
+stderr, exit 2), ``ok`` (exit 0) or ``either``. The ``data-`` cases are measurements
+with a user's mistakes (units, signs, mirrored or swapped axes, joint columns, joint
+maps, chains) of robot files (``data-rf-``) and a URDF robot (``data-urdf-``), each
+``trace import`` then ``batch``; the accepted ones are checked against the truth that
+drew them (see ``serial_data_cases``). Counted:
 
-- wrong:     exit 0 where the case must be refused (a confident wrong answer)
+- wrong:     exit 0 where the case must be refused, or an accepted answer that is not
+             the truth's (a confident wrong answer)
 - changed:   an input file changed (sha256), or a device node turned into a file
 - hang:      no exit within 20 s
 - traceback: a Python traceback on stderr
@@ -49,7 +55,9 @@ class Case:
     inputs: list = field(default_factory=list)
     nodes: list = field(default_factory=list)     # device nodes that must stay devices
     absent: list = field(default_factory=list)    # paths that must not exist afterwards
-    timeout: float = HANG_S
+    timeout: float = HANG_S                       # per command
+    then: list = field(default_factory=list)      # further commands, each run if the last exits 0
+    check: object = None    # accepted: check(stdout) -> (why the answer is wrong or '', figures)
 
 
 class HungServer:
@@ -579,6 +587,490 @@ def cases(p: dict, d: str, hung_port: int, dead_port: int) -> list[Case]:
     return C
 
 
+# -- data: a robot file's and a URDF robot's measurements with a user's mistakes ----------
+#
+# Each case is ``trace import`` then (if it exits 0) ``batch``: a unit, sign, mirror, joint
+# column or map mistake must be refused (at import or by the gate) with one ``error:``
+# line; correct data (also with one gross reading, or a robot file one length of which is
+# 10 % off the truth) must be accepted *and right*: the parameter file's identifiable
+# parameters that absorb no held one within DATA_Z of their reported std of the truth,
+# and the calibrated model's prediction within DATA_PRED of the truth's (random poses in
+# the middle 80 % of the limits; the draw-wire methods, which do not see the base frame,
+# by distances between tool origins: point_to_point_rms). A URDF robot's answer is judged
+# by the points it predicts in the instrument's frame at the truth's poses and at fresh
+# ones. An accepted answer that fails these is counted "wrong" (a confident wrong
+# answer), an accepted answer of data to be refused too.
+
+DATA_TIMEOUT = 240.0     # s per command of a data case (a fit on 2 shared cores)
+DATA_Z = 5.0             # |calibrated - truth| / std of an honest identifiable parameter
+DATA_PRED = 5.0          # prediction RMS within this many times the reading noise
+SERIAL_NOISE = {"position": 1e-5, "pose": 1e-5, "distance": 1e-5, "tilt": 1e-4}
+SERIAL_COLS = {"position": ("x", "y", "z"), "pose": ("x", "y", "z", "roll", "pitch", "yaw"),
+               "distance": ("distance",), "tilt": ("tilt_roll", "tilt_pitch")}
+LENGTH_COLS = ("x", "y", "z", "distance")
+ANGLE_COLS = ("roll", "pitch", "yaw", "tilt_roll", "tilt_pitch")
+MOUNT = (0.01, -0.02)
+URDF_NOISE = 3e-5
+
+
+def _here_on_path():
+    """The sweep's own tools (truths, readings, checks) come from this checkout, whatever
+    ``--root`` runs."""
+    if HERE not in sys.path:
+        sys.path.insert(0, HERE)
+
+
+def write_rows(path, head, rows):
+    def cell(v):
+        return "" if v is None else v if isinstance(v, str) else repr(float(v))
+    with open(path, "w") as f:
+        f.write(",".join(head) + "\n")
+        f.writelines(",".join(cell(r.get(c)) for c in head) + "\n" for r in rows)
+
+
+class SerialData:
+    """A drawn robot of a robot file and its readings by one method: rows of a CSV
+    (``qm1 ..``, the method's columns, ``use``) that variants change."""
+
+    def __init__(self, robot_path, method, *, seed, edit_truth=None):
+        _here_on_path()
+        import numpy as np
+
+        from calibration.robots import get_robot
+        from drivers.robot_file import load_robot_file
+        from drivers.sim.serial_robot import draw_serial_truth
+        from station.tracegen_serial import default_count, generate
+
+        self.path, self.method = robot_path, method
+        self.robot = get_robot(load_robot_file(robot_path))
+        xi = draw_serial_truth(robot_path, np.random.default_rng(seed)).xi()
+        if edit_truth:
+            edit_truth(self.robot, xi)
+        self.xi = xi
+        fit = default_count(self.robot, method) + 4
+        held = max(8, fit // 4)
+        noise = {k: v for k, v in SERIAL_NOISE.items()}
+        _h, ref, poses = generate(self.robot, method, xi, noise=noise, seed=seed,
+                                  count=fit + held, mount=MOUNT)
+        n = self.robot.n_actuators
+        self.qcols = [f"qm{i + 1}" for i in range(n)]
+        self.mcols = [c for ch, cols in SERIAL_COLS.items() if ch in poses[0] for c in cols]
+        self.noise = noise["tilt" if method == "sm-distance-tilt" else
+                           "distance" if method == "sm-distance" else "position"]
+        rows = []
+        if ref is not None:
+            rows.append({**dict(zip(self.qcols, ref["qm"])), "use": "reference"})
+        for k, p in enumerate(poses):
+            r = dict(zip(self.qcols, p["qm"]))
+            for ch, cols in SERIAL_COLS.items():
+                if ch in p:
+                    v = p[ch] if isinstance(p[ch], list) else [p[ch]]
+                    r.update(zip(cols, v))
+            r["use"] = "fit" if k < fit else "validation"
+            rows.append(r)
+        self.rows = rows
+        self.head = self.qcols + self.mcols + ["use"]
+
+    def write(self, path, transform=None, *, validation=True):
+        rows = [dict(r) for r in self.rows]
+        if not validation:
+            rows = [r for r in rows if r["use"] != "validation"]
+        if transform is not None:
+            rows = transform(rows, self)
+        write_rows(path, self.head, rows)
+        return path
+
+    def check(self, params_path, stdout, outlier=None) -> tuple[str, str]:
+        """``(problems, figures)``: problems '' if the parameter file is the truth's
+        calibration, else what is wrong; figures what was measured."""
+        import numpy as np
+
+        from station.serial_plan import point_to_point_rms
+
+        try:
+            doc = json.load(open(params_path))
+            P = doc["parameters"]
+            x = np.array([P[n]["value"] for n in self.robot.param_names], dtype=float)
+        except (OSError, ValueError, KeyError) as e:
+            return f"no parameter file to judge: {e}", ""
+        truth = dict(zip(self.robot.param_names, self.xi))
+        truth.update(mount_x=MOUNT[0], mount_y=MOUNT[1])
+        z = [(n, (p["value"] - truth[n]) / p["std"]) for n, p in P.items()
+             if p.get("identifiable") and not p.get("absorbs") and n in truth and p.get("std")]
+        worst = max(z, key=lambda t: abs(t[1])) if z else ("none", 0.0)
+        problems = []
+        if abs(worst[1]) > DATA_Z:
+            problems.append(f"{worst[0]} {worst[1]:+.3g} std from the truth")
+        if self.method in ("sm-position", "sm-full-pose"):
+            rng = np.random.default_rng(11)
+            lo, hi = self.robot.limits[:, 0], self.robot.limits[:, 1]
+            q = rng.uniform(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), size=(400, len(lo)))
+            d = (self.robot.frames(q, x)[:, :3, 3] - self.robot.frames(q, self.xi)[:, :3, 3])
+            pred = float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))
+            tol = DATA_PRED * SERIAL_NOISE["position"]
+        else:
+            pred = point_to_point_rms(self.robot, x, self.xi, pairs=300)
+            tol = DATA_PRED * SERIAL_NOISE["distance"]
+        if pred > tol:
+            problems.append(f"predicts the tool {pred * 1e3:.3g} mm RMS off the truth")
+        if outlier is not None and not any(f"pose {outlier} " in ln for ln in stdout.splitlines()
+                                           if "outliers:" in ln):
+            problems.append(f"the gross reading of pose {outlier} is not named an outlier")
+        figures = (f"worst |z| {abs(worst[1]):.3g} ({worst[0]}) of {len(z)} identifiable on "
+                   f"their own; prediction {pred * 1e3:.3g} mm RMS from the truth")
+        return "; ".join(problems), figures
+
+
+def _scale(cols, f):
+    def t(rows, _data):
+        for r in rows:
+            for c in cols:
+                if isinstance(r.get(c), float):
+                    r[c] *= f
+        return rows
+    return t
+
+
+def _flip(col):
+    return _scale([col], -1.0)
+
+
+def _swap(a, b):
+    def t(rows, _data):
+        for r in rows:
+            r[a], r[b] = r.get(b), r.get(a)
+        return rows
+    return t
+
+
+def _offset_joint(col, delta):
+    """A joint column read ``delta`` off; rows then beyond the limits are left out (so
+    the import's limit check does not do the sweep's work)."""
+    def t(rows, data):
+        i = data.qcols.index(col)
+        lo, hi = data.robot.limits[i]
+        out = []
+        for r in rows:
+            r[col] += delta
+            if lo <= r[col] <= hi:
+                out.append(r)
+        return out
+    return t
+
+
+def _gross(pose, col, delta):
+    def t(rows, _data):
+        fit = [r for r in rows if r["use"] == "fit"]
+        fit[pose][col] += delta
+        return rows
+    return t
+
+
+def _then(*ts):
+    def t(rows, data):
+        for f in ts:
+            rows = f(rows, data)
+        return rows
+    return t
+
+
+def serial_data_cases(root: str, d: str) -> list[Case]:
+    """Robot-file data: the fixtures' three robots (Hayati, SCARA with a prismatic quill,
+    DH), drawn truths (+-3 mm, +-5 mrad), readings by sm-position, sm-full-pose,
+    sm-distance and sm-distance-tilt written as ``trace import``'s CSV."""
+    fx = os.path.join(root, "fixtures", "robots")
+    mm = 1000.0
+    deg = 180.0 / 3.141592653589793
+    C = []
+    folder = os.path.join(d, "data")
+    os.makedirs(folder, exist_ok=True)
+    for rname, seed in (("ur5-like-hayati", 21), ("scara-like", 22), ("ur5-like-dh", 23)):
+        rpath = os.path.join(fx, f"{rname}.toml")
+        data = {m: SerialData(rpath, m, seed=seed) for m in
+                ("sm-position", "sm-full-pose", "sm-distance", "sm-distance-tilt")}
+
+        def ten(robot, xi):
+            """One length of the truth 10 % off the robot file's."""
+            j = robot.index("a2")
+            xi[j] = 1.1 * robot.nominal[j]
+        long = {m: SerialData(rpath, m, seed=seed + 100, edit_truth=ten)
+                for m in ("sm-position", "sm-distance-tilt")}
+        gross = SerialData(rpath, "sm-position", seed=seed + 200)
+        # (name, data, transform, extra import flags, expect, outlier pose, write kw)
+        specs = [
+            ("pos-ok", data["sm-position"], None, [], "ok", None, {}),
+            ("pos-ok-mm", data["sm-position"], _scale(LENGTH_COLS, mm),
+             ["--length-unit", "mm"], "ok", None, {}),
+            ("pos-ok-sigma", data["sm-position"], None,
+             ["--sigma", "x=1e-5", "--sigma", "y=1e-5", "--sigma", "z=1e-5"], "ok", None, {}),
+            ("full-ok", data["sm-full-pose"], None, [], "ok", None, {}),
+            ("full-ok-deg", data["sm-full-pose"], _scale(ANGLE_COLS, deg),
+             ["--angle-unit", "deg"], "ok", None, {}),
+            ("dist-ok", data["sm-distance"], None, [], "ok", None, {}),
+            ("dtilt-ok", data["sm-distance-tilt"], None, [], "ok", None, {}),
+            ("pos-length-10pc-off", long["sm-position"], None, [], "ok", None, {}),
+            ("dtilt-length-10pc-off", long["sm-distance-tilt"], None, [], "ok", None, {}),
+            ("pos-gross-reading", gross, _gross(7, "y", 0.005), [], "ok", 7, {}),
+            ("pos-mm-as-m", data["sm-position"], _scale(LENGTH_COLS, mm), [], "refuse",
+             None, {}),
+            ("pos-mm-as-m-no-validation", data["sm-position"], _scale(LENGTH_COLS, mm), [],
+             "refuse", None, {"validation": False}),
+            ("pos-m-as-mm", data["sm-position"], None, ["--length-unit", "mm"], "refuse",
+             None, {}),
+            ("pos-m-as-mm-no-validation", data["sm-position"], None, ["--length-unit", "mm"],
+             "refuse", None, {"validation": False}),
+            ("full-deg-as-rad", data["sm-full-pose"], _scale(ANGLE_COLS, deg), [], "refuse",
+             None, {}),
+            ("full-rad-as-deg", data["sm-full-pose"], None, ["--angle-unit", "deg"],
+             "refuse", None, {}),
+            ("full-mm-as-m", data["sm-full-pose"], _scale(LENGTH_COLS, mm), [], "refuse",
+             None, {}),
+            ("dist-mm-as-m", data["sm-distance"], _scale(LENGTH_COLS, mm), [], "refuse",
+             None, {}),
+            ("dist-m-as-mm", data["sm-distance"], None, ["--length-unit", "mm"], "refuse",
+             None, {}),
+            ("dtilt-tilt-deg-as-rad", data["sm-distance-tilt"], _scale(ANGLE_COLS, deg), [],
+             "refuse", None, {}),
+            ("dtilt-tilt-rad-as-deg", data["sm-distance-tilt"], None, ["--angle-unit", "deg"],
+             "refuse", None, {}),
+            ("dtilt-dist-mm-as-m", data["sm-distance-tilt"], _scale(["distance"], mm), [],
+             "refuse", None, {}),
+            ("pos-x-flipped", data["sm-position"], _flip("x"), [], "refuse", None, {}),
+            ("pos-z-flipped", data["sm-position"], _flip("z"), [], "refuse", None, {}),
+            ("pos-x-y-swapped", data["sm-position"], _swap("x", "y"), [], "refuse", None, {}),
+            ("full-x-flipped", data["sm-full-pose"], _flip("x"), [], "refuse", None, {}),
+            ("dtilt-tilts-swapped", data["sm-distance-tilt"], _swap("tilt_roll", "tilt_pitch"),
+             [], "refuse", None, {}),
+            ("dtilt-roll-flipped", data["sm-distance-tilt"], _flip("tilt_roll"), [], "refuse",
+             None, {}),
+            ("pos-qm2-flipped", data["sm-position"], _flip("qm2"), [], "refuse", None, {}),
+            ("pos-qm1-qm2-swapped", data["sm-position"], _swap("qm1", "qm2"), [], "refuse",
+             None, {}),
+            ("pos-qm2-plus-90deg", data["sm-position"], _offset_joint("qm2", 1.5707963267948966),
+             [], "refuse", None, {}),
+            ("dtilt-qm2-plus-90deg", data["sm-distance-tilt"],
+             _offset_joint("qm2", 1.5707963267948966), [], "refuse", None, {}),
+            ("pos-scale-2pc", data["sm-position"], _scale(LENGTH_COLS, 1.02), [], "refuse",
+             None, {}),
+        ]
+        for name, sd, tf, flags, expect, outlier, kw in specs:
+            tag = f"{rname}-{name}"
+            csv = sd.write(os.path.join(folder, f"{tag}.csv"), tf, **kw)
+            tr, pj = os.path.join(folder, f"{tag}.jsonl"), os.path.join(folder, f"{tag}.json")
+            check = None
+            if expect == "ok":
+                check = (lambda so, sd=sd, pj=pj, o=outlier: sd.check(pj, so, outlier=o))
+            C.append(Case(f"data-rf-{tag}", ["trace", "import", csv, "--robot", rpath,
+                                             "--method", sd.method, "--out", tr, *flags],
+                          expect=expect, inputs=[csv, rpath], timeout=DATA_TIMEOUT,
+                          then=[["batch", tr, "--out", pj]], check=check))
+    return C
+
+
+class UrdfData:
+    """A drawn m10ia-like arm measured by a tracker, as ``tracker_export`` writes it:
+    ``joints`` (m, 6) rad (the URDF's), the FANUC columns, ``P`` (m, 3, 3) m."""
+
+    def __init__(self, folder, seed, *, tilt=0.6):
+        _here_on_path()
+        import numpy as np
+
+        from calibration.robots import get_robot
+        from drivers.urdf_file import load_urdf
+        from station import tracegen_urdf as tg
+
+        self.urdf = os.path.join(HERE, "fixtures", "robots", "m10ia-like.urdf")
+        self.robot = get_robot(load_urdf(self.urdf, "base_link", "tool0"))
+        os.makedirs(folder, exist_ok=True)
+        self.x, self.q, self.P = tg.tracker_export(folder, self.robot, seed, noise=URDF_NOISE,
+                                                   tilt=tilt)
+        self.map = os.path.join(folder, "map.toml")
+        self.csv = os.path.join(folder, "meas.csv")
+        n = self.robot.n_params
+        self.xr, self.u = self.x[:n], self.x[n:].reshape(-1, 3)
+        self.use = ["fit"] * 60 + ["validation"] * 20
+        self.tg, self.np = tg, np
+
+    def columns(self, unit="deg"):
+        f = 180.0 / 3.141592653589793 if unit == "deg" else 1.0
+        a = self.q * f
+        return {"J1": a[:, 0], "J2": a[:, 1], "J3": a[:, 2] - a[:, 1], "J4": a[:, 3],
+                "J5": a[:, 4], "J6": a[:, 5]}
+
+    def write(self, path, *, unit="deg", length=1e-3, cols=None, P=None, style="m",
+              use=True, extra=None, rows=None):
+        c = self.columns(unit) if cols is None else cols
+        if extra:
+            c = {**c, **extra}
+        P = self.P if P is None else P
+        uses = self.np.array(self.use)
+        if rows is not None:
+            c = {k: v[rows] for k, v in c.items()}
+            P, uses = P[rows], uses[rows]
+        text = self.tg.write_csv(c, P, length_scale=length,
+                                 use=list(uses) if use else None, style=style)
+        with open(path, "w") as f:
+            f.write(text)
+        return path
+
+    def inside(self, joints):
+        """The rows whose URDF joint values ``joints`` (m, 6) rad lie within the limits."""
+        lim = self.robot.limits
+        return self.np.all((joints >= lim[:, 0]) & (joints <= lim[:, 1]), axis=1)
+
+    def predicted(self, robot, x, u, q):
+        np = self.np
+        T = robot.frames(q, x)
+        return T[:, None, :3, 3] + np.einsum("mij,kj->mki", T[:, :3, :3], u)
+
+    def check(self, trace_path, params_path, stdout, outlier=None) -> tuple[str, str]:
+        np = self.np
+        from station.trace import read_trace
+
+        try:
+            rob = read_trace(trace_path).robot_model()
+            doc = json.load(open(params_path))
+            Pp = doc["parameters"]
+            x = np.array([Pp[n]["value"] for n in rob.param_names], dtype=float)
+            u = np.array([Pp[f"marker{j + 1}_{a}"]["value"] for j in range(len(self.u))
+                          for a in "xyz"]).reshape(-1, 3)
+        except (OSError, ValueError, KeyError) as e:
+            return f"no parameter file to judge: {e}", ""
+        rng = np.random.default_rng(12)
+        fresh = self.tg.draw_poses(self.robot, 300, rng)
+        problems, figures = [], []
+        for what, q in (("the measured poses", self.q), ("fresh poses", fresh)):
+            try:
+                d = self.predicted(rob, x, u, q) - self.predicted(self.robot, self.xr, self.u, q)
+            except Exception as e:  # noqa: BLE001 - another chain: not this robot
+                return f"the calibrated chain does not take the arm's joints: {e}", ""
+            rms = float(np.sqrt(np.mean(np.sum(d ** 2, axis=2))))
+            figures.append(f"points at {what} {rms * 1e3:.3g} mm RMS from the truth")
+            if rms > DATA_PRED * URDF_NOISE:
+                problems.append(f"points at {what} {rms * 1e3:.3g} mm RMS off the truth")
+        if outlier is not None and not any(f"pose {outlier} " in ln
+                                           for ln in stdout.splitlines() if "outliers:" in ln):
+            problems.append(f"the gross reading of pose {outlier} is not named an outlier")
+        return "; ".join(problems), ", ".join(figures)
+
+
+NO_COUPLING_MAP = """format = "calstation-joint-map"
+version = 1
+""" + "".join(f'[[joint]]\nurdf = "joint_{i}"\ncolumn = "J{i}"\n' for i in range(1, 7))
+
+
+def urdf_data_cases(root: str, d: str) -> list[Case]:
+    """URDF data: drawn m10ia-like arms (FANUC columns in degrees, J3 from the
+    horizontal, a tracker's mm, three reflectors, beams broken at random)."""
+    C = []
+    urdf = os.path.join(root, "fixtures", "robots", "m10ia-like.urdf")
+    top = os.path.join(d, "udata")
+    nocoup = os.path.join(d, "no-coupling-map.toml")
+    with open(nocoup, "w") as f:
+        f.write(NO_COUPLING_MAP)
+    sets = {1: UrdfData(os.path.join(top, "s1"), 31), 2: UrdfData(os.path.join(top, "s2"), 32)}
+    anyframe = UrdfData(os.path.join(top, "s3"), 33, tilt=None)
+
+    def add(name, ud, csv, *, flags=(), expect="refuse", base="base_link", tip="tool0",
+            jmap=None, outlier=None, units=("mm", "deg")):
+        tr = os.path.join(top, f"{name}.jsonl")
+        pj = os.path.join(top, f"{name}.json")
+        argv = ["trace", "import", csv, "--robot", urdf, "--base-link", base, "--tip-link",
+                tip, "--method", "sm-markers", "--out", tr]
+        if units[0]:
+            argv += ["--length-unit", units[0]]
+        if units[1]:
+            argv += ["--angle-unit", units[1]]
+        argv += ["--joint-map", jmap or ud.map] if jmap != "" else []
+        argv += list(flags)
+        check = None
+        if expect == "ok":
+            check = (lambda so, ud=ud, tr=tr, pj=pj, o=outlier: ud.check(tr, pj, so, outlier=o))
+        C.append(Case(f"data-urdf-{name}", argv, expect=expect, inputs=[csv, urdf],
+                      timeout=DATA_TIMEOUT, then=[["batch", tr, "--out", pj]], check=check))
+
+    for s, ud in sets.items():
+        def w(n, ud=ud, s=s, **kw):
+            return ud.write(os.path.join(top, f"s{s}-{n}.csv"), **kw)
+        P = ud.P
+        add(f"s{s}-ok", ud, ud.csv, expect="ok")
+        add(f"s{s}-ok-m-rad", ud, w("m-rad", unit="rad", length=1.0), expect="ok",
+            units=(None, None))
+        add(f"s{s}-mm-as-m", ud, ud.csv, units=(None, "deg"))
+        add(f"s{s}-m-as-mm", ud, w("m", length=1.0))
+        add(f"s{s}-deg-as-rad", ud, ud.csv, units=("mm", None))
+        add(f"s{s}-rad-as-deg", ud, w("rad", unit="rad"))
+        Px = P.copy()
+        Px[..., 0] *= -1
+        add(f"s{s}-x-flipped", ud, w("xflip", P=Px))
+        Pxy = P[..., [1, 0, 2]]
+        add(f"s{s}-x-y-swapped", ud, w("xyswap", P=Pxy))
+        c = ud.columns()
+        add(f"s{s}-J4-J5-swapped", ud, w("j45", cols={**c, "J4": c["J5"], "J5": c["J4"]}))
+        add(f"s{s}-J1-flipped", ud, w("j1flip", cols={**c, "J1": -c["J1"]}))
+        add(f"s{s}-no-J2-J3-coupling", ud, ud.csv, jmap=nocoup)
+        add(f"s{s}-J4-plus-90deg", ud, w("j4off", cols={**c, "J4": c["J4"] + 90.0}))
+        # the same mistakes where every row stays within the limits (the rows beyond left
+        # out, so that the import's limit check does not do the sweep's work)
+        rad = ud.np.radians
+        q = ud.q.copy()
+        q[:, 3] += rad(90.0)
+        add(f"s{s}-J4-plus-90deg-in-limits", ud, w("j4off-in", cols={**c, "J4": c["J4"] + 90.0},
+                                                  rows=ud.inside(q)))
+        q = ud.q.copy()
+        q[:, 2] = rad(c["J3"])
+        add(f"s{s}-no-J2-J3-coupling-in-limits", ud, w("nocoup-in", rows=ud.inside(q)),
+            jmap=nocoup)
+        q = ud.q.copy()
+        q[:, 1], q[:, 2] = -ud.q[:, 1], ud.q[:, 2] - 2 * ud.q[:, 1]    # joint_3 = J2 + J3
+        add(f"s{s}-J2-flipped-in-limits", ud, w("j2flip-in", cols={**c, "J2": -c["J2"]},
+                                                rows=ud.inside(q)))
+        Pg = P.copy()
+        k = next(i for i in range(5, 60) if ud.np.all(ud.np.isfinite(P[i, 0])))
+        Pg[k, 0, 1] += 0.005
+        add(f"s{s}-gross-reading", ud, w("gross", P=Pg), expect="ok", outlier=k)
+        add(f"s{s}-scale-2pc", ud, w("scale", P=P * 1.02))
+    ud = sets[1]
+    P, c = ud.P, ud.columns()
+
+    def w(n, ud=ud, **kw):
+        return ud.write(os.path.join(top, f"s1-{n}.csv"), **kw)
+    Pz = P.copy()
+    Pz[..., 2] *= -1
+    add("s1-z-flipped", ud, w("zflip", P=Pz))
+    add("s1-J1-J4-swapped", ud, w("j14", cols={**c, "J1": c["J4"], "J4": c["J1"]}))
+    add("s1-J5-flipped", ud, w("j5flip", cols={**c, "J5": -c["J5"]}))
+    add("s1-base-link-link_1", ud, ud.csv, base="link_1")
+    add("s1-tip-link-link_5", ud, ud.csv, tip="link_5")
+    add("s1-tip-link-flange", ud, ud.csv, tip="flange", expect="ok")
+    add("s1-no-joint-map", ud, ud.csv, jmap="")
+    add("s1-unknown-column", ud, w("temp", extra={"temp": ud.np.full(len(ud.q), 21.5)}))
+    add("s1-ignored-column", ud, w("temp-ok", extra={"temp": ud.np.full(len(ud.q), 21.5)}),
+        expect="ok", flags=["--ignore-columns", "temp"])
+    half = w("half")
+    lines = open(half).read().splitlines()
+    head = lines[0].split(",")
+    for i in range(1, len(lines)):
+        cells = lines[i].split(",")
+        if cells[head.index("m2_y")]:
+            cells[head.index("m2_y")] = cells[head.index("m2_z")] = ""
+            lines[i] = ",".join(cells)
+            break
+    with open(half, "w") as f:
+        f.write("\n".join(lines) + "\n")
+    add("s1-point-half-empty", ud, half)
+    add("s1-ok-xyz-columns", ud, w("xyz", style="xyz"), expect="ok")
+    fit, held = slice(0, 60), slice(60, 80)
+    add("s1-validation-other-frame", ud, w("fit-only", use=False, rows=fit), flags=[
+        "--validation", sets[2].write(os.path.join(top, "s2-held.csv"), use=False, rows=held)])
+    add("s1-validation-file", ud, w("fit-only", use=False, rows=fit), expect="ok", flags=[
+        "--validation", ud.write(os.path.join(top, "s1-held.csv"), use=False, rows=held)])
+    add("s3-ok-any-frame", anyframe, anyframe.csv, expect="ok")
+    add("s3-x-flipped", anyframe, anyframe.write(
+        os.path.join(top, "s3-xflip.csv"), P=anyframe.P * [-1, 1, 1]))
+    return C
+
+
 def sim_control_cases(root: str, d: str) -> list[tuple[str, dict, str]]:
     """Control-port commands: (name, command, refuse|ok)."""
     bad = [("drop_prob", "lots"), ("drop_prob", -1), ("drop_prob", 2), ("drop_prob", None),
@@ -645,31 +1137,49 @@ def run_case(root: str, d: str, c: Case) -> dict:
     env = dict(os.environ, PYTHONPATH=root, QT_QPA_PLATFORM="offscreen")
     before = {f: sha(f) for f in c.inputs}
     t0 = time.monotonic()
-    proc = subprocess.Popen([sys.executable, os.path.join(root, "app.py"), *c.argv], cwd=d,
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            stdin=subprocess.DEVNULL, text=True, start_new_session=True)
-    try:
-        so, se = proc.communicate(timeout=c.timeout)
-        hang = False
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, 9)
-        so, se = proc.communicate()
-        hang = True
+    hang, tb, outs = False, False, []
+    for argv in [c.argv, *c.then]:
+        proc = subprocess.Popen([sys.executable, os.path.join(root, "app.py"), *argv], cwd=d,
+                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                stdin=subprocess.DEVNULL, text=True, start_new_session=True)
+        try:
+            so, se = proc.communicate(timeout=c.timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, 9)
+            so, se = proc.communicate()
+            hang = True
+        rc = proc.returncode
+        outs.append(so)
+        tb = tb or "Traceback (most recent call last)" in se
+        if hang or rc != 0:
+            break
     dt = time.monotonic() - t0
-    rc = proc.returncode
     changed = [f for f in c.inputs if sha(f) != before[f]]
     changed += [n for n in c.nodes if not os.path.exists(n)
                 or stat.S_ISREG(os.stat(n).st_mode)]
     changed += [a for a in c.absent if os.path.exists(a)]
     lines = se.strip().splitlines()
-    tb = "Traceback (most recent call last)" in se
     one = rc == 2 and len(lines) == 1 and lines[0].startswith("error: ")
+    # accepted: is the answer right? (a case without a check: exit 0 is all it asks)
+    wrong_answer, figures = "", ""
+    if not hang and rc == 0 and c.expect == "ok" and c.check is not None:
+        try:
+            wrong_answer, figures = c.check("".join(outs))
+        except Exception as e:  # noqa: BLE001 - a sweep's own fault, said as such
+            wrong_answer = f"the sweep's check failed: {type(e).__name__}: {e}"
     res = {"name": c.name, "rc": rc, "seconds": round(dt, 2), "hang": hang,
-           "wrong": (not hang) and rc == 0 and c.expect == "refuse",
+           "wrong": (not hang) and rc == 0 and (c.expect == "refuse" or bool(wrong_answer)),
            "changed": changed, "traceback": tb,
            "messy": (not hang) and not tb and rc != 0 and not one,
            "unexpected_refusal": (not hang) and rc != 0 and c.expect == "ok",
            "stderr": (lines[-1] if lines else "")[:300], "argv": c.argv}
+    if c.then:
+        res["steps"] = len(outs)
+        res["stdout"] = "".join(outs)[-3000:]
+    if figures:
+        res["check"] = figures
+    if wrong_answer:
+        res["check"] = "wrong answer: " + wrong_answer
     # a device node that became a file: put the device back (root) for the next cases
     for n in c.nodes:
         if os.path.exists(n) and stat.S_ISREG(os.stat(n).st_mode):
@@ -689,6 +1199,8 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--json", help="write every case's outcome here")
     ap.add_argument("--no-sim", action="store_true", help="skip the control-port cases")
+    ap.add_argument("--keep", action="store_true", help="keep the working folder (its path "
+                    "is printed)")
     ap.add_argument("-v", "--verbose", action="store_true")
     a = ap.parse_args(argv)
     root = os.path.abspath(a.root)
@@ -700,6 +1212,10 @@ def main(argv=None) -> int:
     dead.close()
     p = setup(root, d)
     cs = [c for c in cases(p, d, hung.port, dead_port) if c.name.startswith(a.only)]
+    if "data-rf-".startswith(a.only) or a.only.startswith("data-rf-"):
+        cs += [c for c in serial_data_cases(root, d) if c.name.startswith(a.only)]
+    if "data-urdf-".startswith(a.only) or a.only.startswith("data-urdf-"):
+        cs += [c for c in urdf_data_cases(root, d) if c.name.startswith(a.only)]
     t0 = time.monotonic()
     results = []
 
@@ -722,7 +1238,8 @@ def main(argv=None) -> int:
                 flags = [k for k in ("wrong", "changed", "hang", "traceback", "messy",
                                      "unexpected_refusal") if r[k]]
                 print(f"{r['name']:<45} rc {r['rc']} {r['seconds']:6.1f} s "
-                      f"{','.join(flags) or 'fine'}  {r['stderr'][:150]}", flush=True)
+                      f"{','.join(flags) or 'fine'}  {(r.get('check') or r['stderr'])[:150]}",
+                      flush=True)
     if not a.no_sim and "sim-".startswith(a.only[:4]):
         for r in run_sim_control(root, d, a.verbose):
             r["unexpected_refusal"] = False
@@ -737,7 +1254,10 @@ def main(argv=None) -> int:
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"root": root, "counts": counts, "results": results}, f, indent=1)
-    shutil.rmtree(d, ignore_errors=True)
+    if a.keep:
+        print(f"working folder kept: {d}")
+    else:
+        shutil.rmtree(d, ignore_errors=True)
     return 0
 
 
