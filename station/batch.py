@@ -497,7 +497,14 @@ def fit_point_errors(outcome: BatchOutcome) -> dict | None:
 
 
 def scale_note(outcome: BatchOutcome) -> list[str]:
-    """What the draw-wire's scale means for the lengths (distance methods)."""
+    """What the instrument's scale means for the lengths: distance methods (the
+    draw-wire's) and points measured in an instrument's frame (a tracker's, a motion
+    capture's)."""
+    if hasattr(outcome.model, "measured_points"):
+        return ["note: the instrument's scale is not observed: every calibrated length "
+                "carries it (a 1 % scale error of the tracker or motion capture is 1 % of "
+                "every length, with every check passed); its calibration certificate is the "
+                "reference (units are checked at import)"]
     if "distance" not in getattr(outcome.model, "channels", ()):
         return []
     s, u = outcome.trace.distance_scale

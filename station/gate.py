@@ -651,12 +651,13 @@ def _plausible_serial(quality, model, result) -> None:
         elif urdf and (name.startswith("j") or name.startswith("base_r")):
             if abs(d) > SERIAL_TURN:
                 bad.append((name, x0, x, f"turned {math.degrees(d):.3g} deg"))
-        elif urdf and name.endswith("_off"):
+        elif name.endswith("_off"):
             i = int(name[1:-4])
             lim = SERIAL_ZERO if robot.spec.joints[i - 1].kind == "R" else SERIAL_SHIFT * size
             if abs(d) > lim:
                 bad.append((name, x0, x, "a zero far from the URDF's (a joint map's offset or "
-                                         "sign?)"))
+                                         "sign?)" if urdf else "a zero far from the robot "
+                                         "file's (a joint column's offset or sign?)"))
         elif not urdf and name[0] in "da" and name[1:].isdigit():
             if (abs(x0) > 1e-3 and not 1 / PLAUSIBLE_FACTOR <= x / x0 <= PLAUSIBLE_FACTOR) \
                     or (abs(x0) <= 1e-3 and abs(d) > SERIAL_SHIFT * size):

@@ -116,6 +116,10 @@ class Markers(RobotMethod):
             T[i, :3, :3]
         return r, W.reshape(3 * s, -1)
 
+    def measured_points(self) -> np.ndarray:
+        """The seen points ``(s, 3)``, in the residual's row order."""
+        return self.points[self.pose_of, self.marker_of]
+
     def point_errors(self, r) -> np.ndarray:
         """3D distance of each seen point from its prediction, from the residual ``r``."""
         return np.linalg.norm(np.asarray(r, dtype=float).reshape(-1, 3), axis=1)

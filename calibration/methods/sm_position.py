@@ -26,6 +26,10 @@ class Position(RobotMethod):
         self.pose_of = np.arange(self.n_poses)
         self.marker_of = np.zeros(self.n_poses, dtype=int)
 
+    def measured_points(self):
+        """The readings ``(m, 3)``, in the residual's row order."""
+        return self.p_m
+
     def point_errors(self, r):
         """3D distance of each pose's point from its prediction, from the residual ``r``."""
         return np.linalg.norm(np.asarray(r, dtype=float).reshape(-1, 3), axis=1)

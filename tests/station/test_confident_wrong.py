@@ -202,3 +202,22 @@ def test_the_draw_wire_s_scale_is_named_and_can_be_pinned(tmp_path, capsys):
     rc, _o, err = run(capsys, "batch", trace, "--out", tmp_path / "c.json",
                       "--distance-scale", "1000")
     assert rc == 2 and "--distance-scale" in one_line(err)
+
+
+def test_a_joint_column_90_degrees_off_is_refused_and_the_scale_is_named(ur5_poses, tmp_path,
+                                                                         capsys):
+    """A robot file's joint column 90 deg off was absorbed as q2_off = -pi/2 and passed;
+    now a zero far from the robot file's is implausible. Correct positions get the note
+    that the instrument's scale is not observed (a 2 % scale reads the same)."""
+    shifted = [dict(p, qm=[p["qm"][0], p["qm"][1] + np.pi / 2, *p["qm"][2:]]) for p in ur5_poses
+               if abs(p["qm"][1] + np.pi / 2) < 3.0]
+    write_positions(tmp_path / "ok.csv", ur5_poses, lambda p: p)
+    assert import_and_fit(capsys, tmp_path, "ok")[0] == 0
+    head = json.loads((tmp_path / "ok.jsonl").read_text().splitlines()[0])
+    (tmp_path / "q.jsonl").write_text(json.dumps(head) + "\n" + "".join(
+        json.dumps({**p, "index": i}) + "\n" for i, p in enumerate(shifted)))
+    rc, out, err = run(capsys, "batch", tmp_path / "q.jsonl", "--out", tmp_path / "q.json")
+    line = one_line(err)
+    assert rc == 2 and "q2_off went from 0 to -1.57" in line and "a zero far from" in line
+    rc, out, err = run(capsys, "batch", tmp_path / "ok.jsonl", "--out", tmp_path / "ok2.json")
+    assert rc == 0 and "the instrument's scale is not observed" in out
