@@ -21,6 +21,13 @@ from drivers.config_reader import KeyReader
 
 FORMAT = "calstation-robot"
 VERSION = 1
+# an R joint's angle at its limits beyond two turns each way (and a little): written in
+# degrees (a real joint turns at most +-720 deg, e.g. a wrist's last axis)
+MAX_TURN_RAD = 4 * math.pi * 1.01
+
+
+def _num(v: float) -> str:
+    return f"{v:g}"
 
 
 def _frame(top: KeyReader, key: str) -> tuple[float, ...]:
@@ -52,6 +59,13 @@ def _joint(j: KeyReader, i: int) -> JointSpec:
     lim = j.float_list("limits", length=2)
     if not lim[0] < lim[1]:
         j.fail("limits", f"[lo, hi] needs lo < hi, got {list(lim)}")
+    k_, off_ = j.float("k", default=1.0), j.float("offset", default=0.0)
+    if kind == "R" and max(abs(k_ * v + off_) for v in lim) > MAX_TURN_RAD:
+        rad = ", ".join(f"{math.radians(v):.4g}" for v in lim)
+        j.fail("limits", f"{_num(lim[0])}, {_num(lim[1])} look like degrees: an R joint's "
+                         f"limits are actuator values qm, its angle k * qm + offset in rad "
+                         f"(here up to {max(abs(k_ * v + off_) for v in lim):.4g} rad, more "
+                         f"than two turns); in radians: [{rad}]")
     spec = JointSpec(kind=kind, d=d, theta=theta, a=j.float("a", default=0.0),
                      alpha=j.float("alpha", default=0.0), beta=beta, k=k,
                      offset=j.float("offset", default=0.0), limits=tuple(lim))
