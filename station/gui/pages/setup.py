@@ -41,24 +41,13 @@ def robot_model(robot: str):
 
 
 def draw_truth_file(robot_file: str, folder: Path, seed: int) -> Path:
-    """A simulated arm of ``robot_file`` that is not its nominal
-    (:func:`drivers.sim.serial_robot.draw_serial_truth`, the devices' noise of
-    :data:`station.sim_sessions.DEVICE_NOISE`, an inclinometer mounted up to 1 deg off),
-    saved as ``folder/sim-truth.json``."""
-    import numpy as np
+    """A simulated arm of ``robot_file`` that is not its nominal, saved as
+    ``folder/sim-truth.json``: what ``app.py truth draw`` writes
+    (:func:`station.truth_cli.draw_truth_file`)."""
+    from station.truth_cli import draw_truth_file as draw
 
-    from drivers.sim.serial_robot import draw_serial_truth
-    from drivers.sim.truth import save_truth
-    from station.sim_sessions import DEVICE_NOISE
-
-    rng = np.random.default_rng(seed)
-    mount = tuple(float(v) for v in rng.uniform(-0.017, 0.017, 2))
-    t = draw_serial_truth(robot_file, rng, noise=DEVICE_NOISE["agebot-sm"], seed=seed,
-                          inclinometer_mount=mount)
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / "sim-truth.json"
-    save_truth(t, path)
-    return path
+    return draw(robot_file, folder / "sim-truth.json", seed)
 
 
 def default_folder() -> str:
