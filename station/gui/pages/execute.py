@@ -64,6 +64,7 @@ class ExecutePage(Page):
         self.finished = False
         self.fault_box: QMessageBox | None = None
         self.faults_asked = 0
+        self._restart = False      # Retry answered where the devices were lost
         controller.progressed.connect(self._progress)
         controller.eventLogged.connect(self._event)
         controller.stateChanged.connect(self._state)
@@ -95,6 +96,13 @@ class ExecutePage(Page):
         self.finished = False
         self.running = False
         self.log.clear()
+        s = self.session
+        for ev in (s.events if s is not None else ()):    # a resumed session's history
+            self._event(ev, stamp=str(ev.get("t", ""))[11:19])
+        # a resumed session measured whole: this step stays done
+        self.finished = bool(s is not None and s.plan_poses and not s.pending
+                             and s.rounds_complete)
+        self.completeChanged.emit()
 
     def _update_progress(self) -> None:
         s = self.session
@@ -131,8 +139,17 @@ class ExecutePage(Page):
         if self.session is None or self.running:
             return
         self.running = True
-        self.status.setText("Measuring\u2026")
         self.status.setStyleSheet("")
+        self._buttons()
+        if self.controller.devices_lost:      # e.g. the simulator's process ended
+            self.status.setText("Connecting the devices again\u2026")
+            self.controller.reopen(lambda _s: self._measure(), self._failed)
+            return
+        self._measure()
+
+    def _measure(self) -> None:
+        self.running = True
+        self.status.setText("Measuring\u2026")
         self._buttons()
         self.controller.execute(self._done, self._failed)
 
@@ -162,6 +179,11 @@ class ExecutePage(Page):
     def _failed(self, e) -> None:
         from station.session import SessionAborted
 
+        if self._restart:          # Retry after the devices were lost: connect, go on
+            self._restart = False
+            self.status.setText("Connecting the devices again\u2026")
+            self.controller.reopen(lambda _s: self._measure(), self._failed)
+            return
         self.running = False
         self._update_progress()
         self._buttons()
@@ -183,10 +205,16 @@ class ExecutePage(Page):
         box.setIcon(QMessageBox.Icon.Warning)
         box.setWindowTitle("Device fault")
         box.setText(f"Pose {pose.index} could not be measured (attempt {request.attempt + 1}).")
+        lost = self.controller.devices_lost
+        retry_text = ("Retry: connect the devices anew (the simulator started again), go back "
+                      "to the reference and measure the pose again."
+                      if lost and self.controller.simulate else
+                      "Retry: reset the drive or reconnect the device and measure the pose "
+                      "again.")
         box.setInformativeText(
-            f"{error_text(request.error)}\n\nRetry: reset the drive or reconnect the device and "
-            "measure the pose again.\nSkip: leave this pose out and go on.\nAbort: stop here; "
-            "the recorded poses stay in the trace and you can continue later.")
+            f"{error_text(request.error)}\n\n{retry_text}\nSkip: leave this pose out and go "
+            "on.\nAbort: stop here; the recorded poses stay in the trace and you can "
+            "continue later.")
         retry = box.addButton("&Retry", QMessageBox.ButtonRole.AcceptRole)
         skip = box.addButton("S&kip pose", QMessageBox.ButtonRole.ActionRole)
         abort = box.addButton("&Abort", QMessageBox.ButtonRole.RejectRole)
@@ -196,7 +224,12 @@ class ExecutePage(Page):
         box.answer_buttons = {v: k for k, v in answers.items()}
 
         def clicked(button):
-            self.controller.faults.answer(request, answers.get(button, "abort"))
+            answer = answers.get(button, "abort")
+            if answer == "retry" and self.controller.devices_lost:
+                # the session cannot reconnect to devices that are gone: it stops, the
+                # devices are connected anew and measuring goes on from this pose
+                self._restart, answer = True, "abort"
+            self.controller.faults.answer(request, answer)
             self.fault_box = None
 
         box.buttonClicked.connect(clicked)
@@ -224,12 +257,12 @@ class ExecutePage(Page):
             use = "held out" if p.pose.use == "validation" else "fit"
             self.current.setText(f"Pose {p.pose.index} ({use}): {p.message}; target {target}")
 
-    def _event(self, ev: dict) -> None:
+    def _event(self, ev: dict, stamp: str | None = None) -> None:
         if ev.get("kind") == "plan":
             text = ev.get("message", "")
         else:
             text = f"[{ev.get('kind')}] {ev.get('message', '')}"
-        item = QListWidgetItem(f"{time.strftime('%H:%M:%S')}  {text}")
+        item = QListWidgetItem(f"{stamp or time.strftime('%H:%M:%S')}  {text}")
         color = EVENT_COLOR.get(ev.get("kind", ""))
         if color:
             item.setForeground(QColor(color))
