@@ -248,12 +248,20 @@ class ExecutePage(Page):
         else:
             self.progress.setMaximum(max(1, p.total))
             self.progress.setValue(p.done)
-            self.progress.setFormat("%v of %m poses")
+            s = self.session
+            rounds = getattr(s, "rounds", None) if s is not None else None
+            if rounds is not None and not s.rounds_complete:   # the plan grows round by round
+                total = rounds.fit_total() + rounds.totals()[1]
+                self.progress.setFormat(f"%v of %m poses planned so far (the rounds plan "
+                                        f"{total} in all)")
+            else:
+                self.progress.setFormat("%v of %m poses")
         if p.pose is not None:
             s = self.session
-            sis = target_coords(s.robot)[1] if s is not None else ("rad",) * 3
+            names, sis = target_coords(s.robot) if s is not None else (("",) * 3, ("rad",) * 3)
             u = self.controller.units
-            target = ", ".join(u.text(v, si, ".4g") for v, si in zip(p.pose.target, sis))
+            target = ", ".join(f"{k} {u.text(v, si, '.4g')}"
+                               for k, v, si in zip(names, p.pose.target, sis))
             use = "held out" if p.pose.use == "validation" else "fit"
             self.current.setText(f"Pose {p.pose.index} ({use}): {p.message}; target {target}")
 
