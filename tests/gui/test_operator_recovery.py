@@ -86,6 +86,7 @@ def test_a_dead_simulator_is_survived(open_window, qtbot, tmp_path, answers):
     wait_idle(qtbot, c)
     qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
     ex = win.page(PageId.EXECUTE)
+    assert ex.picture is not None and ex.picture.isVisibleTo(win)   # the robot, live
 
     # the simulator dies while measuring: the fault dialog, then Retry goes on
     qtbot.mouseClick(ex.start_button, Qt.MouseButton.LeftButton)

@@ -50,6 +50,11 @@ class ExecutePage(Page):
         inner.addWidget(self.readings)
         inner.addStretch(1)
         row.addWidget(box, 1)
+        self.picture_box = QGroupBox("The robot now (the model at the readings)")
+        QVBoxLayout(self.picture_box)
+        self.picture = None
+        self._picture_for = None
+        row.addWidget(self.picture_box, 2)
         box = QGroupBox("What happened")
         self.log = QListWidget()
         self.log.setMinimumHeight(220)
@@ -79,10 +84,54 @@ class ExecutePage(Page):
             return
         self.readings.set_channels([f"qm{i + 1}" for i in range(s.robot.n_actuators)]
                                    + list(self._channels(s)))
+        if self._picture_for != id(s):
+            self._build_picture(s)
         if not self.running and s.plan_poses and not s.pending and s.rounds_complete:
             self.finished = True
         self._update_progress()
         self._buttons()
+
+    def _build_picture(self, s) -> None:
+        """The session's robot as the reference page draws it, following the readings
+        (a robot file's arm in 3D, AGEBOT's arm from the side, the wrist's level)."""
+        from station.gui.arm3d import ArmFigure
+        from station.gui.pictures import ArmPicture, LevelPicture
+
+        lay = self.picture_box.layout()
+        if self.picture is not None:
+            lay.removeWidget(self.picture)
+            self.picture.deleteLater()
+        units = self.controller.units
+        if s.serial:
+            pic = ArmFigure(s.robot, s.nominal, target_label="reference", units=units)
+        elif s.robot.name == "agebot-sm":
+            pic = ArmPicture(s.robot, s.nominal, target_label="reference", units=units)
+        else:
+            pic = LevelPicture()
+        pic.steps = []                 # the reference's steps are done: the robot only
+        if s.reference_qm is not None and hasattr(pic, "set_state"):
+            pic.set_state(target_qm=s.reference_qm, captured=True, captured_qm=s.reference_qm)
+        pic.setMinimumSize(300, 240)
+        lay.addWidget(pic)
+        pic.show()
+        self.picture, self._picture_for = pic, id(s)
+
+    def _show_robot(self, values: dict) -> None:
+        from station.gui.arm3d import ArmFigure
+        from station.gui.pictures import LevelPicture
+
+        pic, s = self.picture, self.session
+        if pic is None or s is None:
+            return
+        if isinstance(pic, LevelPicture):
+            if "roll" in values:
+                pic.set_angles(values["roll"], values.get("pitch", 0.0))
+            return
+        qm = [values.get(f"qm{i + 1}") for i in range(s.robot.n_actuators)]
+        if None not in qm:
+            pic.set_state(qm=qm)
+            if isinstance(pic, ArmFigure) and "roll" in values:
+                pic.set_tilt(values["roll"], values.get("pitch", 0.0))
 
     @staticmethod
     def _channels(s):
@@ -283,9 +332,11 @@ class ExecutePage(Page):
 
     def _values(self, values: dict) -> None:
         self.readings.set_values(values)
+        self._show_robot(values)
 
     def _polled(self, readings) -> None:
         values = {}
         for r in readings:
             values.update(r.values)
         self.readings.set_values(values)
+        self._show_robot(values)

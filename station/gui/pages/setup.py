@@ -90,6 +90,9 @@ class SetupPage(Page):
         browse_robot.clicked.connect(self.browse_robot_file)
         self.method = QComboBox()
         self.method_text = note("")
+        # wide enough that its wrapped height is computed at about the width it gets
+        # (a narrow guess leaves the box a third empty)
+        self.method_text.setMinimumWidth(600)
         form.addRow("&Robot:", _row(self.robot, browse_robot))
         form.addRow("&Method:", self.method)
         form.addRow("", self.method_text)
