@@ -292,8 +292,8 @@ class ExecutePage(Page):
         if p.stage:               # the wrist: counted per round (scout, then main)
             self.progress.setMaximum(max(1, p.stage_total))
             self.progress.setValue(p.stage_done)
-            self.progress.setFormat(("scout round: " if p.stage == "scout" else "main round: ")
-                                    + "%v of %m poses")
+            self.progress.setFormat(("scout round" if p.stage == "scout" else p.stage)
+                                    + ": %v of %m poses")
         else:
             self.progress.setMaximum(max(1, p.total))
             self.progress.setValue(p.done)
