@@ -179,6 +179,29 @@ def _direction_pairs(J) -> list[tuple[int, int]]:
     return pairs
 
 
+def direction_moves(robot, xi, q0) -> list[tuple[int, int, tuple, tuple]]:
+    """The moves of :func:`check_directions` at ``q0`` (model ``xi``): ``(r, i, (dq+,
+    dq-), (distance+, distance-))`` for each pair of :func:`_direction_pairs` whose two
+    predicted distances differ enough to be told apart (each move reads the draw-wire
+    once)."""
+    q0 = np.asarray(q0, dtype=float)
+    J = _position_jacobian(robot, xi, q0)
+    speed = np.linalg.norm(J, axis=1)
+    p0 = robot.fk(np.atleast_2d(q0), xi)[0, :3]
+    out = []
+    for r, i in _direction_pairs(J):
+        steps, want = [], []
+        for sign in (1.0, -1.0):
+            dq = np.zeros(robot.n_actuators)
+            dq[r] = MOVE_M / 2 / speed[r]
+            dq[i] = sign * MOVE_M / 2 / speed[i]
+            steps.append(dq)
+            want.append(float(np.linalg.norm(robot.fk(np.atleast_2d(q0 + dq), xi)[0, :3] - p0)))
+        if abs(want[0] - want[1]) >= 2 * SLACK_M:
+            out.append((r, i, tuple(steps), tuple(want)))
+    return out
+
+
 def check_directions(session, q0) -> str:
     """The draw-wire is zeroed at ``q0`` (the reference). A distance alone cannot tell
     which way one joint turned, but two joints moved together can: for each pair of
@@ -187,25 +210,16 @@ def check_directions(session, q0) -> str:
     sign of the two tool velocities' dot product, whatever the gear ratios' sizes. A
     joint that turns the other way than its start value says (a ratio ``k`` of the
     wrong sign, a drive's polarity) reverses the order: refused, naming it."""
-    rig, robot, cfg, xi = session.rig, session.robot, session.config, session.nominal
-    J = _position_jacobian(robot, xi, q0)
-    speed = np.linalg.norm(J, axis=1)
-    p0 = robot.fk(np.atleast_2d(q0), xi)[0, :3]
+    rig, cfg = session.rig, session.config
     checked, problems = [], []
-    for r, i in _direction_pairs(J):
-        got, want = [], []
-        for sign in (1.0, -1.0):
-            dq = np.zeros(robot.n_actuators)
-            dq[r] = MOVE_M / 2 / speed[r]
-            dq[i] = sign * MOVE_M / 2 / speed[i]
-            want.append(float(np.linalg.norm(robot.fk(np.atleast_2d(q0 + dq), xi)[0, :3] - p0)))
+    for r, i, steps, want in direction_moves(session.robot, session.nominal, q0):
+        got = []
+        for dq in steps:
             rig.move_to(q0 + dq)
             try:
                 got.append(float(_read(rig)["distance"]))
             finally:
                 rig.move_to(q0)
-        if abs(want[0] - want[1]) < 2 * SLACK_M:
-            continue
         checked.append(i)
         if (got[0] - got[1]) * (want[0] - want[1]) < 0 and abs(got[0] - got[1]) > SLACK_M:
             units = session.units
