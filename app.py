@@ -39,7 +39,9 @@ def _cmd_batch(args) -> int:
         warnings.simplefilter("always")
         outcome = calibrate_trace(args.trace, method=args.method, residual=args.residual,
                                   options=opts, accept_poor_fit=args.accept_poor_fit,
-                                  exclude=_exclusions(args.exclude, args.exclude_reason))
+                                  exclude=_exclusions(args.exclude, args.exclude_reason),
+                                  compliance=_compliance(args.compliance, args.payload),
+                                  distance_scale=_distance_scale(args.distance_scale))
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
     print(format_table(outcome))
@@ -48,6 +50,47 @@ def _cmd_batch(args) -> int:
         print(f"report written to {args.report}")
     print(f"parameter file written to {args.out} ({outcome.document['checksum']})")
     return 0
+
+
+def _distance_scale(text: str | None):
+    """``--distance-scale S[,STD]`` as ``(s, std, source)`` (or None)."""
+    import math
+
+    from calibration.errors import ConfigError
+
+    if not text:
+        return None
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) not in (1, 2) or not all(math.isfinite(v) for v in vals) \
+            or not 0.5 < vals[0] < 2 or (len(vals) == 2 and not 0 <= vals[1] < 0.1):
+        raise ConfigError(f"--distance-scale {text[:40]}: give S[,STD], the draw-wire's scale "
+                          "factor (0.5 to 2, e.g. 1.0012 from its certificate) and its std")
+    return vals[0], (vals[1] if len(vals) == 2 else 0.0), "--distance-scale"
+
+
+def _compliance(offered: bool, payload: str | None) -> dict | None:
+    """``--compliance [--payload MASS[,X,Y,Z]]`` as ``{"payload": {...}}`` (or None)."""
+    from calibration.errors import ConfigError
+
+    if payload and not offered:
+        raise ConfigError("--payload goes with --compliance")
+    if not offered:
+        return None
+    if not payload:
+        return {}
+    try:
+        vals = [float(v) for v in payload.split(",")]
+    except ValueError:
+        raise ConfigError(f"--payload {payload[:40]}: give MASS[,X,Y,Z] (kg, m in the tip "
+                          "link's frame)") from None
+    if len(vals) not in (1, 4) or not all(v == v and abs(v) < 1e4 for v in vals) \
+            or vals[0] < 0:
+        raise ConfigError(f"--payload {payload[:40]}: give MASS[,X,Y,Z] (kg >= 0, m in the "
+                          "tip link's frame)")
+    return {"payload": {"mass": vals[0], "com": vals[1:] or [0.0, 0.0, 0.0]}}
 
 
 def _exclusions(text: str | None, reason: str | None) -> dict | None:
@@ -73,29 +116,25 @@ def _exclusions(text: str | None, reason: str | None) -> dict | None:
 
 def _check_outputs(*outputs, inputs=()) -> None:
     """Refuse, before any work, output files (``(path, what)``, path None = not
-    asked for) that cannot be written or would overwrite an input or each other."""
-    from calibration.errors import ConfigError
-    from drivers.atomic import check_writable
+    asked for) that cannot be written, would overwrite an input or each other, or
+    are not regular files (:func:`drivers.atomic.check_outputs`: one check for
+    every command)."""
+    from drivers.atomic import check_outputs
 
-    seen: dict = {}
-    for path, what in outputs:
-        if not path:
-            continue
-        check_writable(path, what, inputs=inputs)
-        key = os.path.abspath(path)
-        if key in seen:
-            raise ConfigError(f"cannot write {what} {path}: it is also {seen[key]}")
-        seen[key] = what
+    check_outputs(*outputs, inputs=inputs)
 
 
 def _cmd_params_verify(args) -> int:
-    from station.params_file import read_params
+    from station.params_file import check_usable, read_params
 
     doc = read_params(args.file)
+    check_usable(doc, args.file)
     n_id = sum(p["identifiable"] for p in doc["parameters"].values())
+    accepted = (doc["fit"].get("quality") or {}).get("accepted")
     print(f"{args.file}: OK ({doc['format']} v{doc['version']}, robot {doc['robot']}, method "
           f"{doc['method']}, {n_id} of {len(doc['parameters'])} parameters calibrated, "
-          f"{doc['checksum']})")
+          f"{doc['checksum']})" + ("; a poor fit accepted on purpose (--accept-poor-fit): "
+                                   "fit.quality says what failed" if accepted else ""))
     return 0
 
 
@@ -116,20 +155,37 @@ def _cmd_trace_import(args) -> int:
     return 0
 
 
+def _file_inputs(*paths) -> tuple:
+    """The paths among ``paths`` that name files (a built-in robot's name is none)."""
+    return tuple(p for p in paths if p and (os.path.exists(p) or os.sep in p
+                                            or p.lower().endswith((".toml", ".urdf", ".json",
+                                                                   ".jsonl", ".csv"))))
+
+
 def _cmd_trace_generate(args) -> int:
+    from calibration.errors import ConfigError
+    from calibration.methods import METHODS
+    from calibration.robots import BUILTIN
     from drivers.urdf_file import is_urdf
 
+    _check_outputs((args.out, "the trace"), inputs=_file_inputs(args.robot, args.truth))
+    if args.components is not None and args.method != "pm-fk":
+        raise ConfigError(f"--components is for pm-fk (the measured orientation angles), "
+                          f"not {args.method}")
     if args.robot and is_urdf(args.robot):
         from station.tracegen_urdf import generate_command
 
-        _check_outputs((args.out, "the trace"), inputs=(args.robot, args.truth))
         print(generate_command(args))
         return 0
     if args.method == "sm-markers":
-        from calibration.errors import ConfigError
-
         raise ConfigError("sm-markers takes a URDF robot: --robot FILE.urdf --base-link B "
                           "--tip-link T")
+    builtin = BUILTIN[METHODS[args.method].kind]
+    if args.robot in ("agebot-sm", "agebot-pm") and args.robot != builtin:
+        raise ConfigError(f"--robot {args.robot} with --method {args.method}: {args.method} is "
+                          f"a method of {builtin} (the {args.robot}'s methods: "
+                          + ", ".join(m for m, mi in METHODS.items()
+                                      if BUILTIN.get(mi.kind) == args.robot) + ")")
     if args.robot and args.robot not in ("agebot-sm", "agebot-pm"):
         from station.tracegen_serial import generate_command
 
@@ -138,13 +194,15 @@ def _cmd_trace_generate(args) -> int:
     from station.tracegen import generate_from_truth
     from station.units import MM_DEG, channel_si
 
-    _check_outputs((args.out, "the trace"), inputs=(args.truth,))
     noise = generate_from_truth(
         args.out, args.method, truth=args.truth, noise=args.noise or (), seed=args.seed,
         count=args.count, known=tuple(k for k in (args.known or "").split(",") if k),
-        components=tuple(args.components.split(",")) if args.components else None,
+        components=(parse_components(args.components) if args.components is not None
+                    else None),
         design=args.design)
-    shown = {k: v for k, v in noise.items() if any(x for x in (v if isinstance(v, list) else [v]))}
+    reads = METHODS[args.method].channels          # the noise of the trace's own channels
+    shown = {k: v for k, v in noise.items() if k in reads
+             and any(x for x in (v if isinstance(v, list) else [v]))}
     if not shown:
         how = "no --noise given" + (" and the truth file has none" if args.truth else "")
         print(f"trace written to {args.out}: noise-free readings ({how}; add e.g. "
@@ -156,6 +214,18 @@ def _cmd_trace_generate(args) -> int:
             for k, v in shown.items())
         print(f"trace written to {args.out} (reading noise std: {text}; seed {args.seed})")
     return 0
+
+
+def parse_components(text: str) -> tuple[str, ...]:
+    """``--components alpha,beta``: distinct names of alpha, beta, gamma."""
+    from calibration.errors import ConfigError
+
+    names = tuple(c.strip() for c in text.split(","))
+    known = ("alpha", "beta", "gamma")
+    if not names or any(c not in known for c in names) or len(set(names)) != len(names):
+        raise ConfigError(f"--components {text!r}: expected distinct names of "
+                          f"{', '.join(known)} separated by commas, e.g. alpha,beta")
+    return names
 
 
 def _delegate(module: str, func: str):
@@ -172,10 +242,19 @@ def _delegate(module: str, func: str):
     return run
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse whose mistakes are one line, ``error: ...`` and exit 2, like every
+    other refusal of the command line (the usage is a ``--help`` away)."""
+
+    def error(self, message):
+        text = " ".join(f"{self.prog}: {message}".split())
+        self.exit(2, f"error: {text} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from calibration.methods import METHODS
 
-    p = argparse.ArgumentParser(prog="app.py", description="Robot calibration station")
+    p = _Parser(prog="app.py", description="Robot calibration station")
     p.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     sub = p.add_subparsers(dest="command")
 
@@ -194,6 +273,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="leave these poses (trace indices) out of the fit and the held-out "
                         "set, with --exclude-reason (recorded in the parameter file)")
     b.add_argument("--exclude-reason", metavar="TEXT", help="why --exclude's poses are left out")
+    b.add_argument("--distance-scale", metavar="S[,STD]",
+                   help="the draw-wire's scale factor and its std (a calibration certificate, "
+                        "a known reference length): distance and tilt do not observe it; "
+                        "every calibrated length carries it")
+    b.add_argument("--compliance", action="store_true",
+                   help="URDF robots: also fit each joint's compliance under gravity (the "
+                        "URDF's inertials) and keep it only where the data support it "
+                        "(docs/compliance.md)")
+    b.add_argument("--payload", metavar="MASS[,X,Y,Z]",
+                   help="with --compliance: the payload on the tip link (kg; its centre in "
+                        "the tip link's frame, m)")
     b.add_argument("--hold", metavar="NAME,...",
                    help="hold these parameters at their start values besides the robot's "
                         "fixed ones (shell patterns, e.g. 'j*' for a URDF robot's joint "
@@ -363,6 +453,51 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: the most poses a command plans (far more than a station measures; bounds time and memory)
+MAX_COUNT = 100_000
+
+
+def _check_args(args) -> None:
+    """The numbers every command takes, checked at the edge before any work: a
+    one-line ConfigError naming the option (never numpy's or Dask's traceback later)."""
+    import math
+
+    from calibration.errors import ConfigError
+
+    def integer(name, lo, hi, what):
+        v = getattr(args, name, None)
+        if v is not None and not lo <= v <= hi:
+            flag = "--" + name.replace("_", "-")
+            raise ConfigError(f"{flag} {v}: expected {what}")
+
+    integer("seed", 0, 2 ** 63 - 1, "a seed of 0 or more")
+    integer("sim_seed", 0, 2 ** 63 - 1, "a seed of 0 or more")
+    integer("count", 1, MAX_COUNT, f"a number of poses from 1 to {MAX_COUNT} (leave it out "
+                                    "for the default)")
+    integer("max_iter", 1, 10 ** 6, "a number of iterations from 1 to 1000000")
+    integer("workers", 1, 1024, "a number of worker processes from 1 to 1024 (leave it out "
+                                "for one per core)")
+    integer("robots", 1, MAX_COUNT, f"a number of robots from 1 to {MAX_COUNT}")
+    seconds = getattr(args, "seconds", None)
+    if seconds is not None and not (math.isfinite(seconds) and 0 < seconds <= 86400):
+        raise ConfigError(f"--seconds {seconds}: expected a time in seconds, more than 0 "
+                          "and at most 86400")
+    method = getattr(args, "method", None)
+    if method is not None and args.command in ("run", "study", "trace", "batch"):
+        from calibration.methods import METHODS
+
+        if method not in METHODS:
+            raise ConfigError(f"--method {method!r}: unknown method (known: "
+                              f"{', '.join(METHODS)})")
+    sched = getattr(args, "scheduler", None)
+    if sched is not None:
+        import re
+
+        if not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s/:]+:\d{1,5}/?", sched):
+            raise ConfigError(f"--scheduler {sched!r}: expected a Dask scheduler's address, "
+                              "tcp://HOST:PORT")
+
+
 def _one_line(e) -> str:
     return " ".join(str(e).split())
 
@@ -374,12 +509,15 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    if not args.verbose:     # the driver names a failed link itself, in one line
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     if args.command is None:
         args = parser.parse_args(["gui", *(argv or [])])
     # a warning for people is one line, without the source line that raised it
     warnings.showwarning = lambda message, category, filename, lineno, file=None, line=None: \
         print(f"warning: {_one_line(message)}", file=file or sys.stderr)
     try:
+        _check_args(args)
         return int(args.func(args) or 0)
     except StationError as e:
         print(f"error: {_one_line(e)}", file=sys.stderr)

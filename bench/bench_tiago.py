@@ -29,6 +29,7 @@ import csv
 import hashlib
 import io
 import json
+import math
 import sys
 import tempfile
 from pathlib import Path
@@ -75,7 +76,7 @@ def keep_points(src: Path, dst: Path, points, turn=None) -> None:
             w.writerow([v for i, v in enumerate(r) if i not in drop])
 
 
-def calibrate(tmp: Path, data: Path, points, hold=None, turn=None, tag=""):
+def calibrate(tmp: Path, data: Path, points, hold=None, turn=None, tag="", extra=()):
     fit, val = tmp / f"fit{tag}.csv", tmp / f"val{tag}.csv"
     keep_points(data / "qualisys_2021-11-30_static_postures.csv", fit, points, turn)
     keep_points(data / "qualisys_2021-11-26_static_postures.csv", val, points, turn)
@@ -85,7 +86,7 @@ def calibrate(tmp: Path, data: Path, points, hold=None, turn=None, tag=""):
                    "wrist_ft_tool_link", "--method", "sm-markers", "--ignore-columns", IGNORE,
                    "--out", trace)
     assert rc == 0, text
-    args = ["batch", trace, "--out", params] + (["--hold", hold] if hold else [])
+    args = ["batch", trace, "--out", params] + (["--hold", hold] if hold else []) + list(extra)
     rc, text = app(*args)
     assert rc == 0, text
     doc = json.loads(params.read_text())
@@ -137,6 +138,17 @@ def main() -> int:
         rows.append(("full model, marker 1", *figures(doc, text), "- / 3.07 / -"))
         doc4, text4, p4 = calibrate(tmp, a.data, [1, 2, 3, 4], tag="f4")
         rows.append(("full model, 4 points", *figures(doc4, text4), "(marker 1 only)"))
+        for pts, tag in (([1], "c1"), ([1, 2, 3, 4], "c4")):
+            docc, textc, _ = calibrate(tmp, a.data, pts, tag=tag, extra=["--compliance"])
+            mc = docc["model_comparison"]
+            f = mc.get("compliant") or {}
+            held = f.get("held_out_rms")
+            rows.append((f"+ compliance, {'marker 1' if len(pts) == 1 else '4 points'}",
+                         f.get("fit_rms", math.nan) * 1e3 if f else math.nan,
+                         held * 1e3 if held else math.nan, math.nan,
+                         f.get("identifiable", 0), "supported" if mc["supported"] else
+                         "not supported: " + mc["statement"].split(":")[0][:40]))
+            print(f"compliance, {len(pts)} point(s): {mc['statement']}")
         print(f"{'calibration':<26}{'fit 3D RMS':>11}{'held-out':>10}{'max':>8}{'params':>7}"
               f"   FIGAROH fit / held-out / max (mm)")
         for lab, fit, held, mx, n_id, fig in rows:

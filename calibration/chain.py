@@ -69,12 +69,16 @@ class Chain:
                  the offset is not a parameter (it is then 0).
     gain_idx:    ``(n,)`` index in xi of each joint's transmission ratio ``k``, or -1
                  where the ratio is fixed to 1 (the joint is driven directly).
+    comp_idx:    ``(n,)`` index in xi of each joint's compliance ``c`` (its deflection
+                 per unit of the load ``tau`` given per pose: ``q = k Qm + Q_off + c tau``),
+                 or -1; empty: no compliance.
     """
 
     factors: tuple[Factor, ...]
     n_params: int
     offset_idx: tuple[int, ...]
     gain_idx: tuple[int, ...]
+    comp_idx: tuple[int, ...] = ()
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     @property
@@ -82,13 +86,18 @@ class Chain:
         return len(self.offset_idx)
 
     # -- joint space -------------------------------------------------------
-    def joints(self, qm: np.ndarray, xi: np.ndarray) -> np.ndarray:
-        """Joint coordinates ``Q = K*Qm + Q_off``: ``(m, n)`` from ``qm (m, n)``."""
+    def joints(self, qm: np.ndarray, xi: np.ndarray, tau=None) -> np.ndarray:
+        """Joint coordinates ``Q = K*Qm + Q_off`` (``+ C*tau`` with compliance and the
+        loads ``tau (m, n)``): ``(m, n)`` from ``qm (m, n)``."""
         qm = np.atleast_2d(np.asarray(qm, dtype=float))
         xi = np.asarray(xi, dtype=float)
         k = np.array([xi[i] if i >= 0 else 1.0 for i in self.gain_idx])
         off = np.array([xi[i] if i >= 0 else 0.0 for i in self.offset_idx])
-        return qm * k + off
+        q = qm * k + off
+        if tau is not None and self.comp_idx:
+            c = np.array([xi[i] if i >= 0 else 0.0 for i in self.comp_idx])
+            q = q + np.atleast_2d(tau) * c
+        return q
 
     def actuators(self, q: np.ndarray, xi: np.ndarray) -> np.ndarray:
         """Actuator coordinates ``Qm = (Q - Q_off) / K`` (eq. 57)."""
@@ -113,7 +122,7 @@ class Chain:
         vals[plan.joint_factors] += q[:, plan.joint_of].T
         return vals
 
-    def _sweep(self, qm: np.ndarray, xi: np.ndarray, *, whole: bool = False):
+    def _sweep(self, qm: np.ndarray, xi: np.ndarray, *, whole: bool = False, tau=None):
         """Forward kinematics of all poses at once, one step per factor.
 
         A frame is kept as its three axes and its origin, each ``(3, m)`` (the
@@ -128,7 +137,7 @@ class Chain:
         3)`` the origin of the frame it acts in. With ``whole`` also the four
         columns of the frame before every factor."""
         plan = self._plan()
-        q = self.joints(qm, xi)
+        q = self.joints(qm, xi, tau)
         m = q.shape[0]
         vals = self._values(q, xi)
         rot = vals[plan.rot_factors]
@@ -167,7 +176,7 @@ class Chain:
         T[:, 3, 3] = 1.0
         return T
 
-    def frames(self, qm: np.ndarray, xi: np.ndarray):
+    def frames(self, qm: np.ndarray, xi: np.ndarray, tau=None):
         """Forward kinematics with the intermediate frames.
 
         Returns ``(T, before)``: ``T (m, 4, 4)`` the tool frame in the base frame,
@@ -175,7 +184,7 @@ class Chain:
         product of all factors before it).
         """
         xi = np.asarray(xi, dtype=float)
-        axes, origin, *_cols, kept = self._sweep(qm, xi, whole=True)
+        axes, origin, *_cols, kept = self._sweep(qm, xi, whole=True, tau=tau)
         m, nf = origin.shape[1], len(self.factors)
         before = np.zeros((m, nf, 4, 4))
         for i in range(4):  # (F, 3, m) -> (m, F, 3)
@@ -183,9 +192,10 @@ class Chain:
         before[:, :, 3, 3] = 1.0
         return self._tool(axes, origin), before
 
-    def fk(self, qm: np.ndarray, xi: np.ndarray) -> np.ndarray:
-        """Tool frames ``(m, 4, 4)`` in the base frame."""
-        axes, origin, *_cols = self._sweep(qm, np.asarray(xi, dtype=float))
+    def fk(self, qm: np.ndarray, xi: np.ndarray, tau=None) -> np.ndarray:
+        """Tool frames ``(m, 4, 4)`` in the base frame (``tau``: the loads of a chain
+        with compliance, ``(m, n)``)."""
+        axes, origin, *_cols = self._sweep(qm, np.asarray(xi, dtype=float), tau=tau)
         return self._tool(axes, origin)
 
     # -- generalized Jacobian ------------------------------------------------
@@ -203,12 +213,12 @@ class Chain:
         cols[:, 3:, rt] = u[rt].transpose(1, 2, 0)
         return cols
 
-    def _columns(self, qm, xi):
+    def _columns(self, qm, xi, tau=None):
         """``(T, dp, w)``: tool frames; every factor's position column ``dp``
         (``(F, 3 m)``, plan order, rows (pose, coordinate)): a translation's
         axis, a rotation's ``u x (p_e - o)`` (the tool point turning about the
         axis ``u`` through ``o``); and the rotations' axes ``w`` (``(R, 3 m)``)."""
-        axes, origin, dp, w, v = self._sweep(qm, xi)
+        axes, origin, dp, w, v = self._sweep(qm, xi, tau=tau)
         nt = len(self._plan().trans_factors)
         np.subtract(origin.T, v, out=v)  # v = p_e - o; u x v, written out
         u0, u1, u2 = w[..., 0], w[..., 1], w[..., 2]
@@ -223,18 +233,21 @@ class Chain:
         F = dp.shape[0]
         return self._tool(axes, origin), dp.reshape(F, -1), w.reshape(len(w), -1)
 
-    def jacobian(self, qm: np.ndarray, xi: np.ndarray, *, position_only: bool = False):
+    def jacobian(self, qm: np.ndarray, xi: np.ndarray, *, position_only: bool = False,
+                 tau=None):
         """Generalized Jacobian by the geometric method.
 
         Returns ``(T, Psi)``: tool frames ``(m, 4, 4)`` and ``Psi (m, 6, N)``, the
         spatial tool displacement ``[dp; dw]`` (base frame, dw a rotation vector)
         per unit change of each parameter (eq. 24); ``position_only``: only its
-        rows ``dp``, ``(m, 3, N)`` (less work, for position measurements).
+        rows ``dp``, ``(m, 3, N)`` (less work, for position measurements). ``tau``:
+        the loads of a chain with compliance (a compliance's column is its joint's
+        times the load, as a ratio's is times ``Qm``, eq. 23).
         """
         qm = np.atleast_2d(np.asarray(qm, dtype=float))
         xi = np.asarray(xi, dtype=float)
         plan = self._plan()
-        T, dp, w = self._columns(qm, xi)
+        T, dp, w = self._columns(qm, xi, tau)
         m = qm.shape[0]
         nt = len(plan.trans_factors)
         # each parameter's column: its factors' columns times their
@@ -245,18 +258,24 @@ class Chain:
         psis = []
         for cols, to_params, to_joints in parts:
             psi = (cols.T @ to_params).reshape(m, 3, -1)
-            if plan.gain_params.size:  # eq. 23: Psi_k = Psi_q * Qm[i]
+            comp = plan.comp_params.size and tau is not None
+            if plan.gain_params.size or comp:
                 jac_q = (cols.T @ to_joints).reshape(m, 3, -1)
+            if plan.gain_params.size:  # eq. 23: Psi_k = Psi_q * Qm[i]
                 psi[:, :, plan.gain_params] += jac_q[:, :, plan.gain_joints] * \
                     qm[:, None, plan.gain_joints]
+            if comp:                   # Psi_c = Psi_q * tau[i]
+                tq = np.atleast_2d(np.asarray(tau, dtype=float))
+                psi[:, :, plan.comp_params] += jac_q[:, :, plan.comp_joints] * \
+                    tq[:, None, plan.comp_joints]
             psis.append(psi)
         return T, psis[0] if position_only else np.concatenate(psis, axis=1)
 
-    def joint_jacobian(self, qm: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    def joint_jacobian(self, qm: np.ndarray, xi: np.ndarray, tau=None) -> np.ndarray:
         """Kinematic Jacobian ``J(Q) (m, 6, n)``: tool displacement per joint coordinate."""
         qm = np.atleast_2d(np.asarray(qm, dtype=float))
         plan = self._plan()
-        _T, dp, w = self._columns(qm, np.asarray(xi, dtype=float))
+        _T, dp, w = self._columns(qm, np.asarray(xi, dtype=float), tau)
         m, nt = qm.shape[0], len(plan.trans_factors)
         return np.concatenate([(dp.T @ plan.to_joints).reshape(m, 3, -1),
                                (w.T @ plan.to_joints[nt:]).reshape(m, 3, -1)], axis=1)
@@ -309,6 +328,9 @@ class _Plan:
         gains = [(jt, i) for jt, i in enumerate(chain.gain_idx) if i >= 0]
         self.gain_joints = np.array([jt for jt, _i in gains], dtype=np.intp)
         self.gain_params = np.array([i for _jt, i in gains], dtype=np.intp)
+        comps = [(jt, i) for jt, i in enumerate(chain.comp_idx) if i >= 0]
+        self.comp_joints = np.array([jt for jt, _i in comps], dtype=np.intp)
+        self.comp_params = np.array([i for _jt, i in comps], dtype=np.intp)
         if len(set(self.gain_params.tolist())) < len(gains):
             raise ValueError("two joints share a transmission ratio parameter")
 

@@ -199,3 +199,32 @@ def _r_diagonal(T: np.ndarray):
 def minimum_poses(n_identifiable: int, p: int) -> int:
     """Recommended pose count, eq. 60: ``m >= 5 N_R / p``."""
     return int(np.ceil(5 * n_identifiable / max(p, 1)))
+
+
+def absorbed(W: np.ndarray, weights: np.ndarray | None, identifiable, influences,
+             tol: float = 1e-3) -> dict[int, list[int]]:
+    """Which identifiable parameters absorb the held ones that influence the model.
+
+    A parameter classified "influences the model" has a column that is (near) a
+    combination of the identifiable ones: ``w_h ~ W_R c``. Held at its start value, its
+    error moves each identifiable parameter j by ``c_j`` times that error: the value
+    of j is then j's own plus that share, a combination, and its std is the
+    combination's. Returns ``{j: [h, ...]}`` for the identifiable j with ``|c_j| >
+    tol`` in unit-scaled columns (indices into the columns of ``W``)."""
+    W = np.asarray(W, dtype=float)
+    if weights is not None:
+        W = W * np.sqrt(np.asarray(weights, dtype=float))[:, None]
+    ident = np.flatnonzero(np.asarray(identifiable, bool))
+    held = np.flatnonzero(np.asarray(influences, bool) & ~np.asarray(identifiable, bool))
+    out: dict[int, list[int]] = {}
+    if not ident.size or not held.size:
+        return out
+    norms = np.linalg.norm(W, axis=0)
+    A = W[:, ident] / np.where(norms[ident] > 0, norms[ident], 1.0)
+    B = W[:, held] / np.where(norms[held] > 0, norms[held], 1.0)
+    C = np.linalg.lstsq(A, B, rcond=None)[0]           # (identifiable, held)
+    for a, j in enumerate(ident):
+        hs = [int(held[b]) for b in np.flatnonzero(np.abs(C[a]) > tol)]
+        if hs:
+            out[int(j)] = hs
+    return out

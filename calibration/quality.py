@@ -165,11 +165,7 @@ def prediction_blocks(model, result, W_new, row_channel_new, groups_new):
     error covariance ``s_c^2 (I + B_g (A^T A)^+ B_g^T)`` (:func:`prediction_std` for
     the whole group), ``(G, k, k)``; the groups' rows ``(G, k)``; and ``dof_c``
     per group."""
-    r, W = model.evaluate(result.x)
-    channels = tuple(model.channels)
-    active = np.array([s.identifiable for s in result.status])
-    w = row_weights(model.row_channel, channels, result.sigma)
-    s2, dof = channel_noise(r, leverage(W, w, active), model.row_channel, len(channels))
+    W, channels, active, w, s2, dof = _fit_noise(model, result)
     rc = np.asarray(row_channel_new, dtype=int)
     rows, k = _group_rows(groups_new)
     W_new = np.atleast_2d(np.asarray(W_new, dtype=float))
@@ -265,6 +261,17 @@ def channel_noise(r, h, row_channel, n_channels: int) -> tuple[np.ndarray, np.nd
     return rss / np.maximum(dof, 1e-300), dof
 
 
+def _fit_noise(model, result):
+    """What a prediction's std needs from the fit: ``(W, channels, active, weights,
+    s2_c, dof_c)`` at its solution (:func:`channel_noise`)."""
+    r, W = model.evaluate(result.x)
+    channels = tuple(model.channels)
+    active = np.array([s.identifiable for s in result.status])
+    w = row_weights(model.row_channel, channels, result.sigma)
+    s2, dof = channel_noise(r, leverage(W, w, active), model.row_channel, len(channels))
+    return W, channels, active, w, s2, dof
+
+
 def prediction_std(model, result, W_new, row_channel_new) -> tuple[np.ndarray, np.ndarray]:
     """For rows not in the fit of ``model`` (``result`` its solution; ``W_new`` their
     Jacobian in the fit's columns, ``row_channel_new`` indices into the fit's
@@ -272,11 +279,7 @@ def prediction_std(model, result, W_new, row_channel_new) -> tuple[np.ndarray, n
     (the channel's noise estimated from the fit's residuals, :func:`channel_noise`,
     and the fitted parameters' uncertainty, :func:`prediction_leverage`), and its
     degrees of freedom ``dof_c``."""
-    r, W = model.evaluate(result.x)
-    channels = tuple(model.channels)
-    active = np.array([s.identifiable for s in result.status])
-    w = row_weights(model.row_channel, channels, result.sigma)
-    s2, dof = channel_noise(r, leverage(W, w, active), model.row_channel, len(channels))
+    W, channels, active, w, s2, dof = _fit_noise(model, result)
     rc = np.asarray(row_channel_new, dtype=int)
     h_new = prediction_leverage(W, w, active, W_new, row_weights(rc, channels, result.sigma))
     return np.sqrt(s2[rc] * (1 + h_new)), dof[rc]

@@ -37,6 +37,10 @@ from drivers.canopen_od import NMT_OPERATIONAL, standard_od
 from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 
 
+#: seconds a CAN bus may take to come up (the socketcand greeting, python-can's connect)
+CONNECT_TIMEOUT_S = 3.0
+
+
 class TpdoLost(DeviceTimeout):
     """A SYNC's TPDO is lost on the bus: the node answered an SDO request sent after the
     SYNC, and its TPDO, which it would have sent first, had not come."""
@@ -141,7 +145,9 @@ class CanopenNodes(Device):
         network = canopen.Network()
         try:
             self._server_answers()
-            network.connect(**self.bus_config)
+            self._connect(network)
+        except DeviceError:
+            raise
         except (can.CanError, OSError, ValueError, ImportError) as e:
             raise DeviceError(f"cannot open the CAN bus {_bus_text(self.bus_config)}: {e}",
                               device=self.name) from e
@@ -163,14 +169,67 @@ class CanopenNodes(Device):
             self._close_internal()
             raise
 
+    def _bus_text(self) -> str:
+        cfg = self.bus_config
+        where = f" at {cfg['host']}:{cfg['port']}" if cfg.get("host") else ""
+        return f"CAN bus {cfg.get('interface')} {cfg.get('channel')}{where}"
+
     def _server_answers(self) -> None:
         """A socketcand server that refuses the connection (not running, the cable or
         the simulator gone) is an OSError at once: python-can's socketcand interface
-        would retry a refused connection for 10 s in a busy loop."""
+        would retry a refused connection for 10 s in a busy loop. One that accepts the
+        connection and says nothing (a hung server, another service on that port) is a
+        :class:`DeviceTimeout` within :data:`CONNECT_TIMEOUT_S`: python-can would wait
+        for its greeting ``< hi >`` for ever."""
         cfg = self.bus_config
-        if cfg.get("interface") == "socketcand" and cfg.get("host") and cfg.get("port"):
-            socket.create_connection((cfg["host"], int(cfg["port"])),
-                                     timeout=self.timeout).close()
+        if cfg.get("interface") != "socketcand" or not (cfg.get("host") and cfg.get("port")):
+            return
+        limit = max(CONNECT_TIMEOUT_S, self.timeout)
+        with socket.create_connection((cfg["host"], int(cfg["port"])), timeout=limit) as s:
+            s.settimeout(limit)
+            got = b""
+            try:
+                while b">" not in got and len(got) < 256:
+                    chunk = s.recv(256)
+                    if not chunk:
+                        raise DeviceError(f"{self._bus_text()}: the server closed the connection "
+                                          "without the socketcand greeting", device=self.name)
+                    got += chunk
+            except TimeoutError:
+                raise DeviceTimeout(f"{self._bus_text()}: the server accepted the connection but "
+                                    f"sent no socketcand greeting within {limit:g} s (a hung "
+                                    "server, or not socketcand on that port)",
+                                    device=self.name) from None
+            if not got.strip().startswith(b"< hi >"):
+                raise DeviceError(f"{self._bus_text()}: not a socketcand server (it said "
+                                  f"{got[:40]!r})", device=self.name)
+
+    def _connect(self, network) -> None:
+        """``network.connect`` bounded by :data:`CONNECT_TIMEOUT_S` (python-can's
+        connect has no timeout of its own): a bus that does not come up in time is a
+        :class:`DeviceTimeout` naming it; the connect left behind is shut down when
+        it ends."""
+        done, box = threading.Event(), {}
+
+        def connect():
+            try:
+                network.connect(**self.bus_config)
+            except BaseException as e:          # handed to the caller
+                box["error"] = e
+            finally:
+                done.set()
+                if box.get("abandoned"):
+                    with contextlib.suppress(Exception):
+                        network.disconnect()
+
+        limit = max(CONNECT_TIMEOUT_S, self.timeout)
+        threading.Thread(target=connect, name=f"{self.name} connect", daemon=True).start()
+        if not done.wait(limit):
+            box["abandoned"] = True
+            raise DeviceTimeout(f"{self._bus_text()}: no connection within {limit:g} s",
+                                device=self.name)
+        if "error" in box:
+            raise box["error"]
 
     def _configure(self, nid: int) -> None:
         node = self.remote[nid]

@@ -60,8 +60,10 @@ def _config(args):
     return config
 
 
-def check(config, seconds: float = 3.0, out=sys.stdout) -> bool:
-    """Open each device, print readings for ``seconds``; True if all answered."""
+def check(config, seconds: float = 3.0, out=None, failed: list | None = None) -> bool:
+    """Open each device, print readings for ``seconds`` (to ``out``, default stdout);
+    True if all answered (``failed``, a list, gets the names of those that did not)."""
+    out = out or sys.stdout
     rig = Rig(config)
     ok: dict[str, str | None] = {}
     for d in rig.devices:
@@ -103,17 +105,20 @@ def check(config, seconds: float = 3.0, out=sys.stdout) -> bool:
             print(f"  OK    {name}", file=out)
         else:
             print(f"  FAIL  {name}: {err}\n        -> {hint_for(name)}", file=out)
+    if failed is not None:
+        failed.extend(name for name, err in ok.items() if err is not None)
     return all(v is None for v in ok.values())
 
 
 def main(args: argparse.Namespace) -> int:
+    failed: list[str] = []
     if getattr(args, "simulate", False):
         from drivers.sim.server import SimulatorProcess
 
         with SimulatorProcess(args.robot, config=args.config) as sim:
-            good = check(sim.station_config(), args.seconds)
+            good = check(sim.station_config(), args.seconds, failed=failed)
     else:
-        good = check(_config(args), args.seconds)
+        good = check(_config(args), args.seconds, failed=failed)
     if not good:
-        raise StationError("some devices did not answer (see above)")
+        raise StationError(f"{', '.join(failed) or 'some devices'} did not answer (see above)")
     return 0

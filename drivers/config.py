@@ -16,6 +16,8 @@ errors, missing required keys are named. Layout (see
     [drawwire]       mode "tcp" | "rtu", host/port or serial_port, device_id, ...
     [snapshot]       samples, period, settle, timeout
     [snapshot.std_limits] / [snapshot.drift_limits] / [snapshot.noise_floor]
+    [session]        retry_window: s a failing pose is retried before its device is
+                     judged gone (0: three retries)
     [envelope]       qm_min, qm_max (per actuator): the range the station may command
                      (the wrist's slider stroke), actuator units; poll, latency;
                      [envelope.tolerance] channel = value (the live watch)
@@ -35,7 +37,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
@@ -44,7 +45,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from calibration.errors import ConfigError
-from drivers.config_reader import PLACEHOLDER, KeyReader, frozen_map, load_json
+from drivers.config_reader import (PLACEHOLDER, KeyReader, decode_text, frozen_map,
+                                   load_json, parse_toml)
 
 __all__ = ["INCLINOMETER_CHANNELS", "LIMIT_CHANNEL", "PLACEHOLDER", "RAW_AXES", "ROBOT_AXES",
            "AxisMap", "CanopenConfig", "DrawwireConfig", "EnvelopeConfig", "InclinometerConfig",
@@ -222,6 +224,30 @@ class EnvelopeConfig:
 
 
 @dataclass(frozen=True)
+class SessionConfig:
+    """``[session]``: how a headless session rides out a device's trouble.
+
+    retry_window: seconds a failing pose (or the reference step) is retried, after the
+                  growing pauses of :func:`station.device_loss.backoff`, before the
+                  session asks whether its device is gone (then it stops, naming it).
+                  0 (default): three retries, after 0.25, 0.5 and 1 s. A node that
+                  answers late for a while (a busy bus, a drive's firmware) is ridden
+                  out with a window longer than the while.
+    """
+
+    retry_window: float = 0.0
+
+
+#: the longest retry window a station config may set (s)
+MAX_RETRY_WINDOW_S = 3600.0
+#: the longest timeout of one request or read, one motion, and one period (s): a
+#: longer one is a typing slip that would hang a command as good as for ever
+MAX_TIMEOUT_S = 60.0
+MAX_MOVE_S = 3600.0
+MAX_PERIOD_S = 10.0
+
+
+@dataclass(frozen=True)
 class StationConfig:
     """The whole station. ``inclinometer``/``drawwire`` are None where the station has none;
     ``unresolved`` lists the key paths still holding ``"@endpoints"``."""
@@ -235,6 +261,7 @@ class StationConfig:
     unresolved: tuple[str, ...] = ()
     display: DisplayConfig = DisplayConfig()
     envelope: EnvelopeConfig = dataclasses.field(default_factory=EnvelopeConfig)
+    session: SessionConfig = SessionConfig()
     spec: Any = None    # the robot file's SerialSpec (``robot_file``), or None for a built-in
 
     @property
@@ -253,29 +280,14 @@ class StationConfig:
 
 
 # -- parsing --------------------------------------------------------------------------
-def decode_text(raw: bytes, source: str) -> str:
-    """A config file's text: UTF-8 (with or without a BOM), else a one-line ConfigError
-    that says which encoding it looks like (an editor that saved UTF-16)."""
-    if raw[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in raw[:200]:
-        raise ConfigError("UTF-16 text (or not text at all): save the file as UTF-8",
-                          source=source)
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start}): "
-                          "save the file as UTF-8", source=source) from None
-
-
 def load_station_config(path: str | Path) -> StationConfig:
     """Read and parse a station TOML file; errors name ``path`` and the key."""
     path = Path(path)
     try:
-        data = tomllib.loads(decode_text(path.read_bytes(), str(path)))
+        raw = path.read_bytes()
     except OSError as e:
         raise ConfigError(f"cannot read: {e.strerror or e}", source=str(path)) from e
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"not valid TOML: {e}", source=str(path)) from e
-    return parse_station_config(data, str(path))
+    return parse_station_config(parse_toml(decode_text(raw, str(path)), str(path)), str(path))
 
 
 def parse_station_config(data: Mapping[str, Any], source: str | None = None, *,
@@ -304,6 +316,7 @@ def parse_station_config(data: Mapping[str, Any], source: str | None = None, *,
     snap = top.table("snapshot", required=False)
     disp = top.table("display", required=False)
     env = top.table("envelope", required=False)
+    ses = top.table("session", required=False)
     config = StationConfig(
         robot=robot, canopen=canopen,
         inclinometer=_inclinometer(incl, unresolved) if incl else None,
@@ -311,7 +324,7 @@ def parse_station_config(data: Mapping[str, Any], source: str | None = None, *,
         snapshot=_snapshot(snap) if snap else SnapshotConfig(),
         source=source, unresolved=tuple(unresolved),
         display=_display(disp) if disp else DisplayConfig(), envelope=_envelope(env, n) if env else EnvelopeConfig(),
-        spec=spec)
+        session=_session(ses) if ses else SessionConfig(), spec=spec)
     top.finish()
     return config
 
@@ -321,7 +334,7 @@ def _canopen(r: KeyReader, n: int, unresolved: list[str]) -> CanopenConfig:
     nodes = r.int_list("nodes", length=n, lo=1, hi=127)
     if len(set(nodes)) != len(nodes):
         r.fail("nodes", "node ids must be distinct")
-    hb = r.float("heartbeat_period", default=0.1, lo=0.0, lo_open=True)
+    hb = r.float("heartbeat_period", default=0.1, lo=0.0, lo_open=True, hi=MAX_PERIOD_S)
     bus = r.table("bus", required=False)
     cfg = CanopenConfig(
         interface=r.str("interface"), channel=r.str("channel", default="can0"),
@@ -333,11 +346,13 @@ def _canopen(r: KeyReader, n: int, unresolved: list[str]) -> CanopenConfig:
                                       default=(100.0,) * n, scalar_ok=True),
         profile_acceleration=r.float_list("profile_acceleration", length=n, lo=0.0, lo_open=True,
                                           default=(1000.0,) * n, scalar_ok=True),
-        sdo_timeout=r.float("sdo_timeout", default=0.5, lo=0.0, lo_open=True),
-        move_timeout=r.float("move_timeout", default=30.0, lo=0.0, lo_open=True),
+        sdo_timeout=r.float("sdo_timeout", default=0.5, lo=0.0, lo_open=True, hi=MAX_TIMEOUT_S),
+        move_timeout=r.float("move_timeout", default=30.0, lo=0.0, lo_open=True,
+                             hi=MAX_MOVE_S),
         heartbeat_period=hb,
-        heartbeat_timeout=r.float("heartbeat_timeout", default=5 * hb, lo=hb, lo_open=True),
-        sync_period=r.float("sync_period", default=0.05, lo=0.0, lo_open=True))
+        heartbeat_timeout=r.float("heartbeat_timeout", default=5 * hb, lo=hb, lo_open=True,
+                                  hi=MAX_TIMEOUT_S),
+        sync_period=r.float("sync_period", default=0.05, lo=0.0, lo_open=True, hi=MAX_PERIOD_S))
     r.finish()
     return cfg
 
@@ -363,7 +378,7 @@ def _inclinometer(r: KeyReader, unresolved: list[str]) -> InclinometerConfig:
     cfg = InclinometerConfig(
         port=r.str("port", placeholder=unresolved), axes=frozen_map(axes),
         baudrate=r.int("baudrate", default=9600, lo=1, placeholder=unresolved),
-        timeout=r.float("timeout", default=1.0, lo=0.0, lo_open=True))
+        timeout=r.float("timeout", default=1.0, lo=0.0, lo_open=True, hi=MAX_TIMEOUT_S))
     r.finish()
     return cfg
 
@@ -382,7 +397,7 @@ def _drawwire(r: KeyReader, unresolved: list[str]) -> DrawwireConfig:
         device_id=r.int("device_id", default=1, lo=0, hi=247, placeholder=unresolved),
         word_order=r.choice("word_order", ("high-first", "low-first"), default="high-first"),
         offset_m=r.float("offset_m", default=0.0),
-        timeout=r.float("timeout", default=1.0, lo=0.0, lo_open=True))
+        timeout=r.float("timeout", default=1.0, lo=0.0, lo_open=True, hi=MAX_TIMEOUT_S))
     r.finish()
     return cfg
 
@@ -398,6 +413,13 @@ def _limits(r: KeyReader, key: str) -> Mapping[str, float]:
         out[ch] = t.float(ch, lo=0.0)
     t.finish()
     return frozen_map(out)
+
+
+def _session(r: KeyReader) -> SessionConfig:
+    cfg = SessionConfig(retry_window=r.float("retry_window", default=0.0, lo=0.0,
+                                             hi=MAX_RETRY_WINDOW_S))
+    r.finish()
+    return cfg
 
 
 def _display(r: KeyReader) -> DisplayConfig:
@@ -421,17 +443,18 @@ def _envelope(r: KeyReader, n: int) -> EnvelopeConfig:
             tol[ch] = t.float(ch, lo=0.0, lo_open=True)
         t.finish()
     cfg = EnvelopeConfig(qm_min=lo, qm_max=hi, tolerance=frozen_map(tol),
-                         poll=r.float("poll", default=0.05, lo=0.0, lo_open=True),
-                         latency=r.float("latency", default=0.15, lo=0.0))
+                         poll=r.float("poll", default=0.05, lo=0.0, lo_open=True, hi=MAX_PERIOD_S),
+                         latency=r.float("latency", default=0.15, lo=0.0, hi=MAX_PERIOD_S))
     r.finish()
     return cfg
 
 
 def _snapshot(r: KeyReader) -> SnapshotConfig:
     cfg = SnapshotConfig(
-        samples=r.int("samples", default=10, lo=1), period=r.float("period", default=0.02, lo=0.0),
-        settle=r.float("settle", default=0.5, lo=0.0),
-        timeout=r.float("timeout", default=1.0, lo=0.0, lo_open=True),
+        samples=r.int("samples", default=10, lo=1, hi=10000),
+        period=r.float("period", default=0.02, lo=0.0, hi=MAX_PERIOD_S),
+        settle=r.float("settle", default=0.5, lo=0.0, hi=MAX_TIMEOUT_S),
+        timeout=r.float("timeout", default=1.0, lo=0.0, lo_open=True, hi=MAX_TIMEOUT_S),
         std_limits=_limits(r, "std_limits"), drift_limits=_limits(r, "drift_limits"),
         noise_floor=_limits(r, "noise_floor"))
     r.finish()

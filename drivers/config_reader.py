@@ -135,6 +135,37 @@ class KeyReader:
                 self.fail(k, "unknown key")
 
 
+def decode_text(raw: bytes, source: str) -> str:
+    """A config file's text: UTF-8 (with or without a BOM), else a one-line ConfigError
+    that says which encoding it looks like (an editor that saved UTF-16)."""
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in raw[:200]:
+        raise ConfigError("UTF-16 text (or not text at all): save the file as UTF-8",
+                          source=source)
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start}): "
+                          "save the file as UTF-8", source=source) from None
+
+
+def parse_toml(text: str, source: str | None) -> dict:
+    """A TOML document (a leading BOM is taken as the UTF-8 mark it is); a one-line
+    ConfigError naming ``source`` for invalid TOML or nesting too deep to read."""
+    import tomllib
+
+    try:
+        return tomllib.loads(text.removeprefix("\ufeff"))
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"not valid TOML: {_one_line(e)}", source=source) from None
+    except RecursionError:
+        raise ConfigError("not valid TOML here: arrays or tables nested too deeply",
+                          source=source) from None
+
+
+def _one_line(e) -> str:
+    return " ".join(str(e).split())
+
+
 def load_json(path: str | Path):
     """A JSON file's content; unreadable or invalid files are ConfigErrors naming the file."""
     try:

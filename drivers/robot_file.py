@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import hashlib
 import math
-import tomllib
 from pathlib import Path
 
 from calibration.errors import ConfigError
 from calibration.robots.serial import FRAME_KEYS, JointSpec, SerialSpec, param_layout
-from drivers.config_reader import KeyReader
+from drivers.config_reader import KeyReader, decode_text, parse_toml
 
 FORMAT = "calstation-robot"
 VERSION = 1
@@ -30,11 +29,27 @@ def _num(v: float) -> str:
     return f"{v:g}"
 
 
+#: the largest length (m) and angle (rad) a robot file may give, and the range of a
+#: transmission ratio and of an actuator limit: far beyond any arm, and far below what
+#: overflows the planner's arithmetic (a value of 1e308 is a typing slip, not a robot)
+MAX_LENGTH_M = 1e3
+MAX_ANGLE_RAD = 1e3
+K_RANGE = (1e-12, 1e9)
+MAX_LIMIT = 1e12
+LENGTHS = ("d", "a", "b")            # of a frame's FRAME_KEYS and a joint's keys; the rest
+                                     # are angles (a P joint's offset is a length)
+
+
+def _bounded(r: KeyReader, key: str, default, length: bool):
+    big = MAX_LENGTH_M if length else MAX_ANGLE_RAD
+    return r.float(key, default=default, lo=-big, hi=big)
+
+
 def _frame(top: KeyReader, key: str) -> tuple[float, ...]:
     t = top.table(key, required=False)
     if t is None:
         return (0.0,) * 6
-    out = tuple(t.float(k, default=0.0) for k in FRAME_KEYS)
+    out = tuple(_bounded(t, k, 0.0, k in LENGTHS) for k in FRAME_KEYS)
     t.finish()
     return out
 
@@ -50,25 +65,31 @@ def _joint(j: KeyReader, i: int) -> JointSpec:
             j.fail("beta", "a joint with Hayati's beta has no 'd' (give either d or beta)")
     if kind == "R" and "theta" in j.data:
         j.fail("theta", "an R joint has no 'theta' (its theta is k * qm + offset; use 'offset')")
-    d = j.float("d", default=0.0) if kind == "R" else 0.0
-    theta = j.float("theta", default=0.0) if kind == "P" else 0.0
-    beta = j.float("beta", default=None)
+    d = _bounded(j, "d", 0.0, True) if kind == "R" else 0.0
+    theta = _bounded(j, "theta", 0.0, False) if kind == "P" else 0.0
+    beta = _bounded(j, "beta", None, False)
     k = j.float("k", default=1.0)
     if k == 0.0:
         j.fail("k", "a transmission ratio of 0 would freeze the joint")
+    if not K_RANGE[0] <= abs(k) <= K_RANGE[1]:
+        j.fail("k", f"{k!r}: a transmission ratio's size is between {K_RANGE[0]:g} and "
+                    f"{K_RANGE[1]:g} (joint units per actuator unit)")
     lim = j.float_list("limits", length=2)
     if not lim[0] < lim[1]:
         j.fail("limits", f"[lo, hi] needs lo < hi, got {list(lim)}")
-    k_, off_ = j.float("k", default=1.0), j.float("offset", default=0.0)
-    if kind == "R" and max(abs(k_ * v + off_) for v in lim) > MAX_TURN_RAD:
+    if max(abs(lim[0]), abs(lim[1])) > MAX_LIMIT:
+        j.fail("limits", f"{list(lim)}: actuator limits are within +-{MAX_LIMIT:g} (actuator "
+                         "units)")
+    offset = _bounded(j, "offset", 0.0, kind == "P")
+    if kind == "R" and max(abs(k * v + offset) for v in lim) > MAX_TURN_RAD:
         rad = ", ".join(f"{math.radians(v):.4g}" for v in lim)
         j.fail("limits", f"{_num(lim[0])}, {_num(lim[1])} look like degrees: an R joint's "
                          f"limits are actuator values qm, its angle k * qm + offset in rad "
-                         f"(here up to {max(abs(k_ * v + off_) for v in lim):.4g} rad, more "
+                         f"(here up to {max(abs(k * v + offset) for v in lim):.4g} rad, more "
                          f"than two turns); in radians: [{rad}]")
-    spec = JointSpec(kind=kind, d=d, theta=theta, a=j.float("a", default=0.0),
-                     alpha=j.float("alpha", default=0.0), beta=beta, k=k,
-                     offset=j.float("offset", default=0.0), limits=tuple(lim))
+    spec = JointSpec(kind=kind, d=d, theta=theta, a=_bounded(j, "a", 0.0, True),
+                     alpha=_bounded(j, "alpha", 0.0, False), beta=beta, k=k,
+                     offset=offset, limits=tuple(lim))
     j.finish()
     return spec
 
@@ -76,10 +97,8 @@ def _joint(j: KeyReader, i: int) -> JointSpec:
 def parse_robot_file(text: str, source: str = "<robot file>", name: str | None = None) -> SerialSpec:
     """A :class:`SerialSpec` from the TOML ``text``; ``source`` names it in errors;
     ``name`` (default: the base name of ``source``) becomes the source's name."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"not valid TOML: {e}", source=source) from None
+    text = text.removeprefix("\ufeff")      # an editor's UTF-8 mark
+    data = parse_toml(text, source)
     top = KeyReader(data, "", source)
     if data.get("format") != FORMAT:
         top.fail("format", f"must be {FORMAT!r}, not {data.get('format')!r}")
@@ -87,6 +106,9 @@ def parse_robot_file(text: str, source: str = "<robot file>", name: str | None =
     if top.int("version") != VERSION:
         top.fail("version", f"unsupported version {data['version']!r} (this reader knows {VERSION})")
     robot_name = top.str("name")
+    if not robot_name.isprintable() or robot_name != robot_name.strip() or len(robot_name) > 200:
+        top.fail("name", f"{robot_name[:60]!r}: a robot's name is one line of printable "
+                         "text without leading or trailing spaces, at most 200 characters")
     if robot_name in ("agebot-sm", "agebot-pm"):
         top.fail("name", f"{robot_name!r} is a built-in robot; give the file's robot another name")
     raw = data.get("joint")
@@ -118,12 +140,10 @@ def load_robot_file(path) -> SerialSpec:
                           "batch (docs/urdf-robots.md); sessions, the simulator and studies take "
                           "AGEBOT and robot files (TOML)", source=path)
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        raw = Path(path).read_bytes()
     except OSError as e:
         raise ConfigError(f"cannot read the robot file: {e.strerror or e}", source=path) from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"not UTF-8 text: {e}", source=path) from None
-    return parse_robot_file(text, path)
+    return parse_robot_file(decode_text(raw, path), path)
 
 
 def spec_from_source(src, where: str = "robot_file"):

@@ -38,11 +38,45 @@ def _names(items, limit: int = 12) -> str:
     return text + (f", ... ({len(items)} in all)" if len(items) > limit else "")
 
 
+def _bodies(urdf, chain_joints, tip_link: str):
+    """Per movable joint of the chain, the mass it carries up to the next one, lumped:
+    ``(mass kg, centre of mass (3,) in the joint's child link frame)``. Everything below
+    the joint's child link counts (fixed joints, and other branches with their movable
+    joints at zero: a hand's fingers), except what hangs below the chain's next movable
+    joint."""
+    children: dict = {}
+    for j in urdf.robot.joints:
+        children.setdefault(j.parent, []).append(j)
+    links = {lk.name: lk for lk in urdf.robot.links}
+    movable = [j for j in chain_joints if j.type in MOVABLE]
+    out = []
+    for k, j in enumerate(movable):
+        stop = movable[k + 1].name if k + 1 < len(movable) else None
+        mass, moment = 0.0, np.zeros(3)
+        todo = [(j.child, np.eye(4))]
+        while todo:
+            name, T = todo.pop()
+            inertial = getattr(links.get(name), "inertial", None)
+            if inertial is not None and inertial.mass:
+                o = np.eye(4) if inertial.origin is None else np.asarray(inertial.origin)
+                mass += float(inertial.mass)
+                moment += float(inertial.mass) * (T @ o)[:3, 3]
+            for c in children.get(name, ()):
+                if c.name == stop:
+                    continue
+                o = np.eye(4) if c.origin is None else np.asarray(c.origin, dtype=float)
+                todo.append((c.child, T @ o))
+        out.append((mass, moment / mass if mass > 0 else np.zeros(3)))
+    return out
+
+
 def parse_urdf(text: str, source: str, base_link: str | None, tip_link: str | None,
-               name: str | None = None):
+               name: str | None = None, *, compliance: bool = False, payload=None):
     """The :class:`UrdfSpec` of the chain from ``base_link`` to ``tip_link`` in the URDF
     ``text``; ``source`` names the file in errors, ``name`` (default its base name)
-    becomes the source's name."""
+    becomes the source's name. ``compliance``: the model bends each joint under the
+    gravity of what it carries (its link inertials, and ``payload`` ``{"mass": kg,
+    "com": [x, y, z]}`` in the tip link's frame)."""
     from calibration.robots.urdf import UrdfJoint, UrdfSpec
 
     if not base_link or not tip_link:
@@ -83,6 +117,7 @@ def parse_urdf(text: str, source: str, base_link: str | None, tip_link: str | No
         chain.append(j)
         link = j.parent
     chain.reverse()
+    bodies = _bodies(urdf, chain, tip_link)
     joints, before = [], np.eye(4)
     for j in chain:
         where = f"joint {j.name!r}"
@@ -113,9 +148,11 @@ def parse_urdf(text: str, source: str, base_link: str | None, tip_link: str | No
             if not limits[0] < limits[1]:
                 raise ConfigError(f"{where}: limit lower {limits[0]:g} is not below upper "
                                   f"{limits[1]:g}", source=source)
+        mass, com = bodies[len(joints)]
         joints.append(UrdfJoint(name=j.name, kind=MOVABLE[j.type], before=_nested(before @ origin),
                                 origin=_nested(origin), axis=tuple(float(v) for v in axis / norm),
-                                limits=limits, continuous=continuous))
+                                limits=limits, continuous=continuous, mass=mass,
+                                com=tuple(float(v) for v in com)))
         before = np.eye(4)
     if not joints:
         raise ConfigError(f"no movable joint between {base_link!r} and {tip_link!r}",
@@ -123,11 +160,36 @@ def parse_urdf(text: str, source: str, base_link: str | None, tip_link: str | No
     src = {"name": name or Path(source).name,
            "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest(), "text": text,
            "base_link": base_link, "tip_link": tip_link}
+    pay = None
+    if compliance:
+        if not any(jt.mass > 0 for jt in joints) and not (payload and payload.get("mass")):
+            raise ConfigError(f"compliance needs the links' masses: the URDF's chain "
+                              f"{base_link} -> {tip_link} has no <inertial> (state a payload, "
+                              f"or calibrate without compliance)", source=source)
+        src["compliance"] = True
+        if payload:
+            pay = _payload(payload, source)
+            src["payload"] = {"mass": pay[0], "com": list(pay[1])}
     robot_name = urdf.robot.name or Path(src["name"]).stem
     if robot_name in ("agebot-sm", "agebot-pm"):
         robot_name += "-urdf"
     return UrdfSpec(name=robot_name, base_link=base_link, tip_link=tip_link,
-                    joints=tuple(joints), tail=_nested(before), source=src)
+                    joints=tuple(joints), tail=_nested(before), source=src,
+                    compliance=compliance, payload=pay)
+
+
+def _payload(p, source):
+    """``(mass, com)`` of a payload ``{"mass": kg, "com": [x, y, z]}`` (tip link frame)."""
+    try:
+        mass = float(p.get("mass", 0.0))
+        com = tuple(float(v) for v in (p.get("com") or (0.0, 0.0, 0.0)))
+    except (TypeError, ValueError, AttributeError):
+        raise ConfigError(f"payload must be {{mass: kg, com: [x, y, z] m}}, not {p!r}"[:200],
+                          source=source) from None
+    if len(com) != 3 or not all(math.isfinite(v) for v in (mass, *com)) or not 0 <= mass < 1e4:
+        raise ConfigError("payload: a mass of 0 to 10 000 kg and a centre of mass of three "
+                          "finite coordinates (m, the tip link's frame)", source=source)
+    return mass, com
 
 
 def load_urdf(path, base_link: str | None, tip_link: str | None):
@@ -144,6 +206,7 @@ def load_urdf(path, base_link: str | None, tip_link: str | None):
 
 def urdf_from_source(src: dict, where: str):
     """The spec of a trace header's ``robot_file`` of a URDF robot (checksum checked
-    by the caller)."""
+    by the caller); ``compliance`` and ``payload`` there choose the compliant model."""
     return parse_urdf(src["text"], f"{where} ({src.get('name', '?')})", src.get("base_link"),
-                      src.get("tip_link"), name=str(src.get("name") or "robot.urdf"))
+                      src.get("tip_link"), name=str(src.get("name") or "robot.urdf"),
+                      compliance=bool(src.get("compliance")), payload=src.get("payload"))

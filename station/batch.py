@@ -16,7 +16,6 @@ import numpy as np
 from calibration import identifiability as ident
 from calibration.errors import CalibrationError
 from calibration.methods import METHODS, build
-from calibration.robots import get_robot
 from calibration.robots.base import canonical_result
 from calibration.solver import CalibrationResult, SolverOptions, solve
 from station.arm_rounds import ROUND_METHODS, staged_start, told_start
@@ -46,6 +45,7 @@ class BatchOutcome:
     document: dict | None
     quality: Quality | None = None
     validation: list | None = None
+    comparison: dict | None = None   # rigid against compliant (station.compliance)
 
 
 def solver_sigma(model, trace: Trace) -> dict | None:
@@ -98,11 +98,28 @@ def frame_statement(trace: Trace) -> dict | None:
 def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | None = None,
                     residual: str | None = None, options: SolverOptions | None = None,
                     callback=None, accept_poor_fit: bool = False,
-                    exclude: dict | None = None) -> BatchOutcome:
-    """Read a trace file and :func:`calibrate` it."""
+                    exclude: dict | None = None, compliance: dict | None = None,
+                    distance_scale: tuple | None = None) -> BatchOutcome:
+    """Read a trace file and :func:`calibrate` it; ``compliance`` (``{"payload": ...}``)
+    offers a URDF robot's joint compliance and keeps it only where the data support it
+    (:func:`station.compliance.compare`)."""
     trace = read_trace(trace_path, method_override=method)
-    return calibrate(trace, out=out, method=method, residual=residual, options=options,
-                     callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
+    if distance_scale is not None:
+        trace = with_distance_scale(trace, *distance_scale)
+    if compliance is None:
+        return calibrate(trace, out=out, method=method, residual=residual, options=options,
+                         callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
+    from station.compliance import compare
+
+    def one(tr):
+        return calibrate(tr, method=method, residual=residual, options=options,
+                         callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
+
+    chosen, info = compare(trace, one, payload=compliance.get("payload"))
+    chosen = dataclasses.replace(chosen, comparison=info)
+    if out:
+        chosen = write_outputs(chosen, trace_path, out)
+    return chosen
 
 
 def hold_patterns(trace_path: str, text: str, method: str | None = None) -> tuple[str, ...]:
@@ -125,6 +142,50 @@ def hold_patterns(trace_path: str, text: str, method: str | None = None) -> tupl
     return tuple(held)
 
 
+def with_distance_scale(trace: Trace, value: float, std: float, source: str) -> Trace:
+    """``trace`` whose draw-wire readings are multiplied by ``value`` (``std``: its
+    uncertainty, ``source``: a certificate, a reference length), recorded in the header
+    (``distance_scale``)."""
+    if "distance" not in METHODS[trace.method].channels:
+        raise CalibrationError(f"--distance-scale is for the draw-wire's methods, not "
+                               f"{trace.method}")
+    header = dict(trace.header, distance_scale={"value": float(value), "std": float(std),
+                                                "source": source})
+    return dataclasses.replace(trace, header=header)
+
+
+def scale_uncertainty(outcome: BatchOutcome) -> BatchOutcome:
+    """The draw-wire scale's std added to the calibrated parameters' covariance: the
+    parameters' sensitivity to the scale at the solution, ``dx/ds = (W^T L W)^-1 W^T L
+    dr/ds`` with ``dr/ds`` the distance rows' readings divided by the scale (each
+    calibrated length moves with it; angles do not), times its variance."""
+    s, u = outcome.trace.distance_scale
+    model, res = outcome.model, outcome.result
+    if not u or "distance" not in model.channels:
+        return outcome
+    from calibration.quality import row_weights
+
+    r, W = model.evaluate(res.x)
+    active = np.array([st.identifiable for st in res.status])
+    k = model.channels.index("distance")
+    rows = np.asarray(model.row_channel) == k
+    data = outcome.trace.method_data(model.method)
+    D = np.asarray(data.channels["distance"], dtype=float)
+    if getattr(model, "residual", "plain") == "squared":
+        drds = np.zeros(len(r))
+        drds[rows] = 2 * D * D / s
+    else:
+        drds = np.zeros(len(r))
+        drds[rows] = D / s
+    w = row_weights(model.row_channel, model.channels, res.sigma)
+    A = W[:, active] * np.sqrt(w)[:, None]
+    dxds = np.linalg.lstsq(A, np.sqrt(w) * drds, rcond=None)[0]
+    cov = np.asarray(res.covariance, dtype=float) + u * u * np.outer(dxds, dxds)
+    std = res.std.copy()
+    std[active] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return dataclasses.replace(outcome, result=dataclasses.replace(res, covariance=cov, std=std))
+
+
 def exclude_poses(trace: Trace, exclude: dict) -> Trace:
     """``trace`` with the poses the operator excludes (``{index: reason}``) left out of
     the fit and of the held-out set; an index the trace does not hold is an error."""
@@ -141,6 +202,17 @@ def _holding(opts: SolverOptions, hold) -> SolverOptions:
     """``opts`` also holding ``hold`` (names) at their start values."""
     extra = tuple(n for n in hold if n not in opts.fixed)
     return dataclasses.replace(opts, fixed=tuple(opts.fixed) + extra) if extra else opts
+
+
+def _refit(trace, method, residual, opts, hold, start):
+    """A gate's refit from ``start`` holding ``hold`` besides ``opts.fixed``; what it holds
+    only because the model cannot identify it is reported as not identifiable (with its
+    column's influence), not as fixed."""
+    model, result = _fit(trace, method, residual, _holding(opts, hold), None, start=start)
+    own = set(opts.fixed)
+    status = tuple(dataclasses.replace(st, fixed=False) if st.fixed and st.name not in own
+                   else st for st in result.status)
+    return model, dataclasses.replace(result, status=status)
 
 
 def _fit(trace: Trace, method, residual, opts, callback, model=None, start=None):
@@ -220,13 +292,13 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
 
     quality, trace, model, result, validation = gated_fit(
         trace, model, first=lambda: _fit(trace, method, residual, opts, callback, model),
-        refit=lambda tr, start, hold=(): _fit(tr, method, residual, _holding(opts, hold), None,
-                                             start=start),
+        refit=lambda tr, start, hold=(): _refit(tr, method, residual, opts, hold, start),
         stated_sigma=stated,
         validate=validate, fixed=opts.fixed)
     if exclude:
         quality.excluded = [{"pose": int(k), "reason": str(v)} for k, v in sorted(exclude.items())]
-    outcome = BatchOutcome(trace, model, result, model.x0, None, quality, validation)
+    outcome = scale_uncertainty(BatchOutcome(trace, model, result, model.x0, None, quality,
+                                             validation))
     if not quality.passed:
         if not accept_poor_fit:
             raise FitQualityError(f"the fit failed the quality gate: {quality.summary()} "
@@ -284,6 +356,11 @@ def outcome_document(outcome: BatchOutcome, trace_path: str | None,
         from station.export_urdf import urdf_summary
 
         extra["urdf"] = urdf_summary(robot, outcome.result.x[:robot.n_params])
+    if outcome.comparison is not None:
+        extra["model_comparison"] = dict(outcome.comparison)
+    if outcome.trace.header.get("distance_scale"):
+        extra["distance_scale"] = dict(outcome.trace.header["distance_scale"])
+    absorbs = absorbed_names(outcome)
     pts = fit_point_errors(outcome)
     if pts:
         n = robot.n_params
@@ -295,10 +372,13 @@ def outcome_document(outcome: BatchOutcome, trace_path: str | None,
     unseen = not_identified(outcome)
     if unseen:
         extra["not_identified"] = unseen
-    return params_document(outcome.result, robot=outcome.trace.robot,
-                           nominal=outcome.model.x0, trace_path=trace_path,
-                           poses=outcome.model.n_poses, frame=frame_statement(outcome.trace), notes=notes, quality=quality,
-                           extra=extra or None)
+    doc = params_document(outcome.result, robot=outcome.trace.robot,
+                          nominal=outcome.model.x0, trace_path=trace_path,
+                          poses=outcome.model.n_poses, frame=frame_statement(outcome.trace),
+                          notes=notes, quality=quality, extra=extra or None)
+    for name, hs in absorbs.items():   # identifiable only with these held: a combination
+        doc["parameters"][name]["absorbs"] = hs
+    return doc
 
 
 def describe_not_identified(d: dict) -> str:
@@ -381,6 +461,26 @@ def _fmt(v, width=13):
     return f"{v:{width}.6g}"
 
 
+def absorbed_names(outcome: BatchOutcome) -> dict[str, list[str]]:
+    """Per identifiable parameter, the held parameters whose errors its value absorbs
+    (:func:`calibration.identifiability.absorbed`, at the solution, weighted by the fit's
+    sigma): its value and std are those of a combination."""
+    res, model = outcome.result, outcome.model
+    try:
+        W = model.evaluate(res.x)[1]
+    except CalibrationError:
+        return {}
+    from calibration.quality import row_weights
+
+    w = row_weights(model.row_channel, model.channels, res.sigma)
+    ident_mask = [s.identifiable for s in res.status]
+    # the held ones the analysis found dependent (not the fixed: their columns may be
+    # independent, and their error then biases rather than is absorbed)
+    infl = [s.influences_model and not s.fixed for s in res.status]
+    got = ident.absorbed(W, w, ident_mask, infl)
+    return {res.names[j]: [res.names[h] for h in hs] for j, hs in got.items()}
+
+
 def fit_point_errors(outcome: BatchOutcome) -> dict | None:
     """3D errors of the fit's points on the tool (sm-markers): RMS, max and the worst
     three by pose and point (m); None for other methods."""
@@ -396,6 +496,20 @@ def fit_point_errors(outcome: BatchOutcome) -> dict | None:
                       for g in order]}
 
 
+def scale_note(outcome: BatchOutcome) -> list[str]:
+    """What the draw-wire's scale means for the lengths (distance methods)."""
+    if "distance" not in getattr(outcome.model, "channels", ()):
+        return []
+    s, u = outcome.trace.distance_scale
+    src = (outcome.trace.header.get("distance_scale") or {}).get("source")
+    if src:
+        return [f"note: the draw-wire's scale {s:.8g} +- {u:.2g} ({src}) is in every "
+                "calibrated length and its std"]
+    return ["note: distance and tilt do not observe the draw-wire's scale: the calibrated "
+            "lengths and ratios carry its error (1 % of scale, 1 % of L2..L4 and k1); pin "
+            "it with batch --distance-scale S,STD from its certificate or a known length"]
+
+
 def format_table(outcome: BatchOutcome) -> str:
     """The parameter table (nominal, calibrated, std, identifiability) and fit figures."""
     res, model = outcome.result, outcome.model
@@ -406,6 +520,7 @@ def format_table(outcome: BatchOutcome) -> str:
     lines = [f"{'parameter':<10}{'unit':<6}{'start':>13}{'calibrated':>13}{'std':>13}"
              "  identifiability", "-" * 78]
     held = getattr(model.robot, "held_reason", lambda _n: "the robot file's fixed")
+    absorbs = absorbed_names(outcome)
     width = max([10] + [len(n) + 1 for n in res.names])
     lines[0] = f"{'parameter':<{width}}" + lines[0][10:]
     for j, (name, st) in enumerate(zip(res.names, res.status)):
@@ -413,6 +528,10 @@ def format_table(outcome: BatchOutcome) -> str:
         infl = "influences the model" if st.influences_model else "no influence"
         label = "identifiable" if st.identifiable else (
             f"held ({held(name)}), {infl}" if st.fixed else f"not identifiable, {infl}")
+        if name in absorbs:
+            hs = absorbs[name]
+            label += ("; with " + ", ".join(hs[:4]) + (f" and {len(hs) - 4} more" if len(hs) > 4
+                                                        else "") + " held: a combination")
         u = si.get(name, "")
 
         def shown(v, u=u):
@@ -444,9 +563,21 @@ def format_table(outcome: BatchOutcome) -> str:
         lines.append(f"note: {note}")
     if outcome.trace.method == "sm-distance-tilt" and "robot_file" not in outcome.trace.header:
         lines.append("note: theta0, a0 and q1_off refer to the captured base origin")
+    lines.extend(scale_note(outcome))
     if any(si.get(n, "").endswith("/u") for n in res.names):
         lines.append("unit u: the actuator unit of qm (the drives' position unit: "
                      "[canopen] increments_per_unit of the station config)")
     if outcome.quality is not None:
         lines.extend(outcome.quality.lines())
+    c = outcome.comparison
+    if c is not None:
+        for key in ("rigid", "compliant"):
+            f = c.get(key)
+            if f:
+                held = f["held_out_rms"]
+                lines.append(f"model {key:>9}: {f['identifiable']} identifiable, fit RMS "
+                             f"{f['fit_rms'] * 1e3:.4g} mm, held-out "
+                             f"{'-' if held is None else f'{held * 1e3:.4g} mm'}, gate {f['gate']}")
+        lines.append(f"{c['statement']}; written: the "
+                     f"{'compliant' if c.get('supported') else 'rigid'} model")
     return "\n".join(lines)

@@ -18,7 +18,9 @@ round-off (rpy of the origins are exact away from pitch = +-pi/2).
 """
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -136,7 +138,8 @@ def robot_file_text(robot, xi, comment: str = "") -> str:
 
 
 def _q(s: str) -> str:
-    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    """A TOML basic string of ``s`` that reads back to ``s`` (control characters escaped)."""
+    return json.dumps(s, ensure_ascii=False).replace("\x7f", "\\u007f")
 
 
 
@@ -144,12 +147,15 @@ def export_command(args) -> list[str]:
     """``app.py params export FILE [--urdf OUT] [--robot-file OUT]``: check the
     parameter file (checksum), build the calibrated model, write each output
     atomically (all checks before the first write). Returns the lines to print."""
-    from drivers.atomic import write_atomic
-    from station.params_file import read_params
+    from drivers.atomic import check_outputs, write_atomic
+    from station.params_file import check_usable, read_params
 
-    if not (args.urdf or args.robot_file):
+    if args.urdf is None and args.robot_file is None:
         raise ConfigError("give --urdf OUT.urdf and/or --robot-file OUT.toml")
+    check_outputs((args.urdf, "the URDF"), (args.robot_file, "the robot file"),
+                  inputs=(args.file,))
     doc = read_params(args.file)
+    check_usable(doc, args.file)
     robot, xi = calibrated_model(doc, args.file)
     outs = []
     urdf_robot = hasattr(robot, "calibrated_origins")
@@ -166,8 +172,18 @@ def export_command(args) -> list[str]:
         note = (f"{robot.name} calibrated by {doc['method']} ({doc['created']}), from "
                 f"{args.file} ({doc['checksum']})")
         outs.append((args.robot_file, robot_file_text(robot, xi, note), "calibrated robot file"))
-    lines = []
-    for path, text, what in outs:
-        write_atomic(path, text.encode("utf-8"))
-        lines.append(f"{what} written to {path}")
+    if args.robot_file:       # what is written must read back
+        from drivers.robot_file import parse_robot_file
+
+        parse_robot_file(outs[-1][1], f"the calibrated robot file {args.robot_file}")
+    lines, written = [], []
+    try:
+        for path, text, what in outs:
+            write_atomic(path, text.encode("utf-8"))
+            written.append(path)
+            lines.append(f"{what} written to {path}")
+    except BaseException:       # never half an export: the files written go again
+        for path in written:
+            Path(path).unlink(missing_ok=True)
+        raise
     return lines

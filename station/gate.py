@@ -177,21 +177,25 @@ def _free_at(model, x, fixed) -> np.ndarray:
     return ident.classify(W, candidates=cand, order=model.identify_order)[0]
 
 
-def not_identified(result) -> tuple[str, ...]:
-    """Names a fit left at their start values (fixed or not identifiable): every refit
-    from that fit holds them there (item 5 of the gate's contract: what a fit held
-    stays held; freed again, a parameter the solution showed to be no better than the
-    noise turns a refit of fewer poses into a crawl along a flat valley)."""
-    return tuple(s.name for s in result.status if not s.identifiable)
-
-
-def _held_names(model, x, fixed) -> tuple[str, ...]:
-    free = _free_at(model, x, fixed)
+def held_at_start(model, fixed=()) -> tuple[str, ...]:
+    """What every fit of the gate holds at its start values: the ``fixed`` parameters and
+    those the model cannot identify at its start values (a zero column, or a column that
+    is a combination of earlier ones). A refit started from a solution must not free
+    them: there a dependency can be broken by a hair (a joint tilted by a milliradian
+    makes its zero a hair independent of the instrument frame's turn) and the refit
+    crawls along the flat valley for its whole iteration budget; and a robust fit that
+    moves them moves what the station reports as held."""
+    free = _free_at(model, model.x0, fixed)
     return tuple(n for n, f in zip(model.names, free) if not f)
 
 
+def _free(model, hold) -> np.ndarray:
+    held = set(hold)
+    return np.array([n not in held for n in model.names])
+
+
 def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | None,
-           fixed=()):
+           hold=()):
     """A fit that did not converge: leave out the readings a robust fit rejects
     (:func:`calibration.quality.robust_worst_row`), one at a time, until the fit
     converges. Returns ``(trace, model, result, outliers)``; raises ``error`` (with
@@ -200,7 +204,7 @@ def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | Non
     limit = max_outliers(len(trace.fit_poses))
     while len(outliers) < limit and row_poses(model) is not None:
         worst, x_robust = q.robust_worst_row(model, model.x0, stated_sigma,
-                                             free=_free_at(model, model.x0, fixed))
+                                             free=_free(model, hold))
         if worst is None:
             break
         entry = dict(_entry(trace, model, worst), test="robust fit")
@@ -212,7 +216,7 @@ def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | Non
             entry["partners"] = partners
         outliers.append(entry)
         try:
-            model, result = refit(new_trace, x_robust, hold=_held_names(model, model.x0, fixed))
+            model, result = refit(new_trace, x_robust, hold=hold)
             return new_trace, model, result, outliers
         except NotConverged as e:
             trace, model = new_trace, e.model
@@ -246,18 +250,19 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
     """The gate around a calibration: ``first()`` fits ``model`` (raising a
     :class:`CalibrationError` with ``.model`` if it does not converge),
     ``refit(trace, start, hold=names)`` fits a trace copy from ``start`` holding
-    ``hold`` (what the fit it starts from did not calibrate) besides ``fixed``, the
-    parameters every fit holds (the robust fits too). Returns ``(quality, trace, model,
+    ``hold`` (:func:`held_at_start`: ``fixed`` and what the model cannot identify at its
+    start values), as every refit and robust fit of the gate does. Returns ``(quality, trace, model,
     result, validation)`` of the fit that passed, else of the last one tried."""
     check_spread(trace, model)
+    hold = held_at_start(model, fixed)
     try:
         model0, result = first()
         pre = []
     except NotConverged as e:
         trace, model0, result, pre = rescue(trace, model, e, refit=refit, stated_sigma=stated_sigma,
-                                            fixed=fixed)
+                                            hold=hold)
     got = run_gate(trace, model0, result, refit=refit, stated_sigma=stated_sigma,
-                   validate=validate, outliers=pre)
+                   validate=validate, outliers=pre, hold=hold)
     quality, trace1, model1 = got[:3]
     if quality.passed or len(quality.outliers) >= max_outliers(len(trace.fit_poses)):
         return got
@@ -265,16 +270,16 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
     # started where least squares ended (from the bare start values a robot far from
     # its nominal lands in another minimum, where every reading looks gross)
     worst, x_robust = q.robust_worst_row(model1, got[3].x, stated_sigma,
-                                         free=[st.identifiable for st in got[3].status])
+                                         free=_free(model1, hold))
     if worst is None and x_robust is not None:
         # no gross reading: least squares found a local minimum; start again where
         # the robust fit ended
         try:
-            model2, result2 = refit(trace1, x_robust, hold=not_identified(got[3]))
+            model2, result2 = refit(trace1, x_robust, hold=hold)
         except CalibrationError:
             return got
         got2 = run_gate(trace1, model2, result2, refit=refit, stated_sigma=stated_sigma,
-                        validate=validate, outliers=quality.outliers)
+                        validate=validate, outliers=quality.outliers, hold=hold)
         if got2[0].passed or _lower(got2[2:4], got[2:4]):
             # a lower minimum is the fit to judge (and to name what fails in it)
             got2[0].check("start", True, "start: the fit from the start values ended in a "
@@ -291,14 +296,14 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
     if partners:
         entry["partners"] = partners
     try:
-        model2, result2 = refit(new_trace, x_robust, hold=not_identified(got[3]))
+        model2, result2 = refit(new_trace, x_robust, hold=hold)
     except CalibrationError:
         quality.check("outliers", False, f"outliers: {describe(entry)} does "
                       f"not fit a robust fit ({worst.t:.3g} robust sigmas) and the fit without it "
                       "does not converge", next=entry)
         return got
     got2 = run_gate(new_trace, model2, result2, refit=refit, stated_sigma=stated_sigma,
-                    validate=validate, outliers=[*quality.outliers, entry])
+                    validate=validate, outliers=[*quality.outliers, entry], hold=hold)
     if not got2[0].passed:
         got2[0].check("outliers", False, f"outliers: {describe(entry)} "
                       f"does not fit a robust fit ({worst.t:.3g} robust sigmas), and the fit "
@@ -368,7 +373,7 @@ def _statistics(model, result):
 
 
 def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
-             validate=None, outliers=()):
+             validate=None, outliers=(), hold=()):
     """Run the gate on a converged fit. ``refit(trace, start, hold=names) -> (model, result)``
     calibrates a trace copy from the start values ``start`` (the fit's so far); ``validate(trace, model, result)`` gives the held-out rows
     (:func:`station.validation.validation_errors`). Returns ``(quality, trace,
@@ -396,7 +401,7 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
             break
         new_trace, partners = _excluded(trace, excluded | {entry["pose"]})
         try:
-            new_model, new_result = refit(new_trace, result.x, hold=not_identified(result))
+            new_model, new_result = refit(new_trace, result.x, hold=hold)
         except CalibrationError as e:
             quality.check("outliers", False,
                           f"outliers: {describe(entry)} does not fit "
@@ -407,7 +412,7 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
             # the reading fits the fit made without it: the first fit was in a local
             # minimum, not thrown off by this reading; refit every pose from there
             try:
-                model, result = refit(trace, new_result.x, hold=not_identified(new_result))
+                model, result = refit(trace, new_result.x, hold=hold)
             except CalibrationError:
                 pass
             restarts += 1
@@ -440,15 +445,23 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
     _spread(quality, trace, model, result)
     if "robot_file" not in trace.header:    # AGEBOT's parameters, whose kinds are known
         _plausible(quality, model, result, trace.method)
+    else:                                   # robot files and URDF robots
+        _plausible_serial(quality, model, result)
+        _explains(quality, model, result)
     validation = None
     if validate is not None and trace.validation_poses:
         validation = validate(trace, model, result)
+        by_points = any(v.get("points") for v in validation)
         for v in validation:
             before, after = v.get("rms_before"), v.get("rms_after")
+            pts = v.get("points")
+            if by_points and not pts:
+                continue              # points on the tool: judged once, by their 3D errors
+            if pts:
+                before, after = pts.get("rms_before"), pts.get("rms_after")
             if before is None or after is None or not math.isfinite(after):
                 continue
             ok = after <= VALIDATION_TOLERANCE * before
-            pts = v.get("points")
             if pts:
                 w = pts["worst"][0]
                 verb = "went" if ok else "is worse than the start:"
@@ -569,3 +582,126 @@ def _plausible(quality, model, result, method) -> None:
     else:
         quality.check("plausible", True, "plausible: gear ratios and lengths within a factor "
                       f"{PLAUSIBLE_FACTOR:g} of the start")
+
+
+# A robot file's or URDF robot's calibration, against its start values: a joint's
+# correction beyond these is a wrong unit, sign, zero or robot file, not a robot.
+SERIAL_SHIFT = 0.05     # share of the robot's length a URDF joint origin may move
+SERIAL_TURN = 0.1       # rad a URDF joint origin or the instrument frame may turn
+SERIAL_ANGLE = 0.35     # rad a robot file's alpha, beta, theta may move
+SERIAL_ZERO = 0.5       # rad (m: SERIAL_SHIFT) a URDF joint's zero may move
+# The calibrated model must explain the readings: the residual RMS of a length
+# channel at most this share of the robot's size, of an angle channel this many rad.
+EXPLAIN_LENGTH = 0.05
+EXPLAIN_ANGLE = 0.02
+LENGTH_CHANNELS = ("x", "y", "z", "marker", "distance")
+ANGLE_CHANNELS = ("roll", "pitch", "yaw", "phi")
+
+
+def robot_size(model) -> float:
+    """How far the tool moves over the fit's poses at the start values (RMS distance
+    of its origin from their mean, at least 0.1 m): the scale a calibration's lengths
+    and residuals are judged against."""
+    robot = model.robot
+    try:
+        T = robot.frames(model.qm, np.asarray(model.x0, dtype=float)[:robot.n_params])
+    except Exception:  # noqa: BLE001 - a model without frames has no size to judge by
+        return 1.0
+    p = T[:, :3, 3]
+    return max(float(np.sqrt(np.mean(np.sum((p - p.mean(axis=0)) ** 2, axis=1)))), 0.1)
+
+
+def robot_reach(model) -> float:
+    """The robot's own length at its start values: the sum of its chain's translations
+    (joint origins, links, the tool), the instrument frame left out (at least 0.1 m)."""
+    robot = model.robot
+    chain = getattr(robot, "chain", None)
+    if chain is None:
+        return 1.0
+    xi = np.asarray(model.x0, dtype=float)[:robot.n_params]
+    names = robot.param_names
+    total = 0.0
+    for f in chain.factors:
+        if f.kind[0] != "t" or f.joint is not None:
+            continue
+        if any(names[i].startswith("base_") for i, _c in f.terms):
+            continue
+        total += abs(f.const + sum(c * xi[i] for i, c in f.terms))
+    return max(total, 0.1)
+
+
+def _plausible_serial(quality, model, result) -> None:
+    """A robot file's or URDF robot's calibration within what a real robot departs from
+    its description: ratios within a factor :data:`PLAUSIBLE_FACTOR` and of the same
+    sign, a robot file's lengths too (or, from 0, within :data:`SERIAL_SHIFT` of the
+    robot's length, :func:`robot_reach`), its angles within :data:`SERIAL_ANGLE`; a URDF
+    robot's joint origins within :data:`SERIAL_SHIFT` of its length and
+    :data:`SERIAL_TURN`, its zeros within
+    :data:`SERIAL_ZERO`, the instrument frame's correction within :data:`SERIAL_TURN`."""
+    robot = model.robot
+    size = robot_reach(model)
+    urdf = hasattr(robot, "calibrated_origins")
+    bad = []
+    for j, (name, st) in enumerate(zip(result.names, result.status)):
+        if not st.identifiable or name not in robot.param_names:
+            continue
+        x0, x = float(model.x0[j]), float(result.x[j])
+        if not math.isfinite(x):
+            bad.append((name, x0, x, "is not finite"))
+            continue
+        d = x - x0
+        if name.startswith("k"):
+            if x0 and not 1 / PLAUSIBLE_FACTOR <= x / x0 <= PLAUSIBLE_FACTOR:
+                bad.append((name, x0, x, f"{x / x0:.3g} times the start"))
+        elif urdf and name.startswith("j") and name.endswith(("_x", "_y", "_z")):
+            if abs(d) > SERIAL_SHIFT * size:
+                bad.append((name, x0, x, f"{d * 1e3:.4g} mm, beyond {SERIAL_SHIFT:.0%} of the "
+                                         f"robot's length {size:.3g} m"))
+        elif urdf and (name.startswith("j") or name.startswith("base_r")):
+            if abs(d) > SERIAL_TURN:
+                bad.append((name, x0, x, f"turned {math.degrees(d):.3g} deg"))
+        elif urdf and name.endswith("_off"):
+            i = int(name[1:-4])
+            lim = SERIAL_ZERO if robot.spec.joints[i - 1].kind == "R" else SERIAL_SHIFT * size
+            if abs(d) > lim:
+                bad.append((name, x0, x, "a zero far from the URDF's (a joint map's offset or "
+                                         "sign?)"))
+        elif not urdf and name[0] in "da" and name[1:].isdigit():
+            if (abs(x0) > 1e-3 and not 1 / PLAUSIBLE_FACTOR <= x / x0 <= PLAUSIBLE_FACTOR) \
+                    or (abs(x0) <= 1e-3 and abs(d) > SERIAL_SHIFT * size):
+                bad.append((name, x0, x, f"{d * 1e3:.4g} mm from the robot file's"))
+        elif not urdf and name.startswith(("alpha", "beta", "theta")):
+            if abs(d) > SERIAL_ANGLE:
+                bad.append((name, x0, x, f"turned {math.degrees(d):.3g} deg"))
+    if bad:
+        quality.check("plausible", False, "plausible: " + ", ".join(
+            f"{n} went from {a:.4g} to {b:.4g} ({why})" for n, a, b, why in bad)
+            + "; a real robot departs from its description by less: a reading's unit, sign or "
+            "frame, the joint values' units, zeros or order, or the robot file or URDF itself "
+            "is likely wrong", parameters=[{"name": n, "start": a, "calibrated": b}
+                                        for n, a, b, _ in bad])
+    else:
+        quality.check("plausible", True, "plausible: every correction within what a real "
+                      "robot departs from its description")
+
+
+def _explains(quality, model, result) -> None:
+    """The calibrated model explains the readings: a length channel's residual RMS at
+    most :data:`EXPLAIN_LENGTH` of the robot's size, an angle channel's at most
+    :data:`EXPLAIN_ANGLE` rad. Without a stated noise the rest of the gate cannot tell
+    a model that fits from one that does not (a unit, a mirrored axis, a wrong joint)."""
+    size = robot_size(model)
+    bad = []
+    for ch, rms in (result.residual_rms or {}).items():
+        if not math.isfinite(rms):
+            bad.append(f"{ch} not finite")
+        elif ch in LENGTH_CHANNELS and rms > EXPLAIN_LENGTH * size:
+            bad.append(f"{ch} {rms * 1e3:.4g} mm ({rms / size:.0%} of the robot's size "
+                       f"{size:.3g} m)")
+        elif ch in ANGLE_CHANNELS and rms > EXPLAIN_ANGLE:
+            bad.append(f"{ch} {math.degrees(rms):.3g} deg")
+    if bad:
+        quality.check("explains", False, "explains: the calibrated model leaves residual RMS "
+                      + ", ".join(bad) + ": it does not explain the readings (a unit, e.g. "
+                      "degrees read as radians or mm as m, a mirrored or swapped axis, a wrong "
+                      "joint column or robot file)")

@@ -72,6 +72,14 @@ class TerminalProgress:
 
 
 def main(args: argparse.Namespace) -> int:
+    from drivers.atomic import check_output_folder
+    from drivers.sim.serial_robot import is_robot_file
+    from station.session import PARAMS, REPORT, TRACE, URDF
+
+    check_output_folder(args.out, "the session folder (--out)", (TRACE, PARAMS, REPORT, URDF),
+                        inputs=tuple(p for p in (args.robot if is_robot_file(args.robot)
+                                                 else None, args.truth, args.config,
+                                                 getattr(args, "endpoints", None)) if p))
     out = Path(args.out)
     accept = bool(getattr(args, "accept_poor_fit", False))
     request = PlanRequest(count=getattr(args, "count", None), seed=getattr(args, "seed", 0) or 0,

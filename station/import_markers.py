@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import csv
 import hashlib
-import io
 import math
 import re
 from dataclasses import dataclass
@@ -43,9 +42,8 @@ from calibration.methods.sm_markers import marker_names, register, scale_and_mir
 from calibration.robots import get_robot
 from calibration.robots.serial import rpy_of
 from drivers.urdf_file import load_urdf
+from station.trace_import import ANGLE, LENGTH, open_csv
 
-LENGTH = {"m": 1.0, "mm": 1e-3}
-ANGLE = {"rad": 1.0, "deg": math.pi / 180}
 USES = ("fit", "validation")
 _POINT = (re.compile(r"^m(\d+)_([xyz])$"), re.compile(r"^([xyz])(\d+)$"))
 # A joint value beyond the URDF's limit by at most this share of the joint's range
@@ -168,21 +166,7 @@ class _Reader:
         return joint_cols, points, use
 
     def read(self, path: str, default_use: str, poses: list) -> bytes:
-        try:
-            raw = Path(path).read_bytes()
-            text = raw.decode("utf-8-sig")
-        except OSError as e:
-            raise ConfigError(f"cannot read: {e.strerror or e}", source=path) from None
-        except UnicodeDecodeError as e:
-            raise ConfigError(f"not UTF-8 text: {e}", source=path) from None
-        rows = csv.reader(io.StringIO(text))
-        try:
-            head = [c.strip() for c in next(rows)]
-        except StopIteration:
-            raise ConfigError("empty file: the first line must name the columns",
-                              source=path) from None
-        except csv.Error as e:
-            raise ConfigError(f"not a CSV file: {e}", source=f"{path}:1") from None
+        raw, head, rows = open_csv(path)
         if len(set(head)) != len(head):
             dup = sorted({c for c in head if head.count(c) > 1})
             raise ConfigError(f"column {dup[0]!r} is named twice", source=f"{path}:1")
@@ -341,9 +325,9 @@ def start_values(robot, qm, pts, where: str) -> dict:
         raise ConfigError(f"the points do not follow the robot: after the best placement of "
                           f"the instrument's frame they are {proper * 1e3:.3g} mm from the "
                           f"URDF's prediction (median), {proper / spread:.0%} of their spread: "
-                          f"check the "
-                          f"joint columns' order, units (--angle-unit, --length-unit) and signs "
-                          f"and zeros (--joint-map), and that the points are fixed on the tool",
+                          f"check the joint columns' order, units (--angle-unit, --length-unit), "
+                          f"signs and zeros (--joint-map), that the points are fixed on the "
+                          f"tool, and that the URDF describes this robot",
                           source=where)
     R, t, u, _rms = register(robot, qm, pts, xi)
     roll, pitch, yaw = rpy_of(R[None])[0]

@@ -127,7 +127,8 @@ SCHEMA = {
                            "std": {"oneOf": [{"type": "null"}, {"type": "number", "minimum": 0}]},
                            "identifiable": {"type": "boolean"},
                            "influences_model": {"type": "boolean"},
-                           "fixed": {"type": "boolean"}}}},
+                           "fixed": {"type": "boolean"},
+                           "absorbs": {"type": "array", "items": {"type": "string"}}}}},
         "fit": {"type": "object",
                 "properties": {"converged": {"type": "boolean"},
                                "iterations": {"type": "integer", "minimum": 0},
@@ -160,6 +161,29 @@ def _reject_constant(name):
     raise ValueError(f"{name} is not a JSON number")
 
 
+def _finite_float(text: str) -> float:
+    v = float(text)
+    if not math.isfinite(v):
+        raise ValueError(f"the number {text[:30]} is out of range (beyond 1.8e308)")
+    return v
+
+
+def _sane_int(text: str) -> int:
+    if len(text.lstrip("-")) > 300:
+        raise ValueError(f"the number {text[:30]}... is out of range ({len(text)} digits)")
+    return int(text)
+
+
+def _no_duplicates(pairs) -> dict:
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise ValueError(f"the key {_short(k)} appears twice in one object (which one "
+                             "holds?)")
+        out[k] = v
+    return out
+
+
 def read_params(path) -> dict:
     """Read and verify a parameter file: structure against :data:`SCHEMA`, values
     (robot, method, parameter names, covariance shape), and checksum."""
@@ -167,7 +191,9 @@ def read_params(path) -> dict:
 
     path = str(path)
     try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"), parse_constant=_reject_constant)
+        doc = json.loads(Path(path).read_text(encoding="utf-8"), parse_constant=_reject_constant,
+                         parse_float=_finite_float, parse_int=_sane_int,
+                         object_pairs_hook=_no_duplicates)
     except OSError as e:
         raise TraceFormatError(f"cannot read the parameter file: {e.strerror}", file=path) from None
     except RecursionError:
@@ -244,3 +270,64 @@ def _check_values(doc: dict, path: str) -> None:
              f"{sorted(set(cov['names']) - set(doc['parameters']))}")
     if len(cov["matrix"]) != n or any(len(row) != n for row in cov["matrix"]):
         fail(f"covariance.matrix must be {n} x {n} (one row and column per name)")
+
+
+#: the most a calibrated value may move from its start value, in units of the larger
+#: of 1 and the start value's size (angles in rad, lengths in m: 1000 is no robot)
+MAX_MOVE = 1e3
+
+
+def check_usable(doc: dict, path: str) -> None:
+    """What ``params verify`` and the exports ask of a parameter file beyond its
+    structure and checksum (a checksum recomputed over an edit proves nothing): a fit
+    that converged and passed the quality gate, or one whose poor fit was accepted
+    on purpose (``fit.quality.accepted``); a parameter the fit did not calibrate at
+    its start value; none moved by more than :data:`MAX_MOVE` times its size; every
+    calibrated gear ratio and length of the robot with its start value's sign and
+    within the gate's factor of it (:data:`station.gate.PLAUSIBLE_FACTOR`, the same
+    rule as the gate's). A :class:`TraceFormatError` naming the file and the
+    parameter otherwise."""
+    from calibration.robots import get_robot
+    from drivers.robot_file import spec_from_source
+    from station.gate import PLAUSIBLE_FACTOR
+
+    def fail(msg):
+        raise TraceFormatError(msg, file=path)
+
+    fit = doc.get("fit") or {}
+    quality = fit.get("quality")
+    accepted = bool(quality and quality.get("accepted"))
+    if quality is not None and not quality.get("passed") and not accepted:
+        failed = [c.get("check") for c in quality.get("checks", ())
+                  if isinstance(c, dict) and c.get("ok") is False and c.get("check")]
+        fail("fit.quality: the fit failed the quality gate"
+             + (f" ({', '.join(str(f) for f in failed[:3])})" if failed else "")
+             + " and was not accepted (batch --accept-poor-fit records that on purpose)")
+    if fit.get("converged") is False and not accepted:
+        fail("fit.converged: the fit did not converge")
+    for name, p in doc["parameters"].items():
+        x0, x = float(p["nominal"]), float(p["value"])
+        if not p.get("identifiable") and abs(x - x0) > 1e-9 * max(1.0, abs(x0)):
+            fail(f"parameters.{name}: {x:.6g}, but the fit did not calibrate it (not "
+                 f"identifiable): it keeps its start value {x0:.6g}")
+        if not accepted and abs(x - x0) > MAX_MOVE * max(1.0, abs(x0)):
+            fail(f"parameters.{name}: {x:.6g} against its start value {x0:.6g}: moved by "
+                 f"more than {MAX_MOVE:g} times its size, not a plausible calibration")
+    if accepted:        # a poor fit kept on purpose: its values are what they are
+        return
+    model = (get_robot(spec_from_source(doc["robot_file"], "robot_file"))
+             if "robot_file" in doc else get_robot(doc["robot"]))
+    own = set(model.param_names)
+    frame = ("a0",) if doc.get("method") == "sm-distance-tilt" else ()
+    for name, p in doc["parameters"].items():
+        if (name not in own or not p.get("identifiable") or name.endswith("_off")
+                or name.startswith(("theta", "plane_")) or name in frame):
+            continue
+        x0, x = float(p["nominal"]), float(p["value"])
+        if x0 == 0:
+            continue
+        ratio = x / x0
+        if not 1 / PLAUSIBLE_FACTOR <= ratio <= PLAUSIBLE_FACTOR:
+            fail(f"parameters.{name}: {x:.6g} against its start value {x0:.6g} ({ratio:.3g} "
+                 f"times): not a plausible calibration (gear ratios and lengths keep their "
+                 f"sign and stay within a factor {PLAUSIBLE_FACTOR:g})")

@@ -117,13 +117,22 @@ FaultPolicy = Callable[[PlannedPose, DeviceError, int], str]   # -> "retry" | "s
 Touch = Callable[["Session", PlannedPose], None]   # brings the tool into contact, then returns
 
 
-def retry_then_skip(retries: int = 3) -> FaultPolicy:
+def retry_then_skip(retries: int = 3, window: float = 0.0) -> FaultPolicy:
     """The headless policy: retry a faulty pose ``retries`` times (after pauses of
-    0.25, 0.5, 1 s: :func:`station.device_loss.backoff`), then skip it, unless the
-    device itself is gone (:func:`station.device_loss.probe`: the session stops)."""
+    0.25, 0.5, 1 s: :func:`station.device_loss.backoff`), and for as long as
+    ``window`` seconds from its first fault (the station config's
+    ``session.retry_window``), then skip it, unless the device itself is gone
+    (:func:`station.device_loss.probe`: the session stops)."""
+    first: dict = {}
+
     def policy(pose, error, attempt):
-        return "retry" if attempt < retries else "skip"
+        now = time.monotonic()
+        if attempt == 0:
+            first[pose.index] = now
+        within = now - first.setdefault(pose.index, now) < window
+        return "retry" if attempt < retries or within else "skip"
     policy.retries = retries      # the reference step's retries (Session.reference_retries)
+    policy.window = window        # ... and its window (Session.retry_window)
     return policy
 
 
@@ -173,10 +182,13 @@ class Session:
         self.out = Path(out_dir)
         self.request = request or PlanRequest()
         self.observer = observer
-        self.fault_policy = fault_policy or retry_then_skip()
+        self.fault_policy = fault_policy or retry_then_skip(
+            window=config.session.retry_window)
         # a transient fault of the reference step (or the wrist's start step) is retried
-        # this many times: the policy's own count where it states one (headless)
+        # this many times, and within this window (s): the policy's own where it states
+        # them (headless)
         self.reference_retries = int(getattr(self.fault_policy, "retries", REFERENCE_RETRIES))
+        self.retry_window = float(getattr(self.fault_policy, "window", 0.0))
         self.rig = rig
         self.touch = touch
         self.station_record = dict(station or {})   # more for the header's station field
@@ -208,6 +220,10 @@ class Session:
         self._rounds: ArmRounds | None = None   # the arm's rounds (station/arm_rounds.py)
         self.finished = False     # resumed a session that was measured and exported
         self._quiet = False       # events shown, not appended (a finished session)
+        from drivers.atomic import check_output_folder   # the wizard's folder as run's
+
+        check_output_folder(self.out, "the session folder", (TRACE, PARAMS, REPORT, URDF),
+                            inputs=tuple(p for p in (config.source,) if p))
         self._lock = FolderLock(self.out).acquire()    # one session per folder
         try:
             resume.unstarted(self.trace_path)  # a header cut by a crash: nothing to resume
@@ -438,6 +454,7 @@ class Session:
         trace without a reference record resumes with the reference step)."""
         rig = self._rig()
         attempt = 0
+        first = None
         while True:
             try:
                 closed = device_loss.not_connected(rig)     # a reconnection that failed
@@ -445,10 +462,12 @@ class Session:
                     raise closed
                 return step(attempt)
             except DeviceError as e:
+                first = time.monotonic() if first is None else first
                 self._ensure_trace()
                 self._event("fault", f"{what}, attempt {attempt + 1}: "
                             f"{describe_error(e, self.units)}", device=e.device, step=what)
-                if attempt >= self.reference_retries:
+                if (attempt >= self.reference_retries
+                        and time.monotonic() - first >= self.retry_window):
                     self._raise_if_lost(rig, e)              # the device, or this step?
                     raise
                 attempt += 1

@@ -175,6 +175,18 @@ def summarize(records: list[dict], designs) -> dict:
     return out
 
 
+def _json_safe(v):
+    """``v`` with every NaN or infinity as None (JSON has neither: no calibration
+    succeeded, so there is no RMS)."""
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, dict):
+        return {k: _json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_json_safe(x) for x in v]
+    return v
+
+
 def format_summary(spec: StudySpec, summary: dict) -> str:
     lines = [f"study {spec.method} on {spec.robots} robots drawn around the nominal (gear "
              f"+-{spec.gear:.0%}, lengths +-{spec.length:.0%}, offsets +-{spec.offset:g}), "
@@ -256,9 +268,10 @@ def run_study(spec: StudySpec, out_dir, *, scheduler: str | None = None,
             cluster.close()
     records.sort(key=lambda r: (r["index"], spec.designs.index(r["design"])))
     summary = summarize(records, spec.designs)
-    doc = {"spec": spec_d, "summary": summary}
+    doc = {"spec": spec_d, "summary": _json_safe(summary)}
     write_atomic(out / "summary.json",
-                 (json.dumps(doc, indent=2, sort_keys=True) + "\n").encode("utf-8"))
+                 (json.dumps(doc, indent=2, sort_keys=True, allow_nan=False)
+                  + "\n").encode("utf-8"))
     return summary
 
 
@@ -286,14 +299,13 @@ def cli(args) -> int:
         if not (math.isfinite(v) and 0 <= v < (1 if name != "offset" else math.inf)):
             raise StationError(f"--{name} {v}: expected a tolerance >= 0"
                                + (" and < 1" if name != "offset" else ""))
+    from drivers.atomic import check_output_folder
+
+    check_output_folder(args.out, "the study folder (--out)", ("study.jsonl", "summary.json"))
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise StationError(f"--out {out}: exists and is not a folder")
-    if not out.parent.exists():
-        raise StationError(f"--out {out}: the folder {out.parent} does not exist")
     spec = StudySpec(method=args.method, robots=args.robots, designs=designs, count=args.count,
                      seed=args.seed, gear=args.gear, length=args.length, offset=args.offset,
-                     noise=parse_noise(args.noise))
+                     noise=parse_noise(args.noise, method=args.method))
     summary = run_study(spec, out, scheduler=args.scheduler, workers=args.workers)
     print(format_summary(spec, summary))
     print(f"results written to {out / 'study.jsonl'} and {out / 'summary.json'}")

@@ -115,6 +115,8 @@ class Trace:
                 channels[ch] = points_array([p[ch] for p in poses], self.n_markers)
                 continue
             channels[ch] = np.array([p[ch] for p in poses], dtype=float)
+            if ch == "distance":       # a draw-wire's certified scale (distance_scale)
+                channels[ch] = channels[ch] * self.distance_scale[0]
         group = None
         if any("group" in p for p in poses):
             group = np.array([p.get("group", -1) for p in poses])
@@ -123,6 +125,14 @@ class Trace:
         return MethodData(qm=qm, channels=channels, group=group, reference_qm=ref,
                           components=tuple(comps) if comps else None,
                           distance_zero=self.distance_zero)
+
+    @property
+    def distance_scale(self) -> tuple[float, float]:
+        """The draw-wire's scale ``(s, std)`` the readings are multiplied by (header
+        ``distance_scale``: a calibration certificate or a known reference length;
+        default exact 1): distance and tilt do not observe it (docs/methods.md)."""
+        d = self.header.get("distance_scale") or {}
+        return float(d.get("value", 1.0)), float(d.get("std", 0.0))
 
     @property
     def n_markers(self) -> int:

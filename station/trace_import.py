@@ -45,6 +45,25 @@ ANGLES = {"roll", "pitch", "yaw", "tilt_roll", "tilt_pitch"}
 USES = ("fit", "validation", "reference")
 
 
+def open_csv(src: str):
+    """``(raw bytes, header cells, row reader)`` of a CSV file; its errors name the file."""
+    try:
+        raw = Path(src).read_bytes()
+        text = raw.decode("utf-8-sig")
+    except OSError as e:
+        raise ConfigError(f"cannot read: {e.strerror or e}", source=src) from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"not UTF-8 text: {e}", source=src) from None
+    rows = csv.reader(io.StringIO(text))
+    try:
+        head = [c.strip() for c in next(rows)]
+    except StopIteration:
+        raise ConfigError("empty file: the first line must name the columns", source=src) from None
+    except csv.Error as e:
+        raise ConfigError(f"not a CSV file: {e}", source=f"{src}:1") from None
+    return raw, head, rows
+
+
 def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit="rad",
                sigma: dict | None = None) -> tuple[dict, dict | None, list[dict]]:
     """``(header, reference, poses)`` of the trace (see module doc)."""
@@ -58,18 +77,7 @@ def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit
     if length_unit not in LENGTH or angle_unit not in ANGLE:
         raise ConfigError(f"units must be {'/'.join(LENGTH)} and {'/'.join(ANGLE)}, not "
                           f"{length_unit!r}, {angle_unit!r}", source=src)
-    try:
-        raw = Path(src).read_bytes()
-        text = raw.decode("utf-8-sig")
-    except OSError as e:
-        raise ConfigError(f"cannot read: {e.strerror or e}", source=src) from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"not UTF-8 text: {e}", source=src) from None
-    rows = csv.reader(io.StringIO(text))
-    try:
-        head = [c.strip() for c in next(rows)]
-    except StopIteration:
-        raise ConfigError("empty file: the first line must name the columns", source=src) from None
+    raw, head, rows = open_csv(src)
     qcols = [f"qm{i}" for i in range(1, robot.n_actuators + 1)]
     need = qcols + [c for cols in COLUMNS[method].values() for c in cols]
     if method == "sm-self-redundancy":
@@ -114,7 +122,9 @@ def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit
         for i, (v, (lo, hi)) in enumerate(zip(qm, robot.limits), start=1):
             if not lo <= v <= hi:
                 raise ConfigError(f"column qm{i}: {v!r} is outside the joint's limits "
-                                  f"[{lo!r}, {hi!r}] of {Path(str(robot_path)).name}", source=where)
+                                  f"[{float(lo)!r}, {float(hi)!r}] of {Path(str(robot_path)).name} "
+                                  f"(actuator units: the robot file's limits and k)",
+                                  source=where)
         if use == "reference":
             if METHODS[method].reference is None:
                 raise ConfigError(f"{method} has no reference row", source=where)
@@ -125,6 +135,8 @@ def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit
         rec = {"index": len(poses), "qm": qm}
         for ch, cols in COLUMNS[method].items():
             vals = [num(c) * scale[c] for c in cols]
+            for c, v in zip(cols, vals):
+                _sensor_range(c, v, where, length_unit, angle_unit)
             rec[ch] = vals[0] if ch == "distance" else vals
         if method == "sm-self-redundancy":
             g = row[col["group"]].strip()
@@ -147,6 +159,34 @@ def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit
     if sigma:
         header["sigma"] = sigma
     return header, reference, poses
+
+
+# What the channels' sensors can read (SI): beyond it a reading is in another unit.
+DISTANCE_READS = (-0.01, 100.0)     # a draw-wire zeroed at the reference, m
+POSITION_READS = 100.0              # a tracker's range, m
+TILT_READS = (math.pi * (1 + 1e-9), math.pi / 2 * (1 + 1e-9))  # an inclinometer's roll, pitch
+ANGLE_READS = math.pi * (1 + 1e-9)  # roll, pitch, yaw, rad
+
+
+def _sensor_range(col: str, v: float, where: str, length_unit: str, angle_unit: str) -> None:
+    """A reading (SI) no sensor of its channel reads is an error naming its column
+    and the likely unit (the trace would only be refused later, by line number)."""
+    deg = " (are they in degrees? --angle-unit deg)" if angle_unit == "rad" else ""
+    mm = " (are they in mm? --length-unit mm)" if length_unit == "m" else ""
+    if col == "distance" and not DISTANCE_READS[0] <= v <= DISTANCE_READS[1]:
+        raise ConfigError(f"column distance: {v:.6g} m is not a distance a draw-wire zeroed "
+                          f"at the reference reads ({DISTANCE_READS[0]:g} to "
+                          f"{DISTANCE_READS[1]:g} m){mm if v > 0 else ''}", source=where)
+    if col in ("x", "y", "z") and abs(v) > POSITION_READS:
+        raise ConfigError(f"column {col}: {v:.6g} m is beyond a tracker's range "
+                          f"({POSITION_READS:g} m){mm}", source=where)
+    if col in ("tilt_roll", "tilt_pitch") and abs(v) > TILT_READS[col == "tilt_pitch"]:
+        raise ConfigError(f"column {col}: {v:.6g} rad is beyond what a dual-axis "
+                          f"inclinometer reads (roll +-180 deg, pitch +-90 deg){deg}",
+                          source=where)
+    if col in ("roll", "pitch", "yaw") and abs(v) > ANGLE_READS:
+        raise ConfigError(f"column {col}: {v:.6g} rad is not an angle of -pi..pi{deg}",
+                          source=where)
 
 
 def parse_sigma(items, channels) -> dict | None:

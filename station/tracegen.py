@@ -196,20 +196,41 @@ def generate_trace(path, method: str, truth_xi, **kw) -> None:
     write_trace(path, header, reference, poses)
 
 
-def parse_noise(items) -> dict:
+#: the noise channels of a method beyond its own (pm-tilt's two tilt axes by name)
+NOISE_ALIASES = {"pm-tilt": ("roll", "pitch")}
+
+
+def noise_channels(method: str) -> tuple[str, ...]:
+    """The channels ``--noise`` takes for ``method`` (its readings)."""
+    return tuple(METHODS[method].channels) + NOISE_ALIASES.get(method, ())
+
+
+def parse_noise(items, method: str | None = None, flag: str = "--noise") -> dict:
     """``CHANNEL=STD`` strings (``app.py trace generate --noise``) as a dict;
-    a malformed item is a :class:`ConfigError` naming it."""
+    a malformed item, a std that is not a finite number > 0, or a name that is no
+    channel of any method is a :class:`ConfigError` naming it (a channel ``method``
+    does not read is ignored, as a truth file's noise of the other channels is)."""
     out = {}
+    known = sorted({c for m in METHODS for c in noise_channels(m)})
     for item in items or ():
         k, eq, v = item.partition("=")
+        k = k.strip()
         try:
             std = float(v)
         except ValueError:
             std = math.nan
         if not (eq and k and math.isfinite(std) and std >= 0):
-            raise ConfigError(f"--noise {item!r}: expected CHANNEL=STD with a number >= 0, "
+            raise ConfigError(f"{flag} {item!r}: expected CHANNEL=STD with a number > 0, "
                               f"e.g. distance=1e-4")
-        out[k.strip()] = std
+        if std == 0:
+            raise ConfigError(f"{flag} {item!r}: a std of 0 is no noise at all; leave {k} out "
+                              "for noise-free readings")
+        if k not in known:
+            reads = (f"; {method} reads {', '.join(noise_channels(method)) or 'none'}"
+                     if method in METHODS else "")
+            raise ConfigError(f"{flag} {item!r}: unknown channel {k!r} (channels: "
+                              f"{', '.join(known)}{reads})")
+        out[k] = std
     return out
 
 
@@ -249,7 +270,7 @@ def generate_from_truth(path, method: str, *, truth: str | None = None, noise=()
         plane, mount, base_noise = t.plane, tuple(t.inclinometer_mount), dict(t.noise)
     else:
         xi = robot.true
-    noise = reading_noise(method, {**base_noise, **parse_noise(noise)})
+    noise = reading_noise(method, {**base_noise, **parse_noise(noise, method)})
     generate_trace(path, method, np.asarray(xi), noise=noise, seed=seed, count=count,
                    components=components, plane=plane, mount=mount, known=tuple(known),
                    design=design)

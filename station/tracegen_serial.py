@@ -181,15 +181,14 @@ def generate_command(args) -> str:
         if truth.spec is None or truth.spec.source["sha256"] != spec.source["sha256"]:
             raise CalibrationError(f"{args.truth}: the truth is not of the robot file {args.robot}")
         xi, mount, plane, noise = truth.xi(), truth.inclinometer_mount, truth.plane, dict(truth.noise)
+    from station.tracegen import parse_noise
+
     for item in args.noise or ():
-        k, _, v = item.partition("=")
+        k, v = next(iter(parse_noise([item], args.method).items()))
         if k not in NOISE:
             raise CalibrationError(f"--noise {item}: unknown channel {k!r} for a robot file "
                                    f"(known: {', '.join(NOISE)})")
-        try:
-            noise[k] = float(v)
-        except ValueError:
-            raise CalibrationError(f"--noise {item}: {v!r} is not a number") from None
+        noise[k] = v
     known = tuple(k for k in (args.known or "").split(",") if k)
     header, reference, poses = generate(robot, args.method, xi, noise=noise, seed=args.seed,
                                         count=args.count, mount=mount, plane=plane, known=known)

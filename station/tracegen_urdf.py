@@ -38,6 +38,19 @@ def draw_truth(robot, rng, *, shift=ORIGIN_SHIFT, turn=ORIGIN_TURN, zero=ZERO) -
     return x
 
 
+def draw_compliance(robot, x, rng, *, deflection: float = 2e-3) -> np.ndarray:
+    """``x`` with each joint's compliance drawn so that its largest gravity load over
+    the joint limits bends it by about ``deflection`` (rad; a prismatic joint m) times
+    0.5-1.5; a joint that carries no load keeps 0. The robot must be compliant."""
+    x = np.array(x, dtype=float)
+    qm = draw_poses(robot, 200, np.random.default_rng(0), margin=0.0)
+    tau = np.abs(robot.loads(qm)).max(axis=0)
+    for i, t in enumerate(tau, start=1):
+        if t > 1e-6:
+            x[robot.index(f"c{i}")] = deflection / t * rng.uniform(0.5, 1.5)
+    return x
+
+
 def draw_frame(rng, *, vertical_tilt_deg: float | None = None, distance: float = 2.5):
     """The robot's base link in the instrument's frame: ``(R (3, 3), t (3,))``. Any
     orientation, or (``vertical_tilt_deg``) the instrument's z within that angle of
@@ -223,12 +236,15 @@ def tracker_export(folder, robot, seed: int, *, fit: int = 60, held: int = 20,
     the horizontal, ``use`` fit/validation) and ``folder/map.toml`` (the joint map).
     Returns ``(truth x with the points, joint values (m, 6) rad, readings (m, M, 3) m)``.
     ``edit(qm)`` changes the drawn poses first; ``readings_override`` replaces the
-    simulated readings (same poses)."""
+    simulated readings (same poses). A compliant ``robot`` bends under gravity
+    (:func:`draw_compliance`)."""
     from pathlib import Path
 
     folder = Path(folder)
     rng = np.random.default_rng(seed)
     x = draw_truth(robot, rng)
+    if robot.spec.compliance:
+        x = draw_compliance(robot, x, rng)
     R, t = draw_frame(rng, vertical_tilt_deg=tilt)
     x = frame_parameters(robot, x, R, t)
     u = draw_points(rng, points)

@@ -62,7 +62,7 @@ def validation_errors(outcome: BatchOutcome) -> list[dict]:
                        max_before=float(np.abs(b).max()))
         else:
             rec.update(rms_before=None, max_before=None, note=before_note)
-        if hasattr(model, "point_errors"):
+        if hasattr(model, "point_errors") and k == 0:   # the points' 3D errors, once
             rec["points"] = point_record(model, trace.validation_poses, after,
                                          None if before is None else before)
         if outside and rp is not None:
@@ -95,13 +95,13 @@ def outside_fitted_range(trace, fit_model, qm_heldout) -> dict:
     robot = trace.robot_model()
     label = getattr(robot, "joint_label", lambda i: f"joint {i}")
     out = {}
-    for i, q in enumerate(np.asarray(qm_heldout, dtype=float)):
-        bad = np.flatnonzero((q < lo - tol) | (q > hi + tol))
+    for i, pose in enumerate(np.asarray(qm_heldout, dtype=float)):
+        bad = np.flatnonzero((pose < lo - tol) | (pose > hi + tol))
         if bad.size:
             j = int(bad[0])
-            edge = lo[j] if q[j] < lo[j] else hi[j]
-            out[i] = (f"{label(j + 1)} {q[j]:.4g} beyond the fitted "
-                      f"{'minimum' if q[j] < lo[j] else 'maximum'} {edge:.4g}")
+            edge = lo[j] if pose[j] < lo[j] else hi[j]
+            out[i] = (f"{label(j + 1)} {pose[j]:.4g} beyond the fitted "
+                      f"{'minimum' if pose[j] < lo[j] else 'maximum'} {edge:.4g}")
     return out
 
 

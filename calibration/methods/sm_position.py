@@ -9,6 +9,8 @@ with fixed ratios).
 """
 from __future__ import annotations
 
+import numpy as np
+
 from calibration.methods.base import RobotMethod, channel
 
 
@@ -20,6 +22,13 @@ class Position(RobotMethod):
         super().__init__(robot, qm, nominal)
         self.p_m = channel(measured, "position", self.method, shape=(3,))
         self._channels(("x", "y", "z"), [0, 1, 2])
+        # one point a pose: its 3D error is what an engineer reads (point_errors)
+        self.pose_of = np.arange(self.n_poses)
+        self.marker_of = np.zeros(self.n_poses, dtype=int)
+
+    def point_errors(self, r):
+        """3D distance of each pose's point from its prediction, from the residual ``r``."""
+        return np.linalg.norm(np.asarray(r, dtype=float).reshape(-1, 3), axis=1)
 
     def evaluate(self, x):
         # the chain's position rows only (no orientation rates to compute)

@@ -168,9 +168,15 @@ class SerialRobot(RobotModel):
         self.chain = build_chain(spec, self.param_names)
 
     # -- kinematics -------------------------------------------------------------------
+    def loads(self, qm):
+        """The loads ``tau (m, n)`` that bend the joints at ``qm`` (a compliant model:
+        :class:`calibration.robots.urdf.UrdfRobot`), else None."""
+        return None
+
     def frames(self, qm, xi) -> np.ndarray:
         """Tool frames ``T (m, 4, 4)`` in the base frame."""
-        return self.chain.fk(np.atleast_2d(np.asarray(qm, dtype=float)), xi)
+        qm = np.atleast_2d(np.asarray(qm, dtype=float))
+        return self.chain.fk(qm, xi, tau=self.loads(qm))
 
     def fk(self, qm, xi) -> np.ndarray:
         """``X (m, 6) = [x, y, z, roll, pitch, yaw]`` for ``qm (m, n)``."""
@@ -179,12 +185,13 @@ class SerialRobot(RobotModel):
 
     def spatial_jacobian(self, qm, xi):
         """``(T (m, 4, 4), Psi (m, 6, N))``: tool displacement ``[dp; dw]`` per parameter."""
-        return self.chain.jacobian(np.atleast_2d(np.asarray(qm, dtype=float)), xi)
+        qm = np.atleast_2d(np.asarray(qm, dtype=float))
+        return self.chain.jacobian(qm, xi, tau=self.loads(qm))
 
     def position_jacobian(self, qm, xi):
         """``(p (m, 3), dp/dxi (m, 3, N))`` (the chain's position rows only)."""
-        T, J = self.chain.jacobian(np.atleast_2d(np.asarray(qm, dtype=float)), xi,
-                                   position_only=True)
+        qm = np.atleast_2d(np.asarray(qm, dtype=float))
+        T, J = self.chain.jacobian(qm, xi, position_only=True, tau=self.loads(qm))
         return T[:, :3, 3], J
 
     def fk_jacobian(self, qm, xi):
@@ -224,7 +231,7 @@ class SerialRobot(RobotModel):
             e = p - T[:3, 3]
             if np.linalg.norm(e) < tol:
                 break
-            J = self.chain.joint_jacobian(q[None], xi)[0, :3] * k  # per actuator unit
+            J = self.chain.joint_jacobian(q[None], xi, self.loads(q[None]))[0, :3] * k
             q = q + np.linalg.lstsq(J, e, rcond=1e-10)[0]
         else:
             raise UnreachablePose(f"no pose of {self.name} puts the tool at {np.round(p, 4).tolist()} "

@@ -62,6 +62,8 @@ class UrdfJoint:
     origin:   ``(4, 4)`` this joint's own ``<origin>`` (what the export rewrites).
     axis:     unit vector of ``<axis>`` in the joint's frame.
     limits:   ``(lower, upper)`` of the joint value (rad or m; continuous: +-pi).
+    mass, com: what the joint carries up to the next movable joint, lumped (kg, and its
+              centre in the joint's child link frame, m): the load of a compliant model.
     """
 
     name: str
@@ -71,6 +73,8 @@ class UrdfJoint:
     axis: tuple[float, float, float]
     limits: tuple[float, float]
     continuous: bool = False
+    mass: float = 0.0
+    com: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -90,6 +94,8 @@ class UrdfSpec:
     tail: tuple
     fixed: tuple[str, ...] = ()
     source: dict | None = field(default=None, compare=False)
+    compliance: bool = False                  # joints bend under gravity: c{i} parameters
+    payload: tuple | None = None              # (mass kg, com (3,) in the tip link frame)
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -103,6 +109,8 @@ def urdf_layout(spec: UrdfSpec) -> list[tuple[str, float]]:
     out += [(name, 0.0) for name in BASE_FREE[3:]]
     out += [(f"q{i}_off", 0.0) for i in range(1, n + 1)]
     out += [(f"k{i}", 1.0) for i in range(1, n + 1)]
+    if spec.compliance:
+        out += [(f"c{i}", 0.0) for i in range(1, n + 1)]
     for i in range(1, n + 1):
         out += [(f"j{i}_{k}", 0.0) for k in DELTA_KEYS]
     return out
@@ -196,7 +204,9 @@ def build_urdf_chain(spec: UrdfSpec, names: tuple[str, ...]) -> Chain:
     n = len(spec.joints)
     return Chain(tuple(factors), len(names),
                  offset_idx=tuple(ix[f"q{i}_off"] for i in range(1, n + 1)),
-                 gain_idx=tuple(ix[f"k{i}"] for i in range(1, n + 1)))
+                 gain_idx=tuple(ix[f"k{i}"] for i in range(1, n + 1)),
+                 comp_idx=(tuple(ix[f"c{i}"] for i in range(1, n + 1)) if spec.compliance
+                           else ()))
 
 
 class UrdfRobot(SerialRobot):
@@ -213,15 +223,77 @@ class UrdfRobot(SerialRobot):
         self.n_actuators = len(spec.joints)
         self.limits = np.array([jt.limits for jt in spec.joints], dtype=float)
         self.chain = build_urdf_chain(spec, self.param_names)
+        self._loads_cache: dict = {}
 
     def warnings(self, xi, tol: float = 0.05) -> tuple[str, ...]:
         return ()
+
+    # -- compliance ----------------------------------------------------------------------
+    GRAVITY = 9.80665
+
+    def loads(self, qm):
+        """Gravity's torque about each joint's axis (N m; a prismatic joint: the force along
+        it, N) at ``qm (m, n)``, from what each joint carries (:class:`UrdfJoint`
+        ``mass``, ``com``; the payload on the tip), with the chain at its URDF geometry
+        and gravity along the base link's -z; None without compliance. The model bends
+        joint i by ``c{i} * tau_i``."""
+        if not self.spec.compliance:
+            return None
+        qm = np.atleast_2d(np.asarray(qm, dtype=float))
+        key = (qm.shape, qm.tobytes())
+        hit = self._loads_cache.get("key")
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        tau = self._loads(qm)
+        self._loads_cache["key"] = (key, tau)
+        return tau
+
+    def _loads(self, qm) -> np.ndarray:
+        xi = self.nominal.copy()               # URDF geometry, base link frame, no bending
+        _T, before = self.chain.frames(qm, xi)
+        motion = [j for j, f in enumerate(self.chain.factors) if f.joint is not None]
+        n, m = len(motion), qm.shape[0]
+        q = self.chain.joints(qm, xi)
+        axes, origins, coms, masses = [], [], [], []
+        pieces, tail = joint_pieces(self.spec)
+        for i, (jt, f) in enumerate(zip(self.spec.joints, motion)):
+            F = before[:, f]                   # the joint's aligned frame (z along its axis)
+            M = np.repeat(np.eye(4)[None], m, axis=0)
+            if jt.kind == "R":
+                c, s_ = np.cos(q[:, i]), np.sin(q[:, i])
+                M[:, 0, 0], M[:, 0, 1], M[:, 1, 0], M[:, 1, 1] = c, -s_, s_, c
+            else:
+                M[:, 2, 3] = q[:, i]
+            A = pieces[i][1]
+            child = F @ M @ A.T                # the joint's child link frame
+            com = np.asarray(jt.com, dtype=float)
+            mass = jt.mass
+            if i == n - 1 and self.spec.payload is not None:
+                pm, pc = self.spec.payload
+                p_tail = (np.asarray(tail) @ np.r_[pc, 1.0])[:3]
+                total = mass + pm
+                com = (mass * com + pm * p_tail) / total if total > 0 else com
+                mass = total
+            axes.append(F[:, :3, 2])
+            origins.append(F[:, :3, 3])
+            coms.append(child[:, :3, :3] @ com + child[:, :3, 3])
+            masses.append(mass)
+        g = np.array([0.0, 0.0, -self.GRAVITY])
+        tau = np.zeros((m, n))
+        for i, jt in enumerate(self.spec.joints):
+            if jt.kind == "R":
+                for b in range(i, n):
+                    r = coms[b] - origins[i]
+                    tau[:, i] += masses[b] * np.einsum("mk,mk->m", axes[i], np.cross(r, g))
+            else:
+                tau[:, i] = sum(masses[b] for b in range(i, n)) * (axes[i] @ g)
+        return tau
 
     def held_reason(self, name: str) -> str:
         """Why a held parameter is held (the batch table's label)."""
         if name in BASE_HELD:
             return "the instrument frame's estimated turn; base_rx, base_ry, base_rz correct it"
-        if name.startswith("k"):
+        if name.startswith("k") and name[1:].isdigit():
             return "a URDF joint has no transmission ratio"
         return "fixed"
 

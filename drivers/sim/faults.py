@@ -57,18 +57,16 @@ class FaultPlan:
             return self._rng.random() < p
 
     def update(self, **changes) -> None:
-        """Change fields by name (from the control port or a test)."""
+        """Change fields by name (from the control port or a test). Every value is
+        checked before any is set (:func:`checked`): a bad one is a ValueError naming
+        its key, and the plan is left as it was; a device thread never meets it."""
         names = {f.name for f in fields(self)}
+        for k in changes:
+            if k not in names or k == "seed":
+                raise KeyError(f"unknown fault {k!r} (known: {', '.join(sorted(names - {'seed'}))})")
+        values = {k: checked(k, v) for k, v in changes.items()}
         with self._lock:
-            for k, v in changes.items():
-                if k not in names or k == "seed":
-                    raise KeyError(f"unknown fault {k!r} (known: {', '.join(sorted(names - {'seed'}))})")
-                if k == "silent_nodes":
-                    v = set(int(x) for x in v)
-                if k in ("drawwire_unanswered", "drawwire_answer_first"):
-                    if isinstance(v, bool) or int(v) != v or v < 0:
-                        raise ValueError(f"{k} is a count of requests (0 or more), not {v!r}")
-                    v = int(v)
+            for k, v in values.items():
                 setattr(self, k, v)
 
     def drawwire_answers(self) -> bool:
@@ -92,3 +90,49 @@ class FaultPlan:
     def as_dict(self) -> dict:
         return {f.name: (sorted(getattr(self, f.name)) if f.name == "silent_nodes"
                          else getattr(self, f.name)) for f in fields(self)}
+
+
+#: the most a fault may delay an answer or lag a sensor (s): longer is a device gone
+MAX_DELAY_S = 60.0
+#: the range of each fault field: (kind, low, high)
+RANGES = {"drop_prob": ("probability", 0.0, 1.0), "corrupt_prob": ("probability", 0.0, 1.0),
+          "late_s": ("seconds", 0.0, MAX_DELAY_S),
+          "inclinometer_lag_s": ("seconds", 0.0, MAX_DELAY_S),
+          "drive_fault_node": ("node", 0, 127), "modbus_exception": ("code", 0, 255),
+          "drawwire_unanswered": ("count", 0, 10 ** 9),
+          "drawwire_answer_first": ("count", 0, 10 ** 9)}
+FLAGS = ("inclinometer_silent", "drawwire_down")
+
+
+def checked(key: str, value):
+    """``value`` of fault ``key`` as the plan holds it, or a ValueError naming the key
+    and what it takes (a probability of 0..1, seconds of 0..60, a node id, a count,
+    true/false, a list of node ids)."""
+    def bad(what):
+        return ValueError(f"fault {key}: {value!r} is not {what}")
+
+    if key == "silent_nodes":
+        if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):
+            raise bad("a list of node ids (1..127)")
+        nodes = list(value)
+        if any(isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 127
+               for n in nodes):
+            raise bad("a list of node ids (1..127)")
+        return set(nodes)
+    if key in FLAGS:
+        if not isinstance(value, bool):
+            raise bad("true or false")
+        return value
+    kind, lo, hi = RANGES[key]
+    if kind in ("probability", "seconds"):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not lo <= value <= hi:       # NaN fails too
+            raise bad(f"a number of {kind} from {lo:g} to {hi:g}")
+        return float(value)
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        what = {"node": "a node id (0: none, 1..127)", "code": "a Modbus exception code "
+                "(0: none, 1..255)", "count": "a count of requests (0 or more)"}[kind]
+        raise bad(what)
+    return value

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import os
 import random
@@ -29,6 +30,8 @@ from collections.abc import Callable
 from drivers.inclinometer import accel_frame, angles_frame
 from drivers.sim.faults import FaultPlan
 
+
+log = logging.getLogger(__name__)
 
 class SimInclinometer:
     """A pty that streams inclinometer frames.
@@ -115,20 +118,26 @@ class SimInclinometer:
 
     def _run(self) -> None:
         while not self._stop.wait(self.period):
-            self._accept()
-            if self.faults.inclinometer_silent:
-                continue
-            data = self._frames()
             try:
-                os.write(self._master, data)
-            except BlockingIOError:
-                pass                           # nobody reads: a real sensor talks on anyway
-            for c in list(self._clients):
-                try:
-                    c.sendall(data)
-                except OSError:
-                    self._clients.remove(c)
-                    c.close()
+                self._tick()
+            except Exception:        # a sensor talks on: one bad tick never ends the thread
+                log.exception("simulated inclinometer: a frame failed")
+
+    def _tick(self) -> None:
+        self._accept()
+        if self.faults.inclinometer_silent:
+            return
+        data = self._frames()
+        try:
+            os.write(self._master, data)
+        except BlockingIOError:
+            pass                           # nobody reads: a real sensor talks on anyway
+        for c in list(self._clients):
+            try:
+                c.sendall(data)
+            except OSError:
+                self._clients.remove(c)
+                c.close()
 
     def _accept(self) -> None:
         if self._listener is None:

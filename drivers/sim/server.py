@@ -52,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from calibration.errors import ConfigError
+from calibration.errors import ConfigError, StationError
 from drivers.atomic import write_atomic
 from drivers.config import StationConfig, load_station_config
 from drivers.drawwire import WORD_ORDER
@@ -202,9 +202,13 @@ class SimStation:
         if self.drawwire is not None and ("faults" in cmd or cmd.get("clear")):
             self.drawwire.apply_faults()
         if "move" in cmd:
-            qm = np.asarray(cmd["move"], dtype=float)
-            if qm.shape != (len(self.robot.axes),):
-                raise ValueError(f"move: need {len(self.robot.axes)} actuator values")
+            try:
+                qm = np.asarray(cmd["move"], dtype=float)
+            except (TypeError, ValueError):
+                qm = np.full(1, np.nan)
+            if qm.shape != (len(self.robot.axes),) or not np.all(np.isfinite(qm)):
+                raise ValueError(f"move: need {len(self.robot.axes)} actuator values (finite "
+                                 f"numbers), not {str(cmd['move'])[:60]}")
             self.robot.move_to(qm)
         if cmd.get("drop_drawwire") and self.drawwire is not None:
             self.drawwire.drop_connections()
@@ -247,6 +251,8 @@ class _ControlHandler(socketserver.StreamRequestHandler):
                 continue
             try:
                 answer = self.server.station.command(json.loads(line))
+            except (ValueError, KeyError, TypeError) as e:   # a bad command: its answer
+                answer = {"error": f"{type(e).__name__}: {e}"}
             except Exception as e:  # any failure is an answer, never a dropped connection
                 log.exception("control command %r failed", line)
                 answer = {"error": f"{type(e).__name__}: {e}"}
@@ -340,9 +346,13 @@ def load_sim_config(robot: str, config: str | None = None) -> StationConfig:
 
 def main(args: argparse.Namespace) -> int:
     """``app.py simulate``: start, print endpoints, run until SIGINT/SIGTERM."""
-    if args.endpoints and not Path(args.endpoints).parent.is_dir():
-        raise ConfigError(f"--endpoints {args.endpoints}: the folder "
-                          f"{Path(args.endpoints).parent} does not exist")
+    if args.endpoints is not None:     # before the devices start: never over an input
+        from drivers.atomic import check_outputs
+
+        check_outputs((args.endpoints, "the endpoints file (--endpoints)"),
+                      inputs=tuple(p for p in (args.truth, args.config,
+                                               args.robot if is_robot_file(args.robot)
+                                               else None) if p))
     station = build(args.robot, args.truth, args.config, seed=getattr(args, "seed", None),
                     pose_noise=getattr(args, "pose_noise", False))
     stop = threading.Event()
@@ -379,6 +389,11 @@ def main(args: argparse.Namespace) -> int:
 
 
 __all__ = ["SimStation", "SimControl", "build", "main", "write_endpoints", "report_truth"]
+
+
+class SimulatorFailed(StationError, RuntimeError):
+    """The simulator process stopped before it started its devices (its one-line reason:
+    a truth file of another robot, a bad config, ...)."""
 
 
 class SimulatorProcess:
@@ -422,11 +437,8 @@ class SimulatorProcess:
         line = self.proc.stdout.readline()
         if not line:
             err = self.proc.stderr.read().decode(errors="replace").strip().splitlines()
-            last = err[-1] if err else ""
-            if last.startswith("error: "):      # a user's mistake, said in one line
-                raise ConfigError(f"the simulator did not start: {last[7:]}")
-            raise DeviceError("exited at its start: " + (last or f"code {self.proc.wait()}"),
-                              device="simulator")
+            last = err[-1] if err else f"code {self.proc.wait()}"
+            raise SimulatorFailed("the simulator did not start: " + last.removeprefix("error: "))
         return json.loads(line)
 
     @property

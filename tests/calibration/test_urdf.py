@@ -162,3 +162,62 @@ def test_scale_and_mirror_are_what_a_person_checks_first():
     flipped[..., 0] *= -1
     _s, proper_f, mirrored_f = scale_and_mirror(rob, qm, flipped, rob.nominal)
     assert mirrored_f < proper_f / 10 and mirrored_f < 0.02
+
+
+def compliant_arm(payload=None):
+    from drivers.urdf_file import parse_urdf
+
+    return get_robot(parse_urdf(URDF.read_text(), str(URDF), "base_link", "tool0",
+                                compliance=True, payload=payload))
+
+
+def test_gravity_loads_are_the_potential_energy_s_slope():
+    """tau_i = -dV/dq_i, V the links' and the payload's potential energy in gravity along
+    the base link's -z (checked against the centres of mass moved by finite steps)."""
+    rob = compliant_arm({"mass": 2.0, "com": [0.05, 0.0, 0.1]})
+    qm = tg.draw_poses(rob, 4, np.random.default_rng(2), margin=0.0)
+    tau = rob.loads(qm)
+
+    # potential of the lumped bodies, each body carried rigidly by its joint's child frame
+    from calibration.robots.urdf import joint_pieces
+
+    pieces, tail = joint_pieces(rob.spec)
+    motion = [j for j, f in enumerate(rob.chain.factors) if f.joint is not None]
+
+    def V(q):
+        _T, before = rob.chain.frames(q[None], rob.nominal)
+        total = 0.0
+        for i, (jt, f) in enumerate(zip(rob.spec.joints, motion)):
+            M = np.eye(4)
+            c, s = np.cos(q[i]), np.sin(q[i])
+            M[:2, :2] = [[c, -s], [s, c]]
+            child = before[0, f] @ M @ pieces[i][1].T
+            com, mass = np.asarray(jt.com), jt.mass
+            if i == len(motion) - 1:
+                pm, pc = rob.spec.payload
+                com = (mass * com + pm * (np.asarray(tail) @ np.r_[pc, 1.0])[:3]) / (mass + pm)
+                mass += pm
+            total += mass * rob.GRAVITY * (child[:3, :3] @ com + child[:3, 3])[2]
+        return total
+
+    h = 1e-6
+    for q, t in zip(qm, tau):
+        fd = [-(V(q + h * e) - V(q - h * e)) / (2 * h) for e in np.eye(6)]
+        assert np.abs(np.array(fd) - t).max() < 1e-6 * max(1.0, np.abs(t).max())
+    assert abs(tau[:, 0]).max() < 1e-9          # joint 1's axis is vertical: no torque
+
+
+def test_compliance_columns_match_finite_differences():
+    rob = compliant_arm()
+    rng = np.random.default_rng(3)
+    x = tg.draw_compliance(rob, tg.draw_truth(rob, rng), rng)
+    qm = tg.draw_poses(rob, 6, rng)
+    u = tg.draw_points(rng, 2)
+    P = tg.readings(rob, x, u, qm, rng, 0.0)
+    xs = np.r_[x, u.reshape(-1)]
+    model = build("sm-markers", rob, MethodData(qm=qm, channels={"markers": P}), xs)
+    W = model.evaluate(xs)[1]
+    Jn = _fd(model, xs, h=1e-8)
+    for i in range(1, 7):
+        j = model.names.index(f"c{i}")
+        assert np.linalg.norm(W[:, j] - Jn[:, j]) <= 1e-6 * max(np.linalg.norm(Jn[:, j]), 1.0)

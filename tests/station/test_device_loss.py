@@ -271,3 +271,36 @@ def test_a_fault_at_the_wrist_s_start_step_is_retried(tmp_path, quick_retries):
     assert poses and s.plan_poses == poses
     trace = read_trace(tmp_path / "run" / "trace.jsonl")
     assert [e["kind"] for e in trace.events][:3] == ["fault", "retry", "info"]
+
+
+@pytest.mark.slow
+def test_a_node_answering_late_for_a_while_is_ridden_out_within_the_retry_window(tmp_path):
+    """Every CAN frame 1.5 s late for 8 s (the SDO timeout is 0.5 s): the default three
+    retries would give the node up as lost; the station config's ``[session]
+    retry_window = 30`` retries the pose until the node answers in time again, and
+    the session measures every pose."""
+    import dataclasses
+
+    cfg = fast_config(tmp_path, "agebot-sm")
+    with SimulatorProcess("agebot-sm", config=str(cfg), seed=9) as sim:
+        config = _session_config(sim, cfg)
+        config = dataclasses.replace(config, session=dataclasses.replace(config.session,
+                                                                        retry_window=30.0))
+        with sim.control() as ctl:
+            done = []
+
+            def observer(kind, payload):
+                if kind == "progress" and payload.readings and payload.done == 2 and not done:
+                    done.append(ctl.call(faults={"late_s": 1.5}))
+                    threading.Timer(8.0, lambda: ctl.call(faults={"late_s": 0.0})).start()
+
+            with Session(config, "sm-distance-tilt", tmp_path / "run", request=REQUEST,
+                         observer=observer) as s:
+                s.connect()
+                s.move_to(s.reference_target()[0])
+                s.capture_reference()
+                s.plan()
+                s.execute()
+    kinds = [e["kind"] for e in s.events]
+    assert done and "retry" in kinds and "lost" not in kinds and "skip" not in kinds
+    assert len(s.measured) == 10

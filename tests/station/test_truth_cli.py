@@ -74,12 +74,12 @@ def test_truth_of_another_robot_refused_in_one_line(tmp_path):
     r = app("simulate", "--robot", "agebot-sm", "--truth", pm)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     # the simulator's process refusing to start is a one-line error for its caller too
-    from calibration.errors import ConfigError
+    from calibration.errors import StationError
     from drivers.sim.server import SimulatorProcess
 
     try:
         SimulatorProcess(HAYATI, truth=other)
-    except ConfigError as e:
+    except StationError as e:
         assert "the simulator did not start" in str(e) and "\n" not in str(e)
     else:
         raise AssertionError("started with a truth file of another robot")

@@ -252,3 +252,26 @@ def test_drawn_arms_seen_by_a_tracker_are_calibrated_within_their_std(tmp_path):
     print(f"RMS error/std {rms:.3f} over {z.size}; within 2 std {np.mean(np.abs(z) < 2):.1%}")
     assert passed == 20
     assert 0.8 < rms < 1.3 and np.mean(np.abs(z) < 2) > 0.9
+
+
+def test_a_tracker_s_single_reflector_is_reported_in_3d_mm(tmp_path, capsys):
+    """sm-position (one reflector, a robot file): held-out errors as 3D distances in mm,
+    judged once, not per axis in metres."""
+    rc, _o, err = run(capsys, "trace", "generate", "--robot", URDF.parent / "ur5-like-hayati.toml",
+                      "--method", "sm-position", "--noise", "position=1e-4", "--count", "50",
+                      "--out", tmp_path / "u.jsonl")
+    assert rc == 0, err
+    lines = (tmp_path / "u.jsonl").read_text().splitlines()
+    head = json.loads(lines[0])
+    head["nominal"] = {"d1": 0.0905, "a2": -0.424}      # a nominal the truth is not
+    lines[0] = json.dumps(head)
+    for i in range(41, 51):
+        p = json.loads(lines[i])
+        p["use"] = "validation"
+        lines[i] = json.dumps(p)
+    (tmp_path / "v.jsonl").write_text("\n".join(lines) + "\n")
+    rc, out, err = run(capsys, "batch", tmp_path / "v.jsonl", "--out", tmp_path / "p.json")
+    assert rc == 0, err
+    assert re.search(r"fit: points' 3D RMS 0\.1\d* mm", out), out
+    assert len(re.findall(r"validation: held-out points' 3D RMS went [\d.]+ -> 0\.\d+ mm", out)) == 1
+    assert "validation: x RMS" not in out
