@@ -8,6 +8,7 @@
     python app.py simulate --robot R [--truth FILE] [--endpoints FILE]
     python app.py devices check [--config FILE]
     python app.py run --simulate --robot R --method M [--truth FILE] --out DIR
+    python app.py truth draw --robot R --seed N --out TRUTH.json
     python app.py doctor               what this machine lacks, and how to install it
 
 Every command exits 0 on success and non-zero with a one-line reason on stderr
@@ -430,6 +431,10 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--out", required=True, help="folder for study.jsonl and summary.json")
     st.set_defaults(func=_delegate("station.study", "cli"))
 
+    from station.truth_cli import add_parser as add_truth_parser
+
+    add_truth_parser(sub)       # truth draw: a simulated robot around a nominal
+
     gui = sub.add_parser("gui", help="the operator's Qt wizard")
     gui.add_argument("--simulate", action="store_true")
     gui.add_argument("--config")
@@ -508,6 +513,9 @@ def main(argv=None) -> int:
         logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     if args.command is None:
         args = parser.parse_args(["gui", *(argv or [])])
+    # a warning for people is one line, without the source line that raised it
+    warnings.showwarning = lambda message, category, filename, lineno, file=None, line=None: \
+        print(f"warning: {_one_line(message)}", file=file or sys.stderr)
     try:
         _check_args(args)
         return int(args.func(args) or 0)

@@ -149,7 +149,8 @@ class CanopenNodes(Device):
         except DeviceError:
             raise
         except (can.CanError, OSError, ValueError, ImportError) as e:
-            raise DeviceError(f"cannot open CAN bus {self.bus_config}: {e}", device=self.name) from e
+            raise DeviceError(f"cannot open the CAN bus {_bus_text(self.bus_config)}: {e}",
+                              device=self.name) from e
         self.network = network
         try:
             for nid in self.nodes:
@@ -479,3 +480,13 @@ class CanopenNodes(Device):
         # "since": the SYNC's time; the values were latched between it and the sample's t
         return {"source": source, "sync": self._sync_no, "since": self._sync_t,
                 "increments": {n: v[pos] for n, v in fresh.items()}}
+
+
+def _bus_text(bus: dict) -> str:
+    """A CAN bus's settings for people: ``socketcand can0 at 127.0.0.1:29536``."""
+    b = dict(bus)
+    where = f"{b.pop('host')}:{b.pop('port')}" if "host" in b and "port" in b else ""
+    head = " ".join(str(b.pop(k)) for k in ("interface", "channel") if b.get(k) is not None)
+    rest = ", ".join(f"{k} {v}" for k, v in b.items() if v is not None and not isinstance(v, dict))
+    return " ".join(x for x in (head, f"at {where}" if where else "", f"({rest})" if rest else "")
+                    if x) or "(no settings)"

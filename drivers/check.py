@@ -29,7 +29,15 @@ HINTS = {
 }
 
 
-def hint_for(device: str) -> str:
+#: what to check where the devices are simulated (no cable to check)
+SIMULATED_HINT = ("the simulated devices' process stopped or does not answer: connect again "
+                  "(the wizard's Connect, or the same command) to start the simulator anew")
+
+
+def hint_for(device: str, simulated: bool = False) -> str:
+    """What to check when ``device`` does not answer (``simulated``: a simulator's)."""
+    if simulated:
+        return SIMULATED_HINT
     for key, text in HINTS.items():
         if device.startswith(key):
             return text

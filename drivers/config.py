@@ -11,7 +11,8 @@ errors, missing required keys are named. Layout (see
     [canopen]        interface, channel, host, port, nodes, increments_per_unit, ...
     [canopen.bus]    further python-can keyword arguments (bitrate, ...)
     [inclinometer]   port (device or pyserial URL), baudrate, timeout
-    [inclinometer.axes]  channel = { raw = "pitch", sign = 1, offset_rad = 0.0 }
+    [inclinometer.axes]  channel = { raw = "pitch", sign = 1, offset_rad = 0.0, range_rad = 1.05 }
+                     (range_rad optional: the sensor reads |value| up to it)
     [drawwire]       mode "tcp" | "rtu", host/port or serial_port, device_id, ...
     [snapshot]       samples, period, settle, timeout
     [snapshot.std_limits] / [snapshot.drift_limits] / [snapshot.noise_floor]
@@ -34,6 +35,7 @@ endpoints merge in :mod:`drivers.endpoints` (:func:`with_endpoints`,
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,11 +106,14 @@ class CanopenConfig:
 
 @dataclass(frozen=True)
 class AxisMap:
-    """One inclinometer output channel: ``value = sign * raw_axis + offset_rad`` (rad)."""
+    """One inclinometer output channel: ``value = sign * raw_axis + offset_rad`` (rad);
+    ``range_rad``: the sensor reads ``|value|`` up to this (None: not stated), so the
+    station plans no pose, and records none, beyond it."""
 
     raw: str
     sign: float = 1.0
     offset_rad: float = 0.0
+    range_rad: float | None = None
 
 
 @dataclass(frozen=True)
@@ -363,7 +368,9 @@ def _inclinometer(r: KeyReader, unresolved: list[str]) -> InclinometerConfig:
         if sign not in (1.0, -1.0):
             a.fail("sign", "expected 1 or -1")
         axes[ch] = AxisMap(raw=a.choice("raw", RAW_AXES), sign=sign,
-                           offset_rad=a.float("offset_rad", default=0.0))
+                           offset_rad=a.float("offset_rad", default=0.0),
+                           range_rad=a.float("range_rad", default=None, lo=0.0, hi=math.pi,
+                                             lo_open=True))
         a.finish()
     if not axes:
         r.fail("axes", "map at least one channel (tilt, roll, pitch or yaw)")

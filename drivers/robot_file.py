@@ -20,6 +20,13 @@ from drivers.config_reader import KeyReader, decode_text, parse_toml
 
 FORMAT = "calstation-robot"
 VERSION = 1
+# an R joint's angle at its limits beyond two turns each way (and a little): written in
+# degrees (a real joint turns at most +-720 deg, e.g. a wrist's last axis)
+MAX_TURN_RAD = 4 * math.pi * 1.01
+
+
+def _num(v: float) -> str:
+    return f"{v:g}"
 
 
 #: the largest length (m) and angle (rad) a robot file may give, and the range of a
@@ -73,9 +80,16 @@ def _joint(j: KeyReader, i: int) -> JointSpec:
     if max(abs(lim[0]), abs(lim[1])) > MAX_LIMIT:
         j.fail("limits", f"{list(lim)}: actuator limits are within +-{MAX_LIMIT:g} (actuator "
                          "units)")
+    offset = _bounded(j, "offset", 0.0, kind == "P")
+    if kind == "R" and max(abs(k * v + offset) for v in lim) > MAX_TURN_RAD:
+        rad = ", ".join(f"{math.radians(v):.4g}" for v in lim)
+        j.fail("limits", f"{_num(lim[0])}, {_num(lim[1])} look like degrees: an R joint's "
+                         f"limits are actuator values qm, its angle k * qm + offset in rad "
+                         f"(here up to {max(abs(k * v + offset) for v in lim):.4g} rad, more "
+                         f"than two turns); in radians: [{rad}]")
     spec = JointSpec(kind=kind, d=d, theta=theta, a=_bounded(j, "a", 0.0, True),
                      alpha=_bounded(j, "alpha", 0.0, False), beta=beta, k=k,
-                     offset=_bounded(j, "offset", 0.0, kind == "P"), limits=tuple(lim))
+                     offset=offset, limits=tuple(lim))
     j.finish()
     return spec
 

@@ -520,8 +520,12 @@ def scale_note(outcome: BatchOutcome) -> list[str]:
 def format_table(outcome: BatchOutcome) -> str:
     """The parameter table (nominal, calibrated, std, identifiability) and fit figures."""
     res, model = outcome.result, outcome.model
-    lines = [f"{'parameter':<10}{'start':>13}{'calibrated':>13}{'std':>13}  identifiability",
-             "-" * 72]
+    from station.report import param_units    # numbers for people: mm and degrees
+    from station.units import MM_DEG, channel_si
+
+    units, si = MM_DEG, param_units(outcome.trace)
+    lines = [f"{'parameter':<10}{'unit':<6}{'start':>13}{'calibrated':>13}{'std':>13}"
+             "  identifiability", "-" * 78]
     held = getattr(model.robot, "held_reason", lambda _n: "the robot file's fixed")
     absorbs = absorbed_names(outcome)
     width = max([10] + [len(n) + 1 for n in res.names])
@@ -535,14 +539,19 @@ def format_table(outcome: BatchOutcome) -> str:
             hs = absorbs[name]
             label += ("; with " + ", ".join(hs[:4]) + (f" and {len(hs) - 4} more" if len(hs) > 4
                                                         else "") + " held: a combination")
-        lines.append(f"{name:<{width}}{_fmt(outcome.nominal[j])}{_fmt(res.x[j])}{_fmt(std)}  {label}")
+        u = si.get(name, "")
+
+        def shown(v, u=u):
+            return None if v is None else units.value(v, u)
+        lines.append(f"{name:<{width}}{units.label(u) or '1':<6}{_fmt(shown(outcome.nominal[j]))}"
+                     f"{_fmt(shown(res.x[j]))}{_fmt(shown(std))}  {label}")
     need = ident.minimum_poses(res.n_identifiable, model.p)
-    lines.append("-" * 72)
+    lines.append("-" * 78)
     lines.append(f"method {res.method}: {res.message}")
     lines.append(f"identifiable {res.n_identifiable} of {len(res.names)}; poses {model.n_poses} "
                  f"(eq. 60 recommends >= {need}); condition number {res.condition_number:.4g}")
-    sig = ", ".join(f"{k} {v:.4g}" for k, v in res.sigma.items())
-    rms = ", ".join(f"{k} {v:.4g}" for k, v in res.residual_rms.items())
+    sig = ", ".join(f"{k} {units.text(v, channel_si(k))}" for k, v in res.sigma.items())
+    rms = ", ".join(f"{k} {units.text(v, channel_si(k))}" for k, v in res.residual_rms.items())
     lines.append(f"sigma ({'from the trace' if res.sigma_known else 'estimated, eq. 51'}): {sig}")
     lines.append(f"residual RMS: {rms}")
     pts = fit_point_errors(outcome)
@@ -562,6 +571,9 @@ def format_table(outcome: BatchOutcome) -> str:
     if outcome.trace.method == "sm-distance-tilt" and "robot_file" not in outcome.trace.header:
         lines.append("note: theta0, a0 and q1_off refer to the captured base origin")
     lines.extend(scale_note(outcome))
+    if any(si.get(n, "").endswith("/u") for n in res.names):
+        lines.append("unit u: the actuator unit of qm (the drives' position unit: "
+                     "[canopen] increments_per_unit of the station config)")
     if outcome.quality is not None:
         lines.extend(outcome.quality.lines())
     c = outcome.comparison

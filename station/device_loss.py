@@ -23,13 +23,13 @@ BACKOFF_S = (0.25, 0.5, 1.0, 2.0)      # pauses before retries 1, 2, 3, 4 (then 
 class DeviceLost(StationError):
     """A device stopped answering for good; ``device`` names it."""
 
-    def __init__(self, error: DeviceError):
+    def __init__(self, error: DeviceError, simulated: bool = False):
         self.device = error.device or "a device"
         self.error = error
         detail = str(error)
         if error.device and detail.startswith(f"{error.device}: "):
             detail = detail[len(error.device) + 2:]
-        super().__init__(f"{self.device} does not answer ({detail}): {hint_for(self.device)}. "
+        super().__init__(f"{self.device} does not answer ({detail}): {hint_for(self.device, simulated)}. "
                          "The session stopped; the trace is intact: once the device answers "
                          "again, run the session again to measure the remaining poses")
 
@@ -55,17 +55,17 @@ def _device(rig, name: str | None):
     return None
 
 
-def probe(rig, error: DeviceError) -> DeviceLost | None:
+def probe(rig, error: DeviceError, simulated: bool = False) -> DeviceLost | None:
     """After a pose failed with ``error``: recover the rig and read the failing device
     (every device when the error names none). None if it answers, else DeviceLost."""
     try:
         rig.recover()
     except DeviceError as e:
-        return DeviceLost(e)
+        return DeviceLost(e, simulated)
     dev = _device(rig, error.device)
     try:
         for d in [dev] if dev is not None else rig.devices:
             d.read()
     except DeviceError as e:
-        return DeviceLost(e)
+        return DeviceLost(e, simulated)
     return None

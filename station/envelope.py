@@ -95,8 +95,8 @@ def departures(readings: Mapping[str, float], predicted, tolerance: Mapping[str,
         preds = {ch: np.array([float(p[ch]) for p in predicted]) for ch in predicted[0]}
     out = {}
     for ch, p in preds.items():
-        if ch not in tolerance or ch not in readings:
-            continue
+        if ch not in tolerance or ch not in readings or not np.all(np.isfinite(p)):
+            continue      # not predicted here (NaN: beyond the sensor's range, unreadable)
         v = float(readings[ch])
         if ch in ANGLE_CHANNELS:          # relative to the first prediction, the short way
             rel = _wrap(p - p[0])

@@ -436,7 +436,8 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
         verdict = "fit" if c["ok"] else "do not fit"
         quality.check("noise", c["ok"],
                       f"noise: {c['channel']} residuals {verdict} the stated sigma "
-                      f"{c['stated_sigma']:.3g} (fitted {c['fitted_sigma']:.3g}, "
+                      f"{_people(c['stated_sigma'], c['channel'])} (fitted "
+                      f"{_people(c['fitted_sigma'], c['channel'])}, "
                       f"{c['ratio']:.3g} times; chi-square {c['chi2']:.4g} on {c['dof']:.1f} "
                       f"degrees of freedom, p = {c['p']:.2g})",
                       **{k: c[k] for k in ("channel", "stated_sigma", "fitted_sigma", "ratio",
@@ -470,8 +471,9 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
                         f"{pts['n']} points of {pts['poses']} poses)")
             else:
                 text = (f"validation: {v['channel']} RMS on {v['n']} held-out rows "
-                        f"{'went' if ok else 'is worse than the start:'} {before:.4g} -> "
-                        f"{after:.4g} {v['unit']}")
+                        f"{'went' if ok else 'is worse than the start:'} "
+                        f"{_people(before, v['channel'], v['unit'])} -> "
+                        f"{_people(after, v['channel'], v['unit'])}")
             extra = {"points": dict(pts)} if pts else {}
             quality.check("validation", ok, text, channel=v["channel"], rms_before=before,
                           rms_after=after, **extra)
@@ -508,6 +510,13 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
                               "does not predict; check that pose's reading",
                               channel=v["channel"], heldout=dict(o))
     return quality, trace, model, result, validation
+
+
+def _people(v, channel: str, si: str | None = None) -> str:
+    """A channel's figure for people: mm and degrees with the unit (station.units)."""
+    from station.units import MM_DEG, channel_si
+
+    return MM_DEG.text(v, si if si is not None else channel_si(channel), ".4g")
 
 
 def mm(v) -> str:

@@ -20,6 +20,7 @@ import json
 import math
 import shlex
 import sys
+import warnings
 from pathlib import Path
 
 from calibration.errors import ConfigError
@@ -141,12 +142,22 @@ def simulated_station(robot: str, truth: str | None, sim_seed: int | None):
     from drivers.sim.serial_robot import is_robot_file
     from drivers.sim.server import default_truth_path
 
+    from drivers.sim.server import truth_of
+
     if is_robot_file(robot) and not truth:
         raise ConfigError(f"a simulated {robot} needs --truth: a truth file of the "
-                          "robot file (what the simulated arm really is)")
+                          "robot file (what the simulated arm really is); draw one with: "
+                          f"{draw_command(robot)}")
+    truth_of(robot, truth)          # of this robot: refused here in one line
     truth = str(truth or default_truth_path(robot))
     seed = simulator_seed(truth, sim_seed)
     return truth, seed, {"simulator": {"truth": truth, "seed": seed, "pose_noise": True}}
+
+
+def draw_command(robot: str) -> str:
+    """The command line that draws a truth file around ``robot`` (``app.py truth draw``)."""
+    return shlex.join(["python", "app.py", "truth", "draw", "--robot", robot, "--seed", "1",
+                       "--out", "truth.json"])
 
 
 def simulator_seed(truth: str, given: int | None) -> int:
@@ -237,7 +248,7 @@ def _recorded_poses(path: Path) -> int:
 
 def _session(config, method, out, request, nominal, touch, measured, station, progress,
              units, accept=False) -> int:
-    from station.batch import format_table
+    from station.batch import ConditioningWarning, format_table
 
     with Session(config, method, out, request=request, observer=progress,
                  nominal=nominal, touch=touch, station=station,
@@ -256,7 +267,10 @@ def _session(config, method, out, request, nominal, touch, measured, station, pr
         if touch is not None:
             print("guided touching by the simulated operator (it watches the contact through "
                   "the simulator's control port)", flush=True)
-        files = s.run()
+        with warnings.catch_warnings():
+            # said once, as the table's note (station.batch.format_table)
+            warnings.simplefilter("ignore", ConditioningWarning)
+            files = s.run()
         print()
         print(format_table(s.outcome))
         held = "pairs" if method == "sm-self-redundancy" else "poses"

@@ -90,12 +90,17 @@ def _read(rig) -> dict:
 
 def check_reference(session) -> str | None:
     """At the reference, before its record: zero the draw-wire, read, make a small
-    test move, read, move back. Raises ConfigError naming what to check; returns the
-    findings in words (None when the method reads neither distance nor tilt)."""
+    test move, read, move back; then the joints' directions (:func:`check_directions`).
+    Raises ConfigError naming what to check; returns the findings in words (None when
+    the method reads neither distance nor tilt)."""
     rig, robot, cfg = session.rig, session.robot, session.config
     distance = "distance" in session.info.channels and rig.drawwire is not None
     tilt = session.method == "sm-distance-tilt"
-    if not (distance or tilt) or robot.name != "agebot-sm" or not rig.can_move:
+    if not (distance or tilt) or not rig.can_move:
+        return None
+    if session.serial:
+        return check_serial_reference(session, distance, tilt)
+    if robot.name != "agebot-sm":
         return None
     q0 = np.array(rig.qm(), dtype=float)
     if distance:
@@ -140,7 +145,215 @@ def check_reference(session) -> str | None:
                             "(raw axis, sign)")
     if problems:
         raise ConfigError("; ".join(problems) + " (nothing was recorded)", source=cfg.source)
+    if distance:
+        said.append(check_directions(session, q0))
     return "plausible at the reference: a test move read " + ", ".join(said)
+
+
+def _position_jacobian(robot, xi, q0) -> np.ndarray:
+    """``(n, 3)``: row i the tool origin's velocity per unit of actuator i (FK steps)."""
+    n = robot.n_actuators
+    h = 1e-4
+    p0 = robot.fk(np.atleast_2d(q0), xi)[0, :3]
+    return np.array([(robot.fk(np.atleast_2d(q0 + h * np.eye(n)[i]), xi)[0, :3] - p0) / h
+                     for i in range(n)])
+
+
+def _direction_pairs(J) -> list[tuple[int, int]]:
+    """Pairs ``(r, i)`` of actuators whose tool velocities are far from perpendicular
+    (|cos| >= 0.3) and not small, each actuator once as ``i``: moving ``r`` with
+    ``+i`` and with ``-i`` then gives two distances that differ by its direction."""
+    speed = np.linalg.norm(J, axis=1)
+    moving = [int(i) for i in np.argsort(-speed) if speed[i] > 0.05 * speed.max() > 0]
+    cos = np.abs(J @ J.T) / np.maximum(np.outer(speed, speed), 1e-300)
+    pairs: list[tuple[int, int]] = []
+    known: list[int] = []
+    while len(known) < len(moving):
+        links = [(cos[r, i], r, i) for r in known for i in moving if i not in known]
+        best = max(links, default=(0.0, -1, -1))
+        if best[0] >= 0.3:            # the most telling pair from the joints linked so far
+            pairs.append((best[1], best[2]))
+            known.append(best[2])
+        else:                         # none: the fastest joint left starts a new group
+            known.append(next(i for i in moving if i not in known))
+    return pairs
+
+
+def direction_moves(robot, xi, q0) -> list[tuple[int, int, tuple, tuple]]:
+    """The moves of :func:`check_directions` at ``q0`` (model ``xi``): ``(r, i, (dq+,
+    dq-), (distance+, distance-))`` for each pair of :func:`_direction_pairs` whose two
+    predicted distances differ enough to be told apart (each move reads the draw-wire
+    once)."""
+    q0 = np.asarray(q0, dtype=float)
+    J = _position_jacobian(robot, xi, q0)
+    speed = np.linalg.norm(J, axis=1)
+    p0 = robot.fk(np.atleast_2d(q0), xi)[0, :3]
+    out = []
+    for r, i in _direction_pairs(J):
+        steps, want = [], []
+        for sign in (1.0, -1.0):
+            dq = np.zeros(robot.n_actuators)
+            dq[r] = MOVE_M / 2 / speed[r]
+            dq[i] = sign * MOVE_M / 2 / speed[i]
+            steps.append(dq)
+            want.append(float(np.linalg.norm(robot.fk(np.atleast_2d(q0 + dq), xi)[0, :3] - p0)))
+        if abs(want[0] - want[1]) >= 2 * SLACK_M:
+            out.append((r, i, tuple(steps), tuple(want)))
+    return out
+
+
+def check_directions(session, q0) -> str:
+    """The draw-wire is zeroed at ``q0`` (the reference). A distance alone cannot tell
+    which way one joint turned, but two joints moved together can: for each pair of
+    :func:`_direction_pairs`, a move of ``+r +i`` and one of ``+r -i`` (about
+    MOVE_M/2 of the tool each, nominal model) read two distances whose order is the
+    sign of the two tool velocities' dot product, whatever the gear ratios' sizes. A
+    joint that turns the other way than its start value says (a ratio ``k`` of the
+    wrong sign, a drive's polarity) reverses the order: refused, naming it."""
+    rig, cfg = session.rig, session.config
+    checked, problems = [], []
+    for r, i, steps, want in direction_moves(session.robot, session.nominal, q0):
+        got = []
+        for dq in steps:
+            rig.move_to(q0 + dq)
+            try:
+                got.append(float(_read(rig)["distance"]))
+            finally:
+                rig.move_to(q0)
+        checked.append(i)
+        if (got[0] - got[1]) * (want[0] - want[1]) < 0 and abs(got[0] - got[1]) > SLACK_M:
+            units = session.units
+            problems.append(
+                f"qm{r + 1} and qm{i + 1} do not turn as the start values say (one of them "
+                f"the other way): moved together one way and the other, the draw-wire read "
+                f"{units.text(got[0], 'm', '.3g')} and {units.text(got[1], 'm', '.3g')} where "
+                f"the nominal model predicts {units.text(want[0], 'm', '.3g')} and "
+                f"{units.text(want[1], 'm', '.3g')}: check the signs of k{r + 1} and "
+                f"k{i + 1} in the start values (--nominal, the robot file) and the drives' "
+                "polarity")
+    if problems:
+        more = (f"; {len(problems) - 1} more pairs disagree" if len(problems) > 1 else "")
+        raise ConfigError(problems[0] + more + " (nothing was recorded)", source=cfg.source)
+    return ("joints' directions as the model's (" + ", ".join(f"qm{i + 1}" for i in checked)
+            + " against another joint)" if checked else "no joint direction testable here")
+
+
+def check_serial_reference(session, distance: bool, tilt: bool) -> str:
+    """A robot file's arm at its reference: the draw-wire zeroed reads about zero, a
+    test move of the fastest joint changes it by about the distance moved, the
+    joints' directions (:func:`check_directions`) and, with the tool inclinometer
+    (sm-distance-tilt), a turn of the joint that tilts the tool most changes roll and
+    pitch each the way the nominal model says (a flipped axis sign, swapped axes),
+    and the readings are within the sensor's range (``range_rad``)."""
+    from calibration import simulate
+
+    rig, robot, cfg, xi = session.rig, session.robot, session.config, session.nominal
+    q0 = np.array(rig.qm(), dtype=float)
+    if distance:
+        rig.zero_drawwire()
+    r0 = _read(rig)
+    problems, said = [], []
+    if distance and abs(r0["distance"]) > ZERO_TOL_M:
+        problems.append(f"the draw-wire reads {r0['distance']:.6g} m right after it was zeroed "
+                        f"at the reference (expected about 0): check drawwire.offset_m "
+                        f"({cfg.drawwire.offset_m:g}) and drawwire.word_order "
+                        f"({cfg.drawwire.word_order})")
+    if tilt:
+        problems += range_problems(cfg, {k: r0.get(k) for k in ("roll", "pitch")},
+                                   "at the reference")
+    if problems:
+        raise ConfigError("; ".join(problems) + " (nothing was recorded)", source=cfg.source)
+    if distance:
+        J = _position_jacobian(robot, xi, q0)
+        speed = np.linalg.norm(J, axis=1)
+        i = int(np.argmax(speed))
+        dq = np.zeros(robot.n_actuators)
+        dq[i] = MOVE_M / speed[i]
+        want = float(np.linalg.norm(robot.fk(np.atleast_2d(q0 + dq), xi)[0, :3]
+                                    - robot.fk(np.atleast_2d(q0), xi)[0, :3]))
+        rig.move_to(q0 + dq)
+        try:
+            got = _read(rig)["distance"] - r0["distance"]
+        finally:
+            rig.move_to(q0)
+        said.append(f"draw-wire {got * 100:.2f} cm for {want * 100:.2f} cm")
+        if not RATIO[0] * want - SLACK_M <= got <= RATIO[1] * want + SLACK_M:
+            raise ConfigError(f"a test move of {want * 100:.1f} cm (nominal model) changed the "
+                              f"draw-wire's reading by {got:.6g} m: check drawwire.word_order "
+                              f"({cfg.drawwire.word_order}) and drawwire.metres_per_count "
+                              f"({cfg.drawwire.metres_per_count:g}) (nothing was recorded)",
+                              source=cfg.source)
+    if tilt:
+        mount = tuple(session.extra.get(k, 0.0) for k in ("mount_x", "mount_y"))
+
+        def reading(q):
+            return simulate.measure("sm-distance-tilt", robot, xi, np.atleast_2d(q),
+                                    reference_qm=q0, mount=mount)["tilt"][0]
+
+        base = reading(q0)
+        h = 1e-3
+        T = np.array([(reading(q0 + h * np.eye(robot.n_actuators)[k]) - base) / h
+                      for k in range(robot.n_actuators)])        # (n, 2) d(roll, pitch)/dqk
+        k = int(np.argmax(np.linalg.norm(T, axis=1)))
+        dq = np.zeros(robot.n_actuators)
+        dq[k] = TURN_RAD / np.linalg.norm(T[k])
+        want = _wrap(reading(q0 + dq) - base)
+        rig.move_to(q0 + dq)
+        try:
+            r1 = _read(rig)
+        finally:
+            rig.move_to(q0)
+        for a, axis in enumerate(("roll", "pitch")):
+            got = _wrap(r1[axis] - r0[axis])
+            said.append(f"{axis} {math.degrees(got):+.2f} deg for {math.degrees(want[a]):+.2f} "
+                        "deg")
+            if abs(want[a]) < TURN_RAD / 4:
+                continue          # this move barely turns this axis: its sign is not seen
+            if got * want[a] < 0 and abs(got) > SLACK_RAD:
+                problems.append(f"a test move of qm{k + 1} turning the tool's {axis} by "
+                                f"{math.degrees(want[a]):+.2f} deg (nominal model) changed the "
+                                f"inclinometer's {axis} by {math.degrees(got):+.2f} deg, the "
+                                f"opposite sign: check inclinometer.axes.{axis} (sign, raw "
+                                "axis)")
+            elif not (WRIST_RATIO[0] * abs(want[a]) - SLACK_RAD <= abs(got)
+                      <= WRIST_RATIO[1] * abs(want[a]) + SLACK_RAD):
+                problems.append(f"a test move of qm{k + 1} turning the tool's {axis} by "
+                                f"{math.degrees(want[a]):+.2f} deg (nominal model) changed the "
+                                f"inclinometer's {axis} by {math.degrees(got):+.2f} deg: check "
+                                f"inclinometer.axes.{axis} (raw axis, sign)")
+        if problems:
+            raise ConfigError("; ".join(problems) + " (nothing was recorded)",
+                              source=cfg.source)
+    if distance:
+        said.append(check_directions(session, q0))
+    return "plausible at the reference: a test move read " + ", ".join(said)
+
+
+def _wrap(a):
+    return (np.asarray(a, dtype=float) + math.pi) % (2 * math.pi) - math.pi
+
+
+def sensor_ranges(config) -> dict[str, float]:
+    """Inclinometer channel -> its measuring range (rad, |reading| at most), where the
+    station config gives one (``[inclinometer.axes] CH = {..., range_rad = R}``)."""
+    incl = getattr(config, "inclinometer", None)
+    if incl is None:
+        return {}
+    return {ch: a.range_rad for ch, a in incl.axes.items()
+            if getattr(a, "range_rad", None) is not None}
+
+
+def range_problems(config, readings: dict, where: str) -> list[str]:
+    """The inclinometer channels of ``readings`` beyond their range, in words."""
+    out = []
+    for ch, r in sensor_ranges(config).items():
+        v = readings.get(ch)
+        if v is not None and abs(v) > r:
+            out.append(f"the inclinometer's {ch} reads {math.degrees(v):+.1f} deg {where}, "
+                       f"beyond its range of +-{math.degrees(r):.0f} deg "
+                       f"(inclinometer.axes.{ch}.range_rad): mount it so that it reads about "
+                       "0 there")
+    return out
 
 
 def _wrist_tilt(robot, xi, qm, guess) -> np.ndarray:

@@ -160,6 +160,7 @@ def render_report(outcome, *, validation=None, events=(), title=None, session=No
     evs = _merge_events(getattr(outcome.trace, "events", ()) or (), events or ())
     page = {
         "title": title,
+        "headline": headline(ctx, val_rows),
         "created": ctx.created,
         "summary": _summary_view(ctx, val_rows),
         "notes": _notes(ctx),
@@ -346,7 +347,7 @@ def _summary_view(ctx: _Context, validation: list) -> list[dict]:
         row("Eq. 60 minimum poses", f"m \u2265 5 N_R / p = 5 \u00b7 {res.n_identifiable} / "
                                     f"{int(model.p)} \u2192 {ctx.min_poses}"),
         row("Identifiable parameters", f"N_R = {res.n_identifiable} of {len(ctx.names)}"),
-        row("Converged", res.message,
+        row("Converged", res.message.removeprefix("converged "),
             (bool(res.converged), "converged" if res.converged else "NOT converged")),
         row("Iterations", f"{int(res.iterations)} ({int(res.nfev)} model evaluations, "
                           f"{res.wall_time:.3g} s)"),
@@ -384,6 +385,34 @@ def _summary_view(ctx: _Context, validation: list) -> list[dict]:
         rows.append(row("Base frame", frame["statement"] + ".",
                         lines=[f"origin_qm = [{qm}] (actuator units)"]))
     return rows
+
+
+def headline(ctx: "_Context", validation: list) -> str:
+    """One line at the top: how accurate the robot is now, on poses never fitted (the
+    held-out validation), else in the fit's residuals."""
+    u = ctx.display
+    parts = []
+    for v in validation:
+        pts = v.get("points")
+        if pts and _finite(pts.get("rms_after")):
+            parts.append(f"the tool's points within {u.text(pts['rms_after'], 'm', '.3g')} RMS "
+                         f"(max {u.text(pts.get('max_after'), 'm', '.3g')})")
+        elif _finite(v.get("rms_after")):
+            si = str(v.get("unit") or "")
+            text = f"{v.get('channel')} {u.text(v['rms_after'], si, '.3g')} RMS"
+            if _finite(v.get("rms_before")):
+                text += f" ({u.text(v['rms_before'], si, '.3g')} before calibration)"
+            parts.append(text)
+    if parts:
+        n = max((int(v.get("n") or 0) for v in validation), default=0)
+        return ("After calibration the robot reads within " + "; ".join(parts)
+                + f" on {n} held-out poses never used in the fit.")
+    rms = {k: v for k, v in ctx.res.residual_rms.items() if _finite(v)}
+    if not rms:
+        return ""
+    return ("After calibration the fit's residuals are " + "; ".join(
+        f"{k} {u.text(v, ctx.channel_unit.get(k, ''), '.3g')} RMS" for k, v in rms.items())
+        + " (no held-out poses: not checked on poses outside the fit).")
 
 
 def validation_headline(validation, units=MM_DEG) -> str:
@@ -455,14 +484,17 @@ def _param_view(ctx: _Context) -> dict:
         rows = []
         for j in idx:
             name = ctx.names[j]
+            si = ctx.units.get(name, "")
+            f = ctx.display.unit(si)[1] if si else 1.0      # mm and degrees for people
             s0, x = ctx.start[j], ctx.x[j]
             std = ctx.std[j] if key == "identifiable" else float("nan")
             change = x - s0
             sig = abs(change) / std if _finite(std) and std > 0 else float("nan")
-            inverse = (_num(1.0 / x, ".6g") if name[:1] == "k" and name[1:].isdigit()
+            inverse = (_num(1.0 / (x * f), ".6g") if name[:1] == "k" and name[1:].isdigit()
                        and _finite(x) and x != 0 else None)
-            rows.append({"name": name, "unit": ctx.units.get(name, ""),
-                         "nominal": _num(nom[j]) if nom is not None else None,
+            s0, x, std, change = s0 * f, x * f, std * f, change * f
+            rows.append({"name": name, "unit": ctx.display.label(si) if si else "",
+                         "nominal": _num(nom[j] * f) if nom is not None else None,
                          "start": _num(s0), "calibrated": _num(x), "inverse": inverse,
                          "std": _num(std, ".3g"),
                          "change": _num(change, "+.4g") if change else _num(change),
@@ -537,8 +569,9 @@ def _design_view(ctx: _Context, evs, val_rows, units) -> dict | None:
             continue
         a = float(res.std[j])
         si = pu.get(name, "")
-        rows.append({"name": name, "unit": si or "1", "predicted": _num(p, ".3g"),
-                     "achieved": _num(a, ".3g"),
+        f = units.unit(si)[1] if si else 1.0
+        rows.append({"name": name, "unit": units.label(si) if si else "1",
+                     "predicted": _num(p * f, ".3g"), "achieved": _num(a * f, ".3g"),
                      "ratio": f"{a / p:.2f}" if _finite(p) and float(p) > 0 else "\u2013"})
     held = design.get("predicted_heldout") or {}
     line = ""
@@ -600,11 +633,15 @@ def _plan_view(number: int, ev: dict, poses: list) -> dict:
                     "qm": short(", ".join(_num(v, ".5g") for v in p.get("qm") or ())),
                     "target": short(", ".join(_num(v, ".4g") for v in p.get("target") or ())),
                     "held_out": p.get("use") == "validation",
-                    "round": {0: "", 1: "main"}.get(p.get("round"), short(p.get("round")))})
-    if any(p["round"] == "main" for p in out):
-        for p in out:
-            p["round"] = p["round"] or "scout"
+                    "round": "scout" if p.get("round") in (0, None)
+                    else f"round {short(p.get('round'))}"})
+    wrist = isinstance(ev.get("wrist"), dict)
+    rounds = wrist or "box_scale" in ev
+    text = ("scout: poses near home that fit the wrist's start model; round N: a wider box "
+            "planned from the fit of the poses before it" if wrist else
+            "scout: poses a small step from the reference; round N: planned from the fit of "
+            "the poses before it, in a larger part of the box")
     return {"number": number, "t": short(ev.get("t", "")),
             "message": short(ev.get("message", "")), "poses": out,
-            "rounds": any(p["round"] for p in out),
+            "rounds": rounds, "rounds_text": text,
             "replace": bool(ev.get("replace"))}

@@ -63,6 +63,22 @@ def _marker(n):
     return "o" if n <= 60 else None
 
 
+def line_style(n: int) -> dict:
+    """The n-th line's colour and dash: every line told apart, however many (the
+    colours first, solid, then again dashed, then dotted)."""
+    return {"color": COLORS[n % len(COLORS)],
+            "ls": ("-", "--", ":")[(n // len(COLORS)) % 3]}
+
+
+def _legend_right(n: int) -> float:
+    """Inches right of the axes for a legend of ``n`` parameter names (a column per 18)."""
+    return 1.9 * _legend_columns(n) + 0.1
+
+
+def _legend_columns(n: int) -> int:
+    return max(1, math.ceil(n / 18))
+
+
 def figures(ctx) -> list[dict]:
     """The section 7 figures of a report context (:class:`station.report._Context`):
     parameters, deviation, variance and condition number per iteration (when the
@@ -122,20 +138,20 @@ def _fig_deviation(ctx, hist) -> str:
     if not idx:
         return None
     k, X = _series(ctx, hist)
-    fig = _figure(10.0, 3.6, right=1.7, left=0.8)
+    fig = _figure(10.0, 3.6, right=_legend_right(len(idx)), left=0.8)
     ax = fig.subplots()
     floor = 1e-6
     for n, j in enumerate(idx):
         d = np.abs(X[:, j] - ctx.x[j]) / ctx.std[j]
-        ax.semilogy(k, np.maximum(d, floor), color=COLORS[n % len(COLORS)], lw=1.1,
-                    marker=_marker(len(k)), ms=2.5, label=ctx.names[j])
+        ax.semilogy(k, np.maximum(d, floor), lw=1.1, marker=_marker(len(k)), ms=2.5,
+                    label=ctx.names[j], **line_style(n))
     ax.axhline(1.0, color="k", lw=0.8, ls="--")
     ax.text(k[-1], 1.0, " 1 std", va="bottom", ha="right", fontsize=7)
     ax.set_xlabel("iteration k", fontsize=8)
     ax.set_ylabel("|\u03be(k) \u2212 \u03be_final| / std", fontsize=8)
     ax.set_ylim(bottom=floor / 2)
     _style(ax)
-    ax.legend(fontsize=7, ncol=max(1, math.ceil(len(idx) / 8)), loc="upper left",
+    ax.legend(fontsize=7, ncol=_legend_columns(len(idx)), loc="upper left",
               bbox_to_anchor=(1.01, 1.0), frameon=False)
     return _img(fig, "parameter deviation from the final value in standard deviations",
                 f"Convergence: distance of each identifiable parameter from its calibrated value "
@@ -148,16 +164,16 @@ def _fig_variance(ctx, hist) -> str:
     cols = [j for j in range(V.shape[1]) if np.any(np.isfinite(V[:, j]) & (V[:, j] > 0))]
     if not cols:
         return None
-    fig = _figure(10.0, 3.6, right=1.7, left=0.8)
+    fig = _figure(10.0, 3.6, right=_legend_right(len(cols)), left=0.8)
     ax = fig.subplots()
     for n, j in enumerate(cols):
         v = np.where(V[:, j] > 0, V[:, j], np.nan)
-        ax.semilogy(k, v, color=COLORS[n % len(COLORS)], lw=1.1, marker=_marker(len(k)),
-                    ms=2.5, label=ctx.names[j])
+        ax.semilogy(k, v, lw=1.1, marker=_marker(len(k)), ms=2.5, label=ctx.names[j],
+                    **line_style(n))
     ax.set_xlabel("iteration k", fontsize=8)
     ax.set_ylabel("variance [SI units\u00b2]", fontsize=8)
     _style(ax)
-    ax.legend(fontsize=7, ncol=max(1, math.ceil(len(cols) / 8)), loc="upper left",
+    ax.legend(fontsize=7, ncol=_legend_columns(len(cols)), loc="upper left",
               bbox_to_anchor=(1.01, 1.0), frameon=False)
     return _img(fig, "variance per iteration",
                 "Variance of each calibrated parameter per iteration, Var(e(k)) (eq. 52; "
@@ -269,7 +285,7 @@ def validation_figure(rows, units):
         return None
     ncol = min(4, len(good))
     nrow = math.ceil(len(good) / ncol)
-    fig = _figure(2.6 * ncol + 0.4, 2.4 * nrow, left=0.7, bottom=0.35, top=0.3,
+    fig = _figure(2.6 * ncol + 0.4, 2.4 * nrow + 0.3, left=0.7, bottom=0.35, top=0.6,
                   wspace=0.45, hspace=0.5)
     axes = fig.subplots(nrow, ncol, squeeze=False)
     for n, v in enumerate(good):
@@ -299,7 +315,7 @@ def validation_figure(rows, units):
         _style(ax, 7)
         if n == 0:
             fig.legend(*ax.get_legend_handles_labels(), fontsize=7, frameon=False,
-                       loc="upper left", ncol=2)
+                       loc="upper right", ncol=2)      # above the titles, not on them
     for n in range(len(good), nrow * ncol):
         axes[n // ncol][n % ncol].set_visible(False)
     return fig

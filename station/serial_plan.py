@@ -29,6 +29,7 @@ from station import pose_design
 FLOOR_MARGIN = 0.10   # m: planned tool origins this far above the floor z = 0
 PATH_MARGIN = 0.03    # m: and every motion between them this far
 WIRE_MIN, WIRE_RANGE = 0.10, 1.5   # m: draw-wire lengths the plan uses (cable range)
+TILT_MARGIN = np.radians(5.0)   # rad: planned inclinometer readings this far inside its range
 POOL = 600            # candidates drawn per plan
 SPARE = (1.3, 2.0, 3.0)   # fit candidates per fit pose asked, tried in turn
 ROWS = {"sm-distance": 1, "sm-distance-tilt": 3}   # rows per pose (eq. 60's p)
@@ -48,9 +49,29 @@ def joint_box(robot, qm_range=None) -> np.ndarray:
     return np.column_stack([mid - half, mid + half])
 
 
-def safe_pool(robot, xi, rng, count: int = POOL, qm_range=None, anchor=None) -> np.ndarray:
+def readable(robot, xi, q, tilt_range) -> np.ndarray:
+    """``(m,)`` bool: where the tool inclinometer (model ``xi``; ``tilt_range`` =
+    ``(roll, pitch, mount)``: the sensor's ranges in rad, None where not stated, and its
+    mounting) reads within its range less :data:`TILT_MARGIN` (the model's error)."""
+    from calibration.robots.agebot_pm import gravity_tilt
+
+    q = np.atleast_2d(q)
+    if tilt_range is None:
+        return np.ones(len(q), dtype=bool)
+    r_roll, r_pitch, mount = tilt_range
+    roll, pitch = gravity_tilt(robot.frames(q, xi)[:, :3, :3], mount)
+    ok = np.ones(len(q), dtype=bool)
+    for value, r in ((roll, r_roll), (pitch, r_pitch)):
+        if r is not None:
+            ok &= np.abs(value) <= max(r - TILT_MARGIN, 0.5 * r)
+    return ok
+
+
+def safe_pool(robot, xi, rng, count: int = POOL, qm_range=None, anchor=None,
+              tilt_range=None) -> np.ndarray:
     """``count`` candidates at most: actuator values whose tool origin (model ``xi``) is
-    above the floor with the margin and, with ``anchor``, within the draw-wire's range."""
+    above the floor with the margin and, with ``anchor``, within the draw-wire's range,
+    and, with ``tilt_range`` (:func:`readable`), where the tool inclinometer reads."""
     box = joint_box(robot, qm_range)
     q = rng.uniform(box[:, 0], box[:, 1], size=(count, robot.n_actuators))
     p = robot.frames(q, xi)[:, :3, 3]
@@ -62,12 +83,25 @@ def safe_pool(robot, xi, rng, count: int = POOL, qm_range=None, anchor=None) -> 
         raise CalibrationError(f"no pose of {robot.name} within its limits keeps the tool "
                                f"{FLOOR_MARGIN} m above the floor z = 0 of the base frame: is "
                                "the base frame's z axis up?")
+    ok &= readable(robot, xi, q, tilt_range)
+    if not ok.any():
+        raise CalibrationError(
+            f"no pose of {robot.name} within its limits has the tool inclinometer within its "
+            f"range (roll +-{_deg(tilt_range[0])}, pitch +-{_deg(tilt_range[1])}; "
+            "inclinometer.axes.*.range_rad of the station config): mount the sensor so that it "
+            "reads about 0 in the robot's working orientation")
     return q[ok]
 
 
-def reference_pose(robot, xi, qm_range=None, seed: int = 0) -> np.ndarray:
-    """Actuator values of the reference point (module docstring)."""
-    pool = safe_pool(robot, xi, np.random.default_rng(seed), qm_range=qm_range)
+def _deg(r) -> str:
+    return "any" if r is None else f"{np.degrees(r):.0f} deg"
+
+
+def reference_pose(robot, xi, qm_range=None, seed: int = 0, tilt_range=None) -> np.ndarray:
+    """Actuator values of the reference point (module docstring); with ``tilt_range``
+    (:func:`readable`) where the tool inclinometer reads."""
+    pool = safe_pool(robot, xi, np.random.default_rng(seed), qm_range=qm_range,
+                     tilt_range=tilt_range)
     p = robot.frames(pool, xi)[:, :3, 3]
     target = p.mean(axis=0)
     target[2] = max(target[2], FLOOR_MARGIN + 0.1)
@@ -77,7 +111,8 @@ def reference_pose(robot, xi, qm_range=None, seed: int = 0) -> np.ndarray:
         except UnreachablePose:
             continue
         box = joint_box(robot, qm_range)
-        if np.all((q >= box[:, 0]) & (q <= box[:, 1])):
+        if np.all((q >= box[:, 0]) & (q <= box[:, 1])) and readable(robot, xi, q,
+                                                                     tilt_range)[0]:
             return q
     return pool[int(np.argmin(np.linalg.norm(p - target, axis=1)))]
 
@@ -112,7 +147,8 @@ def minimum_count(method: str, robot, xi, reference_qm, seed: int = 0) -> int:
                          ROWS[method])
 
 
-def plan(method: str, robot, xi, reference_qm, req, *, qm_range=None, start_qm=None):
+def plan(method: str, robot, xi, reference_qm, req, *, qm_range=None, start_qm=None,
+         tilt_range=None):
     """``(targets, qm, use, design)`` in visiting order: ``req.count`` fit poses (default
     the margin times eq. 60; ``req.design`` ``"optimal"`` or ``"random"``) and
     ``req.validation`` held out (default a fifth, at least 3), all safe (module
@@ -124,7 +160,7 @@ def plan(method: str, robot, xi, reference_qm, req, *, qm_range=None, start_qm=N
     rng = np.random.default_rng(req.seed)
     ref = np.asarray(reference_qm, dtype=float)
     anchor = robot.frames(ref, xi)[0, :3, 3]
-    pool = safe_pool(robot, xi, rng, qm_range=qm_range, anchor=anchor)
+    pool = safe_pool(robot, xi, rng, qm_range=qm_range, anchor=anchor, tilt_range=tilt_range)
     model = pose_design.pool_model(method, robot, xi, pool, reference_qm=ref)
     from calibration import design as dz
 
@@ -139,7 +175,8 @@ def plan(method: str, robot, xi, reference_qm, req, *, qm_range=None, start_qm=N
         spare = int(np.ceil(extra * count))
         if 2 * (spare + 4 * n_val) > len(pool):     # a pool that leaves the design a choice
             draws = int(POOL * 2 * (spare + 4 * n_val) / len(pool)) + 1
-            pool = safe_pool(robot, xi, rng, count=draws, qm_range=qm_range, anchor=anchor)
+            pool = safe_pool(robot, xi, rng, count=draws, qm_range=qm_range, anchor=anchor,
+                             tilt_range=tilt_range)
             model = pose_design.pool_model(method, robot, xi, pool, reference_qm=ref)
             info = dz.pose_information(model, model.x0, pose_design.DEFAULT_NOISE)
         out_q, out_use, n = _visit(robot, xi, pool, info, req, rng, spare, n_val, count, ref,

@@ -363,7 +363,8 @@ class Session:
             raise StationError("the devices are not connected: connect first")
         closed = device_loss.not_connected(self.rig)
         if closed is not None:
-            raise StationError(f"{closed}: {hint_for(closed.device)}, then connect again")
+            raise StationError(f"{closed}: {hint_for(closed.device, self.simulated)}"
+                               + ("" if self.simulated else ", then connect again"))
         return self.rig
 
     # -- reference ------------------------------------------------------------------------------
@@ -375,7 +376,8 @@ class Session:
         """``(qm, role, instructions)`` for the reference step (qm None: no reference)."""
         if self.serial:
             return (serial_plan.reference_pose(self.robot, self.nominal,
-                                               self.config.envelope.qm_range),
+                                               self.config.envelope.qm_range,
+                                               tilt_range=self.tilt_range),
                     self.info.reference, serial_plan.REFERENCE_TEXT)
         return planner.reference_pose(self.method, self.nominal, self.config.envelope.qm_range)
 
@@ -474,7 +476,7 @@ class Session:
     def _raise_if_lost(self, rig, error: DeviceError) -> None:
         """After retries: raise :class:`DeviceLost` (with a ``lost`` event) where the
         device itself is gone (:func:`station.device_loss.probe`), else return."""
-        lost = device_loss.probe(rig, error)
+        lost = device_loss.probe(rig, error, self.simulated)
         if lost is not None:
             self._event("lost", str(lost), device=lost.device)
             raise lost from error
@@ -585,6 +587,48 @@ class Session:
         return len(self.measured) + len(self.skipped) + len(self._held)
 
     @property
+    def tilt_range(self):
+        """A robot file's sm-distance-tilt: ``(roll, pitch, mount)`` of the tool
+        inclinometer (its ranges in rad from the station config, None where not stated;
+        its mounting's start values) for planning (:func:`station.serial_plan.readable`);
+        None where no range is stated."""
+        ranges = plausibility.sensor_ranges(self.config)
+        if not (self.serial and self.method == "sm-distance-tilt") or not ranges:
+            return None
+        return (ranges.get("roll"), ranges.get("pitch"),
+                (self.extra.get("mount_x", 0.0), self.extra.get("mount_y", 0.0)))
+
+    @property
+    def inclinometer_channels(self) -> tuple[str, ...]:
+        """The inclinometer channels this session's method fits."""
+        if self.serial:
+            return ("roll", "pitch") if self.method == "sm-distance-tilt" else ()
+        return plausibility.INCLINOMETER_AXES.get(self.method, ())
+
+    def _ranged(self, predict):
+        """``predict`` with every channel beyond the sensor's range (config
+        ``range_rad``) predicted as NaN: not compared by the live watch, the sensor
+        cannot read there."""
+        ranges = plausibility.sensor_ranges(self.config)
+        if predict is None or not ranges:
+            return predict
+
+        def wrapped(qm):
+            out = dict(predict(qm))
+            for ch, r in ranges.items():
+                if ch in out:
+                    v = np.asarray(out[ch], dtype=float)
+                    out[ch] = np.where(np.abs(v) > r, np.nan, v) if v.ndim else (
+                        float("nan") if abs(float(v)) > r else float(v))
+            return out
+        return wrapped
+
+    @property
+    def simulated(self) -> bool:
+        """True where the devices are a simulator's (no cable to check)."""
+        return bool(self.station_record.get("simulator"))
+
+    @property
     def serial(self) -> bool:
         """True for a robot file's arm (station/serial_plan.py plans it)."""
         return self.config.spec is not None
@@ -625,7 +669,7 @@ class Session:
         if self.serial:
             targets, qm, use, design = serial_plan.plan(
                 self.method, self.robot, self.nominal, self.reference_qm, self.request,
-                qm_range=self.config.envelope.qm_range)
+                qm_range=self.config.envelope.qm_range, tilt_range=self.tilt_range)
             poses = [PlannedPose(i, tuple(map(float, q)), tuple(map(float, X)), u)
                      for i, (q, X, u) in enumerate(zip(qm, targets, use))]
             self._set_plan(poses, replace=True, design=design)
@@ -719,6 +763,12 @@ class Session:
             text = (f"round {rnd}: planned {len(poses)} poses ({n_val} held out for validation) "
                     f"after the {before} of the earlier rounds, {len(self.plan_poses)} in all so "
                     f"far (eq. 60 minimum {self.minimum_count} {unit})")
+        elif box_scale is not None:      # the arm's rounds: this round, then the whole
+            fit_all, held_all = self.rounds.fit_total(), self.rounds.totals()[1]
+            text = (("scout round" if rnd == 0 else f"round {rnd}") + f": planned {len(poses)} "
+                    f"poses ({n_val} held out for validation), {len(self.plan_poses)} planned "
+                    f"so far; the rounds plan {fit_all} to fit + {held_all} held out in all "
+                    f"(eq. 60 minimum {self.minimum_count} {unit} to fit)")
         else:
             text = (f"planned {len(poses)} poses ({n_val} held out for validation; "
                     f"eq. 60 minimum {self.minimum_count} {unit}{how})")
@@ -850,6 +900,13 @@ class Session:
                 if self.touching:
                     self._touch(pose)
                 snap = rig.snapshot()
+                beyond = plausibility.range_problems(
+                    self.config, {k: snap.mean.get(k) for k in self.inclinometer_channels},
+                    f"at pose {pose.index}")
+                if beyond:       # the sensor cannot read there: nothing to record
+                    self._skip(pose, f"pose {pose.index} not recorded: " + "; ".join(beyond),
+                               resume.DROPPED)
+                    return False
                 rec = self._pose_record(pose, snap)
                 if self.wrist is not None and not self._wrist_watch(pose, rec):
                     return False
@@ -904,7 +961,7 @@ class Session:
         if why is not None:
             self._skip(pose, f"pose {pose.index} skipped before moving: {why}", resume.DROPPED)
             return False
-        predict = self.rounds.predictor() if self.rounds is not None else None
+        predict = self._ranged(self.rounds.predictor() if self.rounds is not None else None)
         came_from = self.qm() if predict is not None else None
         try:
             halts = watched_move(self._rig(), pose.qm, predict, env,

@@ -308,17 +308,30 @@ def build(robot: str, truth: str | None = None, config: str | None = None, *,
           seed: int | None = None, pose_noise: bool = False) -> SimStation:
     """A :class:`SimStation` from file names (defaults: the fixtures), not started."""
     c = load_sim_config(robot, config)
+    return SimStation(truth_of(robot, truth, c), c, seed=seed, pose_noise=pose_noise)
+
+
+def truth_of(robot: str, truth: str | None, config: StationConfig | None = None):
+    """The simulator's truth of ``robot`` (a built-in name or a robot file): the file
+    ``truth`` (default: the built-in's fixture, a robot file's nominal), refused in one
+    line where it is of another robot."""
     if is_robot_file(robot):     # a robot file: the truth is of it (default: its nominal)
+        spec = config.spec if config is not None and config.spec is not None else None
+        if spec is None:
+            from drivers.robot_file import load_robot_file
+
+            spec = load_robot_file(robot)
         t = load_truth(truth) if truth else nominal_truth(robot)
-        if t.spec is None or t.spec.source["sha256"] != c.spec.source["sha256"]:
-            raise ConfigError(f"the truth file is not of the robot file {robot}",
+        if t.spec is None or t.spec.source["sha256"] != spec.source["sha256"]:
+            raise ConfigError(f"the truth file is not of the robot file {robot}"
+                              + (f" (it is of {t.robot})" if t.robot else ""),
                               source=t.source, key="robot_file")
-        return SimStation(t, c, seed=seed, pose_noise=pose_noise)
+        return t
     t = load_truth(truth) if truth else load_truth(default_truth_path(robot))
     if t.robot != robot:
         raise ConfigError(f"the truth file is for {t.robot}, not {robot}", source=t.source,
                           key="robot")
-    return SimStation(t, c, seed=seed, pose_noise=pose_noise)
+    return t
 
 
 def load_sim_config(robot: str, config: str | None = None) -> StationConfig:
@@ -417,14 +430,21 @@ class SimulatorProcess:
     def _first_line(self, timeout: float) -> dict:
         import select
 
+        from drivers.errors import DeviceError
+
         if not select.select([self.proc.stdout], [], [], timeout)[0]:
-            raise RuntimeError(f"the simulator did not start within {timeout:.0f} s")
+            raise DeviceError(f"did not start within {timeout:.0f} s", device="simulator")
         line = self.proc.stdout.readline()
         if not line:
             err = self.proc.stderr.read().decode(errors="replace").strip().splitlines()
             last = err[-1] if err else f"code {self.proc.wait()}"
             raise SimulatorFailed("the simulator did not start: " + last.removeprefix("error: "))
         return json.loads(line)
+
+    @property
+    def alive(self) -> bool:
+        """False once the simulator's process has ended (killed, crashed)."""
+        return self.proc.poll() is None
 
     def _consume(self, stream) -> None:
         try:

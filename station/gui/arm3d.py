@@ -115,9 +115,9 @@ def setup_axes(ax, lo, hi, scale: float, unit: str) -> None:
     ax.set_xlim(lo[0] * scale, hi[0] * scale)
     ax.set_ylim(lo[1] * scale, hi[1] * scale)
     ax.set_zlim(lo[2] * scale, hi[2] * scale)
-    ax.set_box_aspect(tuple(hi - lo), zoom=1.25)
+    ax.set_box_aspect(tuple(hi - lo), zoom=1.0)      # room for the z label at the side
     for setter, name in zip((ax.set_xlabel, ax.set_ylabel, ax.set_zlabel), "xyz"):
-        setter(f"{name} [{unit}]", fontsize=7, labelpad=-2)
+        setter(f"{name} [{unit}]", fontsize=7, labelpad=0)
     ax.tick_params(labelsize=6, pad=0)
 
 

@@ -136,6 +136,7 @@ class Controller(QObject):
         self._timer.setInterval(POLL_MS)
         self._timer.timeout.connect(self._poll)
         self._closed = False
+        self._last_open: dict = {}
 
     @property
     def closed(self) -> bool:
@@ -176,7 +177,12 @@ class Controller(QObject):
         self._timer.stop()
         self.faults.reopen()
         old = self.session
-        self.session = None
+        # the same folder again (its devices were lost): its steps stay done meanwhile
+        same = old is not None and Path(out_dir).expanduser().resolve() == old.out.resolve()
+        self.session = old if same else None
+        self.rig = None
+        self._last_open = dict(robot=robot, method=method, out_dir=out_dir, request=request,
+                               nominal=nominal)
 
         def job():
             if old is not None:
@@ -192,11 +198,29 @@ class Controller(QObject):
                 on_done(session)
 
         def failed(e):
+            self.session = old if same else None     # closed: Connect tries again
             self.sessionChanged.emit()
             if on_error:
                 on_error(e)
 
         self.jobs.submit(job, done, failed)
+
+    @property
+    def devices_lost(self) -> bool:
+        """The session's devices are gone: the simulator's process ended, or a device
+        closed after a reconnection failed. :meth:`reopen` connects anew."""
+        s = self.session
+        if s is None:
+            return False
+        if self.simulate and self.sim is not None and not self.sim.alive:
+            return True
+        return not self.connected
+
+    def reopen(self, on_done: Callable | None = None, on_error: Callable | None = None) -> None:
+        """Open the current session's folder again (a simulator started anew where its
+        process ended): the trace is resumed, its steps stay done, and a distance
+        session goes back to its reference to zero the draw-wire before the next pose."""
+        self.open_session(**self._last_open, on_done=on_done, on_error=on_error)
 
     def _open(self, robot, method, out: Path, request, nominal):
         from drivers.config import load_station_config
@@ -212,6 +236,11 @@ class Controller(QObject):
             from station.headless import simulated_station
 
             truth, seed, station = simulated_station(robot, self.truth_path, self.sim_seed)
+            if self.sim is not None and not self.sim.alive:     # its process ended
+                self.sim.stop()
+                self.sim = None
+                self.eventLogged.emit({"kind": "info", "message": "the simulated devices' "
+                                       "process had ended: the simulator is started anew"})
             if self.sim is not None and self.sim_robot != (robot, truth):
                 self.sim.stop()
                 self.sim = None
@@ -329,7 +358,8 @@ class Controller(QObject):
         if self.poller.busy or self.rig is None or self.session is None:
             return
         rig = self.rig
-        self.poller.submit(lambda: poll_devices(rig), self._polled, lambda e: None)
+        self.poller.submit(lambda: poll_devices(rig, simulated=self.simulate), self._polled,
+                           lambda e: None)
 
     def _polled(self, result) -> None:
         if result is None:

@@ -102,14 +102,16 @@ class ConvergencePlots(Canvas):
             with np.errstate(invalid="ignore", divide="ignore"):
                 S = np.abs(X - prev) / np.sqrt(V)
             lines = []
+            from station.report_figures import line_style
+
             for j in range(X.shape[1]):
-                c = COLORS[j % len(COLORS)]
+                st = line_style(j)          # every parameter its own colour or dash
                 s = np.where(np.isfinite(S[:, j]) & (S[:, j] > 0), S[:, j], np.nan)
                 v = np.where(np.isfinite(V[:, j]) & (V[:, j] > 0), V[:, j], np.nan)
                 if np.isfinite(s).any():
-                    a1.semilogy(k, np.maximum(s, 1e-6), color=c, lw=1.1, marker=".", ms=3)
+                    a1.semilogy(k, np.maximum(s, 1e-6), lw=1.1, marker=".", ms=3, **st)
                 if np.isfinite(v).any():
-                    (ln,) = a2.semilogy(k, v, color=c, lw=1.1, marker=".", ms=3)
+                    (ln,) = a2.semilogy(k, v, lw=1.1, marker=".", ms=3, **st)
                     lines.append((ln, self.names[j] if j < len(self.names) else f"#{j + 1}"))
             a1.axhline(1.0, color="k", lw=0.7, ls="--")
             cond = np.array([float(it.condition_number) for it in h])
@@ -187,6 +189,7 @@ class WorkspacePlot(Canvas):
             self._reference(ax, reference, scale)
         for setter, lab in zip((ax.set_xlabel, ax.set_ylabel, ax.set_zlabel), labels):
             setter(lab, fontsize=8)
+        ax.set_box_aspect(None, zoom=0.88)     # room for the z label beside the box
         ax.tick_params(labelsize=7)
         ax.set_title("planned poses in the workspace (line: order of travel)", fontsize=9)
         if poses:

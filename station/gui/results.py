@@ -71,6 +71,9 @@ class CalibrationView(QWidget):
         self.params = _table(0, ["parameter", "unit", "start", "calibrated", "std",
                                  "identifiability"])
         lay.addWidget(self.params)
+        lay.addWidget(note("Lengths in mm, angles in degrees (the parameter file keeps m and "
+                           "rad); u is the actuator unit of qm, the drives' position unit "
+                           "(the station config's increments_per_unit)."))
         lay.addWidget(heading("Validation on held-out poses"))
         self.validation = _table(0, ["channel", "poses", "RMS before", "RMS after", "change",
                                      "max before", "max after"])
@@ -176,8 +179,10 @@ class CalibrationView(QWidget):
                 t.setSpan(r, 0, 1, t.columnCount())
                 continue
             std = res.std[j] if key == "identifiable" else float("nan")
-            cells = (res.names[j], units.get(res.names[j], ""), _num(outcome.nominal[j]),
-                     _num(res.x[j]), _num(std, ".3g"), res.status[j].label)
+            si = units.get(res.names[j], "")
+            label, f = self.units.unit(si) if si else ("", 1.0)   # mm and degrees
+            cells = (res.names[j], label, _num(outcome.nominal[j] * f),
+                     _num(res.x[j] * f), _num(std * f, ".3g"), res.status[j].label)
             for c, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 if 2 <= c <= 4:

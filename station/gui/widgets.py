@@ -40,6 +40,13 @@ def target_coords(robot) -> tuple[tuple[str, ...], tuple[str, ...]]:
     return ("alpha", "beta", "gamma"), ("rad",) * 3
 
 
+def fixed(v: float, decimals: int) -> str:
+    """``v`` with ``decimals`` decimals, never ``-0.000`` (a value that rounds to zero
+    is shown as ``0.000``)."""
+    text = f"{v:.{decimals}f}"
+    return text.lstrip("-") if float(text) == 0 else text
+
+
 def channel_text(channel: str, value: float, units=None) -> tuple[str, str]:
     """A reading as the operator reads it: ``(value, unit)`` in the display units
     (:mod:`station.units`: distance in mm, angles in degrees by default; actuator
@@ -47,7 +54,7 @@ def channel_text(channel: str, value: float, units=None) -> tuple[str, str]:
     if value is None or not isinstance(value, (int, float)) or not math.isfinite(value):
         return "\u2013", ""
     label, factor = (units or _UNITS[0]).unit(channel_si(channel) or "u")
-    return f"{value * factor:.{DECIMALS.get(label, 4)}f}", label
+    return fixed(value * factor, DECIMALS.get(label, 4)), label
 
 
 def channel_label(channel: str) -> str:

@@ -7,8 +7,10 @@ stops the simulator; the next start offers to resume an unfinished session.
 """
 from __future__ import annotations
 
-from PySide6.QtCore import QSize, Qt, QTimer
-from PySide6.QtGui import QAction, QFont, QGuiApplication, QKeySequence
+from pathlib import Path
+
+from PySide6.QtCore import QSize, Qt, QTimer, QUrl
+from PySide6.QtGui import QAction, QDesktopServices, QFont, QGuiApplication, QKeySequence
 from PySide6.QtWidgets import (QHBoxLayout, QLabel, QListWidget, QListWidgetItem, QMainWindow,
                                QMessageBox, QPushButton, QStackedWidget, QVBoxLayout, QWidget)
 
@@ -22,6 +24,19 @@ from station.gui.pages.plan import PlanPage
 from station.gui.pages.reference import ReferencePage
 from station.gui.pages.setup import SetupPage
 
+DOCS = Path(__file__).resolve().parents[2] / "docs"
+GUIDE = ("1 Setup: choose the robot (AGEBOT or a robot file) and the method, a session folder, "
+         "then Connect; what is missing is listed above the Connect button.\n"
+         "2 Reference: jog the robot to the suggested point (or press Go to), attach the "
+         "draw-wire there and Capture: a small test move checks the sensors first.\n"
+         "3 Plan: the poses to measure; regenerate or edit them before measuring.\n"
+         "4 Execute: Start measuring; every pose is in the trace at once, so closing loses "
+         "none and reopening the folder resumes.\n"
+         "5 Calibrate: the parameters with their std and identifiability, the held-out "
+         "poses before and after.\n"
+         "6 Export: the parameter file for the controller and the report.\n\n"
+         "Numbers are shown in mm and degrees; u is the actuator unit of qm (the drives' "
+         "position unit). More: README.md and docs/ (Help > Documentation).")
 PREFERRED = (1440, 900)        # the window's size where the screen has room for it
 PAGES = {PageId.SETUP: SetupPage, PageId.REFERENCE: ReferencePage, PageId.PLAN: PlanPage,
          PageId.EXECUTE: ExecutePage, PageId.CALIBRATE: CalibratePage,
@@ -85,7 +100,8 @@ class MainWindow(QMainWindow):
         has framed it (the frame's size is known only then)."""
         self.fit_to_screen()
         self.show()
-        QTimer.singleShot(200, self.fit_to_screen)
+        for ms in (200, 700, 1500, 3000):     # the frame is known once the manager framed it
+            QTimer.singleShot(ms, self.fit_to_screen)
 
     def fit_to_screen(self) -> None:
         """Size the window to the screen it opens on: the available geometry (without
@@ -104,6 +120,10 @@ class MainWindow(QMainWindow):
 
     def _menus(self) -> None:
         m = self.menuBar().addMenu("&File")
+        a = QAction("&New session", self)
+        a.setShortcut(QKeySequence.StandardKey.New)
+        a.triggered.connect(self.new_session)
+        m.addAction(a)
         a = QAction("&Open a recorded trace\u2026", self)
         a.setShortcut(QKeySequence.StandardKey.Open)
         a.triggered.connect(self.open_trace)
@@ -114,6 +134,13 @@ class MainWindow(QMainWindow):
         a.triggered.connect(self.close)
         m.addAction(a)
         m = self.menuBar().addMenu("&Help")
+        a = QAction("&Getting started", self)
+        a.setShortcut(QKeySequence.StandardKey.HelpContents)
+        a.triggered.connect(lambda: QMessageBox.information(self, "Getting started", GUIDE))
+        m.addAction(a)
+        a = QAction("&Documentation (README, docs/)", self)
+        a.triggered.connect(lambda: QDesktopServices.openUrl(QUrl.fromLocalFile(str(DOCS))))
+        m.addAction(a)
         a = QAction("&About", self)
         a.triggered.connect(lambda: QMessageBox.about(
             self, "Calibration station",
@@ -174,6 +201,28 @@ class MainWindow(QMainWindow):
         self.back_button.setEnabled(cur != PageId.SETUP)
         self.next_button.setEnabled(cur in WIZARD and cur != WIZARD[-1]
                                     and self.pages[cur].is_complete())
+
+    def new_session(self) -> None:
+        """A new session in a new folder: the open one is closed (its trace keeps every
+        recorded pose), the setup page is shown with a fresh folder."""
+        from station.gui.pages.setup import default_folder
+
+        if self.pages[PageId.EXECUTE].running:
+            QMessageBox.information(self, "New session", "Poses are being measured: abort "
+                                    "(or let it finish) first.")
+            return
+        setup = self.pages[PageId.SETUP]
+
+        def fresh():
+            setup.devices.clear_devices()
+            setup.folder.setText(default_folder())
+            setup.update_missing()
+            self.go_to(PageId.SETUP)
+
+        if self.controller.session is not None:
+            self.controller.close_session(fresh)
+        else:
+            fresh()
 
     def open_trace(self) -> None:
         self.go_to(PageId.OFFLINE)

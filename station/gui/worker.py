@@ -138,7 +138,8 @@ class DeviceReading:
     text: str = ""
 
 
-def poll_devices(rig, timeout: float = 0.3) -> list[DeviceReading] | None:
+def poll_devices(rig, timeout: float = 0.3,
+                 simulated: bool = False) -> list[DeviceReading] | None:
     """One read of every device of ``rig`` (a :class:`LockedRig`); None if the
     devices were busy for ``timeout`` s (the worker is moving or measuring)."""
     from drivers.check import hint_for
@@ -151,12 +152,12 @@ def poll_devices(rig, timeout: float = 0.3) -> list[DeviceReading] | None:
         for d in rig.devices:
             if not d.is_open:
                 out.append(DeviceReading(d.name, False, text="not connected: "
-                                         + hint_for(d.name)))
+                                         + hint_for(d.name, simulated)))
                 continue
             try:
                 s = d.read()
             except (DeviceError, OSError) as e:
-                out.append(DeviceReading(d.name, False, text=f"{e}; {hint_for(d.name)}"))
+                out.append(DeviceReading(d.name, False, text=f"{e}; {hint_for(d.name, simulated)}"))
                 continue
             out.append(DeviceReading(d.name, True, dict(s.values)))
         return out

@@ -3,6 +3,7 @@
 # over the simulated station, each page grabbed as the operator sees it at 1366x768
 # in a window manager's frame (Xvfb, openbox, ImageMagick's import; see
 # tests/gui/helpers.py). Usage: sh tests/gui/take_screenshots.sh [pytest args]
+# Needs: apt-get install -y xvfb openbox imagemagick, and the wizard's libraries (README).
 set -e
 cd "$(dirname "$0")/../.."
 DISPLAY_NO=${SCREENSHOT_DISPLAY:-:97}

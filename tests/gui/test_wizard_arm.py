@@ -103,6 +103,8 @@ def _to_plan(open_window, qtbot, tmp_path, count, seed=8713, shots=False,
     assert plan.plot.count == count + n_val
     heads = [plan.table.horizontalHeaderItem(k).text() for k in range(plan.table.columnCount())]
     assert "qm6" in heads and any(h.startswith("roll") for h in heads)
+    # every column in sight at 1366x768: no scrolling sideways (issue 23, finding 10)
+    qtbot.waitUntil(lambda: plan.table.horizontalScrollBar().maximum() == 0, timeout=5000)
     assert f"{count} poses to fit + {n_val} held out" in plan.counts.text()
     # the tool's targets are the model's forward kinematics (mm in the table)
     p0 = s.plan_poses[0]

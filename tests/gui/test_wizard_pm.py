@@ -21,6 +21,7 @@ def test_pm_fk_session(open_window, qtbot, tmp_path):
     win = open_window(config_path=str(quick_config(tmp_path / "station", "agebot-pm", speed=1.0)))
     c = win.controller
     connect(qtbot, win, folder, "agebot-pm", "pm-fk", 14)
+    screenshot(win, "wrist-01-setup")
 
     # 2 reference: the wrist needs none; the inclinometer mounting check
     qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
@@ -68,6 +69,7 @@ def test_pm_fk_session(open_window, qtbot, tmp_path):
     assert len(c.session.plan_poses) == PM_SCOUT_COUNT
     assert all(p.use == "fit" for p in c.session.plan_poses)
     assert c.session.plan_poses[0].qm != first.qm
+    screenshot(win, "wrist-03-plan")
 
     # 4 execute: a drive fault answered Skip; the main round follows the scout round
     qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
@@ -88,6 +90,7 @@ def test_pm_fk_session(open_window, qtbot, tmp_path):
     assert any(p.round == 1 for p in s.plan_poses)          # the main round was planned
     assert len(s.measured) == len(s.plan_poses) - 1
     assert "skip" in [e["kind"] for e in s.events]
+    screenshot(win, "wrist-04-execute")
 
     # 5 calibrate: the wrist's q3_off and k3 are not identifiable, with influence
     qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
@@ -111,3 +114,4 @@ def test_pm_fk_session(open_window, qtbot, tmp_path):
     qtbot.waitUntil(exp.is_complete, timeout=TIMEOUT)
     doc = read_params(folder / "params.json")
     assert doc["method"] == "pm-fk" and exp.checksum.text() == doc["checksum"]
+    screenshot(win, "wrist-06-export")

@@ -1,6 +1,7 @@
 """The command-line contract (docs/cli.md), run as a user would."""
 import hashlib
 import json
+import math
 import os
 import re
 import subprocess
@@ -17,15 +18,23 @@ def app(*args, cwd=None):
                           capture_output=True, text=True, cwd=cwd or ROOT, timeout=120)
 
 
+#: the table's display units (mm and degrees for people) -> factor to SI
+TO_SI = {"mm": 1e-3, "mm/u": 1e-3, "\u00b0": math.pi / 180, "\u00b0/u": math.pi / 180,
+         "1": 1.0, "1/m": 1.0}
+
+
 def parse_table(stdout):
-    """The batch command's parameter table: name -> (start, calibrated, std or None, label),
-    and the figures under it (iterations, identifiable count, printed checksum)."""
+    """The batch command's parameter table: name -> (start, calibrated, std or None, label)
+    in SI (the printed unit column read back), and the figures under it (iterations,
+    identifiable count, printed checksum)."""
     lines = stdout.splitlines()
     rules = [i for i, ln in enumerate(lines) if ln.startswith("-" * 20)]
     rows = {}
     for ln in lines[rules[0] + 1:rules[1]]:
-        name, start, value, std, label = ln.split(None, 4)
-        rows[name] = (float(start), float(value), None if std == "-" else float(std), label)
+        name, unit, start, value, std, label = ln.split(None, 5)
+        f = TO_SI[unit]
+        rows[name] = (float(start) * f, float(value) * f,
+                      None if std == "-" else float(std) * f, label)
     tail = "\n".join(lines[rules[1]:])
     figures = {
         "iterations": int(re.search(r"converged in (\d+) iterations", tail).group(1)),

@@ -153,9 +153,18 @@ def test_a_lost_answer_in_the_reference_tare_redoes_the_whole_capture(tmp_path, 
         config = _session_config(sim, cfg)
         n = config.snapshot.samples
         # the draw-wire's requests of the reference step, in order: the plausibility
-        # check's zero and its two snapshots (before and after the test move), then the
-        # capture's zero and the tare snapshot: the tare's third reading gets no answer
-        first = 1 + 2 * n + 1 + 2
+        # check's zero and its two snapshots (before and after the test move), a snapshot
+        # per move of the joints' direction test, then the capture's zero and the tare
+        # snapshot: the tare's third reading gets no answer
+        from calibration.robots import get_robot
+        from station.plausibility import direction_moves
+        from station.planner import reference_pose
+
+        robot = get_robot("agebot-sm")
+        target = reference_pose("sm-distance-tilt", robot.nominal,
+                                config.envelope.qm_range)[0]
+        moves = 2 * len(direction_moves(robot, robot.nominal, target))
+        first = 1 + 2 * n + moves * n + 1 + 2
         with sim.control() as ctl:
             injected = []
             with Session(config, "sm-distance-tilt", out, request=REQUEST, **POOR_FIT_OK,

@@ -52,6 +52,7 @@ def test_good_file_and_parameter_names():
     (("version = 1", 'version = 1\nfixed = ["k9"]'), "fixed", "unknown parameter 'k9'"),
     (('name = "two-link"', 'name = "agebot-sm"'), "name", "built-in"),
     (("version = 1", "version = 2"), "version", "unsupported version"),
+    (("limits = [-3.0, 3.0]", "limits = [-170, 170]"), "joint[1].limits", "look like degrees"),
 ])
 def test_errors_name_the_file_the_key_and_the_fault(tmp_path, edit, key, words):
     path = tmp_path / "arm.toml"
@@ -60,6 +61,27 @@ def test_errors_name_the_file_the_key_and_the_fault(tmp_path, edit, key, words):
         load_robot_file(path)
     msg = str(e.value)
     assert str(path) in msg and key in msg and words in msg and "\n" not in msg
+
+
+def test_limits_in_degrees_refused_in_one_line_naming_the_key(tmp_path):
+    """An R joint's limits written in degrees (issue 23, finding 5): refused by every
+    command with one line naming the file and the key, the limits in radians said;
+    a wide wrist (+-700 deg) and a fine gear (k small, qm large) are not."""
+    path = tmp_path / "arm.toml"
+    path.write_text(GOOD.replace("limits = [-3.0, 3.0]", "limits = [-170, 170]"))
+    r = app("trace", "generate", "--robot", str(path), "--method", "sm-position",
+            "--out", str(tmp_path / "t.jsonl"))
+    assert r.returncode == 2 and r.stdout == ""
+    line, = r.stderr.strip().splitlines()
+    assert line.startswith("error: ") and f"{path}: joint[1].limits" in line
+    assert "degrees" in line and "[-2.967, 2.967]" in line
+    assert not (tmp_path / "t.jsonl").exists()
+    parse_robot_file(GOOD.replace("limits = [-3.0, 3.0]", "limits = [-12.2, 12.2]"), "w.toml")
+    parse_robot_file(GOOD.replace("limits = [-3.0, 3.0]", "k = 0.01\nlimits = [-300, 300]"),
+                     "g.toml")
+    for f in os.listdir(ROBOTS):
+        if f.endswith(".toml"):
+            load_robot_file(os.path.join(ROBOTS, f))
 
 
 def test_trace_checksum_guards_the_robot_file(tmp_path):

@@ -50,6 +50,11 @@ class ExecutePage(Page):
         inner.addWidget(self.readings)
         inner.addStretch(1)
         row.addWidget(box, 1)
+        self.picture_box = QGroupBox("The robot now (the model at the readings)")
+        QVBoxLayout(self.picture_box)
+        self.picture = None
+        self._picture_for = None
+        row.addWidget(self.picture_box, 2)
         box = QGroupBox("What happened")
         self.log = QListWidget()
         self.log.setMinimumHeight(220)
@@ -64,6 +69,7 @@ class ExecutePage(Page):
         self.finished = False
         self.fault_box: QMessageBox | None = None
         self.faults_asked = 0
+        self._restart = False      # Retry answered where the devices were lost
         controller.progressed.connect(self._progress)
         controller.eventLogged.connect(self._event)
         controller.stateChanged.connect(self._state)
@@ -78,10 +84,54 @@ class ExecutePage(Page):
             return
         self.readings.set_channels([f"qm{i + 1}" for i in range(s.robot.n_actuators)]
                                    + list(self._channels(s)))
+        if self._picture_for != id(s):
+            self._build_picture(s)
         if not self.running and s.plan_poses and not s.pending and s.rounds_complete:
             self.finished = True
         self._update_progress()
         self._buttons()
+
+    def _build_picture(self, s) -> None:
+        """The session's robot as the reference page draws it, following the readings
+        (a robot file's arm in 3D, AGEBOT's arm from the side, the wrist's level)."""
+        from station.gui.arm3d import ArmFigure
+        from station.gui.pictures import ArmPicture, LevelPicture
+
+        lay = self.picture_box.layout()
+        if self.picture is not None:
+            lay.removeWidget(self.picture)
+            self.picture.deleteLater()
+        units = self.controller.units
+        if s.serial:
+            pic = ArmFigure(s.robot, s.nominal, target_label="reference", units=units)
+        elif s.robot.name == "agebot-sm":
+            pic = ArmPicture(s.robot, s.nominal, target_label="reference", units=units)
+        else:
+            pic = LevelPicture()
+        pic.steps = []                 # the reference's steps are done: the robot only
+        if s.reference_qm is not None and hasattr(pic, "set_state"):
+            pic.set_state(target_qm=s.reference_qm, captured=True, captured_qm=s.reference_qm)
+        pic.setMinimumSize(300, 240)
+        lay.addWidget(pic)
+        pic.show()
+        self.picture, self._picture_for = pic, id(s)
+
+    def _show_robot(self, values: dict) -> None:
+        from station.gui.arm3d import ArmFigure
+        from station.gui.pictures import LevelPicture
+
+        pic, s = self.picture, self.session
+        if pic is None or s is None:
+            return
+        if isinstance(pic, LevelPicture):
+            if "roll" in values:
+                pic.set_angles(values["roll"], values.get("pitch", 0.0))
+            return
+        qm = [values.get(f"qm{i + 1}") for i in range(s.robot.n_actuators)]
+        if None not in qm:
+            pic.set_state(qm=qm)
+            if isinstance(pic, ArmFigure) and "roll" in values:
+                pic.set_tilt(values["roll"], values.get("pitch", 0.0))
 
     @staticmethod
     def _channels(s):
@@ -95,6 +145,13 @@ class ExecutePage(Page):
         self.finished = False
         self.running = False
         self.log.clear()
+        s = self.session
+        for ev in (s.events if s is not None else ()):    # a resumed session's history
+            self._event(ev, stamp=str(ev.get("t", ""))[11:19])
+        # a resumed session measured whole: this step stays done
+        self.finished = bool(s is not None and s.plan_poses and not s.pending
+                             and s.rounds_complete)
+        self.completeChanged.emit()
 
     def _update_progress(self) -> None:
         s = self.session
@@ -131,8 +188,17 @@ class ExecutePage(Page):
         if self.session is None or self.running:
             return
         self.running = True
-        self.status.setText("Measuring\u2026")
         self.status.setStyleSheet("")
+        self._buttons()
+        if self.controller.devices_lost:      # e.g. the simulator's process ended
+            self.status.setText("Connecting the devices again\u2026")
+            self.controller.reopen(lambda _s: self._measure(), self._failed)
+            return
+        self._measure()
+
+    def _measure(self) -> None:
+        self.running = True
+        self.status.setText("Measuring\u2026")
         self._buttons()
         self.controller.execute(self._done, self._failed)
 
@@ -162,6 +228,11 @@ class ExecutePage(Page):
     def _failed(self, e) -> None:
         from station.session import SessionAborted
 
+        if self._restart:          # Retry after the devices were lost: connect, go on
+            self._restart = False
+            self.status.setText("Connecting the devices again\u2026")
+            self.controller.reopen(lambda _s: self._measure(), self._failed)
+            return
         self.running = False
         self._update_progress()
         self._buttons()
@@ -183,10 +254,16 @@ class ExecutePage(Page):
         box.setIcon(QMessageBox.Icon.Warning)
         box.setWindowTitle("Device fault")
         box.setText(f"Pose {pose.index} could not be measured (attempt {request.attempt + 1}).")
+        lost = self.controller.devices_lost
+        retry_text = ("Retry: connect the devices anew (the simulator started again), go back "
+                      "to the reference and measure the pose again."
+                      if lost and self.controller.simulate else
+                      "Retry: reset the drive or reconnect the device and measure the pose "
+                      "again.")
         box.setInformativeText(
-            f"{error_text(request.error)}\n\nRetry: reset the drive or reconnect the device and "
-            "measure the pose again.\nSkip: leave this pose out and go on.\nAbort: stop here; "
-            "the recorded poses stay in the trace and you can continue later.")
+            f"{error_text(request.error)}\n\n{retry_text}\nSkip: leave this pose out and go "
+            "on.\nAbort: stop here; the recorded poses stay in the trace and you can "
+            "continue later.")
         retry = box.addButton("&Retry", QMessageBox.ButtonRole.AcceptRole)
         skip = box.addButton("S&kip pose", QMessageBox.ButtonRole.ActionRole)
         abort = box.addButton("&Abort", QMessageBox.ButtonRole.RejectRole)
@@ -196,7 +273,12 @@ class ExecutePage(Page):
         box.answer_buttons = {v: k for k, v in answers.items()}
 
         def clicked(button):
-            self.controller.faults.answer(request, answers.get(button, "abort"))
+            answer = answers.get(button, "abort")
+            if answer == "retry" and self.controller.devices_lost:
+                # the session cannot reconnect to devices that are gone: it stops, the
+                # devices are connected anew and measuring goes on from this pose
+                self._restart, answer = True, "abort"
+            self.controller.faults.answer(request, answer)
             self.fault_box = None
 
         box.buttonClicked.connect(clicked)
@@ -210,26 +292,34 @@ class ExecutePage(Page):
         if p.stage:               # the wrist: counted per round (scout, then main)
             self.progress.setMaximum(max(1, p.stage_total))
             self.progress.setValue(p.stage_done)
-            self.progress.setFormat(("scout round: " if p.stage == "scout" else "main round: ")
-                                    + "%v of %m poses")
+            self.progress.setFormat(("scout round" if p.stage == "scout" else p.stage)
+                                    + ": %v of %m poses")
         else:
             self.progress.setMaximum(max(1, p.total))
             self.progress.setValue(p.done)
-            self.progress.setFormat("%v of %m poses")
+            s = self.session
+            rounds = getattr(s, "rounds", None) if s is not None else None
+            if rounds is not None and not s.rounds_complete:   # the plan grows round by round
+                total = rounds.fit_total() + rounds.totals()[1]
+                self.progress.setFormat(f"%v of %m poses planned so far (the rounds plan "
+                                        f"{total} in all)")
+            else:
+                self.progress.setFormat("%v of %m poses")
         if p.pose is not None:
             s = self.session
-            sis = target_coords(s.robot)[1] if s is not None else ("rad",) * 3
+            names, sis = target_coords(s.robot) if s is not None else (("",) * 3, ("rad",) * 3)
             u = self.controller.units
-            target = ", ".join(u.text(v, si, ".4g") for v, si in zip(p.pose.target, sis))
+            target = ", ".join(f"{k} {u.text(v, si, '.4g')}"
+                               for k, v, si in zip(names, p.pose.target, sis))
             use = "held out" if p.pose.use == "validation" else "fit"
             self.current.setText(f"Pose {p.pose.index} ({use}): {p.message}; target {target}")
 
-    def _event(self, ev: dict) -> None:
+    def _event(self, ev: dict, stamp: str | None = None) -> None:
         if ev.get("kind") == "plan":
             text = ev.get("message", "")
         else:
             text = f"[{ev.get('kind')}] {ev.get('message', '')}"
-        item = QListWidgetItem(f"{time.strftime('%H:%M:%S')}  {text}")
+        item = QListWidgetItem(f"{stamp or time.strftime('%H:%M:%S')}  {text}")
         color = EVENT_COLOR.get(ev.get("kind", ""))
         if color:
             item.setForeground(QColor(color))
@@ -242,9 +332,11 @@ class ExecutePage(Page):
 
     def _values(self, values: dict) -> None:
         self.readings.set_values(values)
+        self._show_robot(values)
 
     def _polled(self, readings) -> None:
         values = {}
         for r in readings:
             values.update(r.values)
         self.readings.set_values(values)
+        self._show_robot(values)

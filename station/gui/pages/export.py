@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from PySide6.QtCore import QUrl
+from PySide6.QtCore import Qt, QUrl
 from PySide6.QtGui import QDesktopServices, QGuiApplication
-from PySide6.QtWidgets import QFormLayout, QGroupBox, QHBoxLayout, QPushButton
+from PySide6.QtWidgets import QFormLayout, QGroupBox, QHBoxLayout, QMessageBox, QPushButton
 
 from station.gui.pages.base import Page, error_text
 from station.gui.widgets import BAD_COLOR, OK_COLOR, note
@@ -120,9 +120,21 @@ class ExportPage(Page):
         if self.files:
             QGuiApplication.clipboard().setText(self.files["checksum"])
 
-    def _open(self, path) -> None:
-        if path:
-            QDesktopServices.openUrl(QUrl.fromLocalFile(str(path)))
+    def _open(self, path) -> bool:
+        """Open ``path`` with the desktop's program; where none starts, say where the
+        file is (the path can be copied from the message)."""
+        if not path:
+            return False
+        if QDesktopServices.openUrl(QUrl.fromLocalFile(str(path))):
+            return True
+        box = QMessageBox(QMessageBox.Icon.Information, "Not opened",
+                          f"No program could be started to open it here. Open it yourself:\n"
+                          f"{path}", QMessageBox.StandardButton.Ok, self)
+        box.setObjectName("notOpened")
+        box.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        box.open()
+        self.last_error = box
+        return False
 
     def is_complete(self) -> bool:
         return self.files is not None

@@ -15,7 +15,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QHBoxLayout, QHeade
 from station.gui.pages.base import Page
 from station.pose_design import design_text
 from station.gui.plots import WorkspacePlot
-from station.gui.widgets import BAD_COLOR, OK_COLOR, note, target_coords
+from station.gui.widgets import BAD_COLOR, OK_COLOR, fixed, note, target_coords
 from station.planner import PM_SCOUT_COUNT
 
 
@@ -61,16 +61,19 @@ class PlanPage(Page):
         self.layout_.addLayout(bar)
         self.counts = note("")
         self.layout_.addWidget(self.counts)
-        split = QSplitter(Qt.Orientation.Horizontal)
+        # the table over the plot, each the page's whole width: every column in sight
+        # at 1366x768 without scrolling sideways (a robot file's 16 columns too)
+        split = self.split = QSplitter(Qt.Orientation.Vertical)
         self.table = QTableWidget(0, 0)
         self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
         self.table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         self.table.verticalHeader().setVisible(False)
-        self.table.setMinimumHeight(300)
+        self.table.setMinimumHeight(220)
         self.plot = WorkspacePlot()
         split.addWidget(self.table)
         split.addWidget(self.plot)
-        split.setSizes([560, 520])
+        self.plot.setMinimumHeight(380)
+        split.setSizes([300, 420])
         self.layout_.addWidget(split, 1)
         self.status = note("")
         self.layout_.addWidget(self.status)
@@ -148,13 +151,14 @@ class PlanPage(Page):
         t.setColumnCount(len(heads))
         t.setHorizontalHeaderLabels(heads)
         t.setRowCount(len(poses))
+        rounds = s.robot.name == "agebot-pm" or s.rounds is not None
         for r, p in enumerate(poses):
             state = ("measured" if p.index in s.measured else
                      "skipped" if p.index in s.skipped else "to measure")
             tgt = [u.value(v, si) for v, si in zip(p.target, sis)]
             cells = [str(p.index), "held out" if p.use == "validation" else "fit",
-                     "scout" if (s.robot.name == "agebot-pm" and p.round == 0) else str(p.round),
-                     state] + [f"{v:.3f}" for v in p.qm] + [f"{v:.3f}" for v in tgt]
+                     ("scout" if p.round == 0 else f"round {p.round}") if rounds else "",
+                     state] + [fixed(v, 3) for v in p.qm] + [fixed(v, 3) for v in tgt]
             for c, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 if c >= 4 or c == 0:
@@ -164,6 +168,7 @@ class PlanPage(Page):
                     item.setForeground(QColor("#b35900"))
                 t.setItem(r, c, item)
         t.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        t.setColumnHidden(2, not rounds)        # one shot: no rounds to tell apart
         ref = None
         if s.reference_qm is not None and s.method == "sm-distance-tilt":
             ref = [0.0, 0.0, 0.0]       # the targets are planned in the base-origin frame

@@ -37,6 +37,8 @@ class JogPanel(QGroupBox):
         self.step.setDecimals(3)
         self.step.setValue(step)
         self.step.setSuffix(" u")
+        self.step.setToolTip("u: the actuator unit of qm, the drives' position unit (the "
+                             "station config's [canopen] increments_per_unit counts per u)")
         form.addRow("Step si&ze:", self.step)
         self.speed = QDoubleSpinBox()
         self.speed.setRange(1, 100)

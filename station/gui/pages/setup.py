@@ -18,6 +18,9 @@ from station.arm_rounds import ROUND_METHODS
 from station.gui.widgets import BAD_COLOR, OK_COLOR, DeviceTable, note
 from station.planner import SESSION_METHODS, PlanRequest
 
+# the method a new session starts with (the README's): distance + tilt leaves none of
+# the arm's parameters uncalibrated; the wrist's full orientation
+DEFAULT_METHOD = {"serial": "sm-distance-tilt", "parallel-wrist": "pm-fk"}
 METHOD_TEXT = {
     "sm-distance-tilt": "distance to a base origin you choose + tilt of the last link "
                         "(report 7.5): every parameter identifiable",
@@ -41,24 +44,16 @@ def robot_model(robot: str):
 
 
 def draw_truth_file(robot_file: str, folder: Path, seed: int) -> Path:
-    """A simulated arm of ``robot_file`` that is not its nominal
-    (:func:`drivers.sim.serial_robot.draw_serial_truth`, the devices' noise of
-    :data:`station.sim_sessions.DEVICE_NOISE`, an inclinometer mounted up to 1 deg off),
-    saved as ``folder/sim-truth.json``."""
-    import numpy as np
+    """A simulated arm of ``robot_file`` that is not its nominal, saved as
+    ``folder/sim-truth.json``: what ``app.py truth draw`` writes
+    (:func:`station.truth_cli.draw_truth_file`)."""
+    from station.truth_cli import draw_truth_file as draw
 
-    from drivers.sim.serial_robot import draw_serial_truth
-    from drivers.sim.truth import save_truth
-    from station.sim_sessions import DEVICE_NOISE
-
-    rng = np.random.default_rng(seed)
-    mount = tuple(float(v) for v in rng.uniform(-0.017, 0.017, 2))
-    t = draw_serial_truth(robot_file, rng, noise=DEVICE_NOISE["agebot-sm"], seed=seed,
-                          inclinometer_mount=mount)
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / "sim-truth.json"
-    save_truth(t, path)
-    return path
+    return draw(robot_file, folder / "sim-truth.json", seed)
+
+
+ROUNDS_TEXT = "Plan in rounds from the measured poses, and watch every move (recommended)"
 
 
 def default_folder() -> str:
@@ -95,6 +90,9 @@ class SetupPage(Page):
         browse_robot.clicked.connect(self.browse_robot_file)
         self.method = QComboBox()
         self.method_text = note("")
+        # wide enough that its wrapped height is computed at about the width it gets
+        # (a narrow guess leaves the box a third empty)
+        self.method_text.setMinimumWidth(600)
         form.addRow("&Robot:", _row(self.robot, browse_robot))
         form.addRow("&Method:", self.method)
         form.addRow("", self.method_text)
@@ -137,7 +135,8 @@ class SetupPage(Page):
         self.folder = QLineEdit(default_folder())
         browse_f = QPushButton("Br&owse\u2026")
         browse_f.clicked.connect(self.browse_folder)
-        form.addRow("Session fol&der:", _row(self.folder, browse_f))
+        self.folder_row = _row(self.folder, browse_f)
+        form.addRow("Session fol&der:", self.folder_row)
         self.count = QSpinBox()
         self.count.setRange(0, 500)
         self.count.setSpecialValueText("automatic (twice the minimum of eq. 60)")
@@ -145,12 +144,14 @@ class SetupPage(Page):
         form.addRow("&Poses to fit:", self.count)
         # the arm's distance methods: rounds inside the live-watched envelope
         # (station/arm_rounds.py), as app.py run does; unticked is its --one-shot
-        self.rounds = QCheckBox("Plan in rounds from the measured poses, and watch "
-                                "every move (recommended)")
+        self.rounds = QCheckBox(ROUNDS_TEXT)
         self.rounds.setChecked(True)
-        self.rounds.setToolTip("Unticked: every pose planned at once from the start values, "
-                               "moves not watched (app.py run --one-shot); safe only where "
-                               "the start values are close to the robot")
+        self._rounds_wanted = True
+        self.rounds.toggled.connect(self._rounds_toggled)
+        self.rounds.setProperty("tip", "Unticked: every pose planned at once from the start "
+                                "values, moves not watched (app.py run --one-shot); safe only "
+                                "where the start values are close to the robot")
+        self.rounds.setToolTip(self.rounds.property("tip"))
         form.addRow("", self.rounds)
         self.layout_.addWidget(box)
 
@@ -181,6 +182,8 @@ class SetupPage(Page):
         c.sessionChanged.connect(self._session_changed)
         c.busyChanged.connect(self._busy)
         self._connecting = False
+        self._robot_fixed = False       # the station config names the robot
+        self._resumed_folder = None     # the folder whose "Resume?" was answered Yes
         self._checked = None            # the session whose devices all answered once
         self._error: str | None = None
         self._robot_error: str | None = None
@@ -242,15 +245,68 @@ class SetupPage(Page):
         for m in SESSION_METHODS:
             if METHODS[m].kind == kind:
                 self.method.addItem(f"{m} (report {METHODS[m].section})", m)
+        default = self.method.findData(DEFAULT_METHOD.get(kind, ""))
+        if default >= 0:
+            self.method.setCurrentIndex(default)
         self.truth_row.setEnabled(self.robot_file)
         self._method_changed()
         self.update_missing()
 
     def _method_changed(self, *_):
-        self.method_text.setText(METHOD_TEXT.get(self.method_name or "", ""))
+        text = METHOD_TEXT.get(self.method_name or "", "")
+        if self.robot_file and self.method_name == "sm-distance-tilt":
+            text = ("distance to a base origin you choose + the tool inclinometer's roll and "
+                    "pitch (report 7.5); which of the robot file's parameters the measurements "
+                    "determine is decided by the identifiability analysis (the Plan page "
+                    "counts them, the Calibrate page lists them)")
+        elif self.robot_file and self.method_name == "sm-distance":
+            text += ("; the base frame's orientation and the first joint's zero are not seen "
+                     "(the Calibrate page lists what is calibrated)")
+        self.method_text.setText(text)
         if hasattr(self, "rounds"):      # the arm's rounds: AGEBOT's distance methods
-            self.rounds.setEnabled(self.robot_key == "agebot-sm"
-                                   and self.method_name in ROUND_METHODS)
+            self._show_rounds()
+
+    def _show_rounds(self) -> None:
+        """"Plan in rounds" where it applies (AGEBOT's arm, distance methods), ticked as
+        the operator left it; elsewhere unticked, greyed, and saying how it is planned."""
+        applies = self.robot_key == "agebot-sm" and self.method_name in ROUND_METHODS
+        if applies:
+            self.rounds.setText(ROUNDS_TEXT)
+            self.rounds.setChecked(self._rounds_wanted)
+        else:
+            self.rounds.blockSignals(True)
+            self.rounds.setChecked(False)
+            self.rounds.blockSignals(False)
+            self.rounds.setText(
+                "Planned in rounds of its own: a scout round near home, then wider boxes"
+                if self.robot_key == "agebot-pm" else
+                "Planned at once (one shot) from the nominal inside the joint limits"
+                if self.robot_file else "Planned at once")
+        self.rounds.setEnabled(applies and not self.locked)
+
+    def _rounds_toggled(self, on: bool) -> None:
+        if self.rounds.isEnabled():
+            self._rounds_wanted = on
+
+    @property
+    def locked(self) -> bool:
+        """While a session is open (or opening) its robot, method, folder, truth, pose
+        count and rounds are fixed: Disconnect to change them (what the page shows is
+        what the session does)."""
+        return self.controller.session is not None or self._connecting
+
+    def _lock_choices(self) -> None:
+        locked = self.locked
+        for w in (self.method, self.count, self.truth_row, self.draw_truth_button):
+            w.setEnabled(not locked and (w is not self.truth_row and w is not
+                                         self.draw_truth_button or self.robot_file))
+        self.robot.setEnabled(not locked and not self._robot_fixed)
+        self.folder_row.setEnabled(not locked)
+        self._show_rounds()
+        tip = ("Disconnect to change the robot, the method, the folder or the poses"
+               if locked else "")
+        for w in (self.robot, self.method, self.folder_row, self.count, self.rounds):
+            w.setToolTip(tip or w.property("tip") or "")
 
     def _robot_from_config(self, path) -> None:
         try:
@@ -261,6 +317,7 @@ class SetupPage(Page):
         if is_robot_file(robot):
             robot = self.add_robot_file(robot)
         self.robot.setCurrentIndex(self.robot.findData(robot))
+        self._robot_fixed = True
         self.robot.setEnabled(False)
 
     def browse_config(self) -> None:
@@ -331,10 +388,13 @@ class SetupPage(Page):
             out.append("Not connected: press Connect.")
         for name, ok in self.devices.states.items():
             if not ok:
-                out.append(f"{name} does not answer: see its row above for what to check.")
+                out.append(f"{name} does not answer: see its row under Devices (live) below "
+                           "for what to check.")
         return out
 
     def update_missing(self, *_):
+        if hasattr(self, "folder_row"):
+            self._lock_choices()
         items = self.missing_items()
         if self._connecting:
             self.missing.setText("Connecting\u2026")
@@ -376,17 +436,27 @@ class SetupPage(Page):
             self.update_missing()
             return
         folder = Path(self.folder.text().strip()).expanduser()
+        current = self.controller.session
+        if current is not None and current.out.resolve() == folder.resolve():
+            # this session's folder again (its devices were lost): connect anew, no question
+            self._connecting = True
+            self.devices.clear_devices()
+            self.update_missing()
+            self.controller.reopen(on_done=self._connected, on_error=self._failed)
+            return
         summary = summarize_folder(folder)
         if summary is not None:
             if summary.error:
                 self._error = summary.sentence() + ": choose another folder."
                 self.update_missing()
                 return
-            if not self.ask_resume(summary):
+            # asked once per folder: a Connect again after a failed one does not ask again
+            if self._resumed_folder != folder.resolve() and not self.ask_resume(summary):
                 self._error = (f"{folder} holds a session you chose not to resume: choose "
                                "another folder for a new session.")
                 self.update_missing()
                 return
+            self._resumed_folder = folder.resolve()
             robot = summary.robot
             if summary.robot_file:          # a robot file's session: the same file
                 robot = self.robot_file_of(summary.robot_file)
@@ -423,7 +493,8 @@ class SetupPage(Page):
         self._connecting = False
         device = getattr(e, "device", None)
         self._error = (f"Could not connect: {error_text(e)}"
-                       + (f" \u2014 {hint_for(device)}." if device else ""))
+                       + (f" \u2014 {hint_for(device, self.controller.simulate)}." if device
+                          else ""))
         self.update_missing()
 
     def disconnect_session(self) -> None:
