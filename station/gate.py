@@ -662,7 +662,9 @@ def _plausible_serial(quality, model, result) -> None:
                 bad.append((name, x0, x, f"turned {math.degrees(d):.3g} deg"))
         elif name.endswith("_off"):
             i = int(name[1:-4])
-            lim = SERIAL_ZERO if robot.spec.joints[i - 1].kind == "R" else SERIAL_SHIFT * size
+            kind = robot.spec.joints[i - 1].kind
+            # a robot file's prismatic zero is wherever its rail's encoder counts from
+            lim = (SERIAL_ZERO if kind == "R" else SERIAL_SHIFT * size if urdf else math.inf)
             if abs(d) > lim:
                 bad.append((name, x0, x, "a zero far from the URDF's (a joint map's offset or "
                                          "sign?)" if urdf else "a zero far from the robot "
