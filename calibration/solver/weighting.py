@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2
+from scipy import special
 
 # Below this (in the residual's SI units) a sigma estimate is round-off, not noise.
 SIGMA_FLOOR = 1e-14
@@ -171,4 +171,4 @@ def _homogeneous(rss_dof) -> bool:
     sp = sum(rc for rc, _ in rd) / nu
     t = nu * math.log(sp) - sum(d * math.log(rc / d) for rc, d in rd)
     t /= 1 + (sum(1 / d for _, d in rd) - 1 / nu) / (3 * (k - 1))
-    return float(chi2.sf(t, k - 1)) > HOMOGENEITY_ALPHA
+    return float(special.chdtrc(k - 1, t)) > HOMOGENEITY_ALPHA  # chi2.sf(t, k - 1)
