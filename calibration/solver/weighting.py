@@ -32,9 +32,11 @@ class Weighting:
             self.sigma_dof = dict(memo[3])
             return dict(memo[2])
         rss = np.bincount(self.row_channel, weights=r * r, minlength=len(self.channels)).tolist()
-        used = self._channel_leverage(n_active)
-        out = {}
         known = self.known
+        # the leverage (a QR of the whole matrix) only serves the channels estimated here
+        used = ([None] * len(self.channels) if all(ch in known for ch in self.channels)
+                else self._channel_leverage(n_active))
+        out = {}
         est = {}  # channel -> (rss, dof) of the channels estimated here
         for ch, nc, rc, hc in zip(self.channels, self.channel_count.tolist(), rss, used):
             if ch in known:
