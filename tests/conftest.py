@@ -13,6 +13,7 @@ if ROOT not in sys.path:
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
 
+@pytest.hookimpl(optionalhook=True)     # an xdist hook: unknown without xdist
 def pytest_xdist_auto_num_workers(config):
     """``-n auto`` (pyproject.toml's addopts): two test processes per core. A session
     test spends about half its time waiting for the simulated devices (moves, settles,
