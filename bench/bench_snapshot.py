@@ -15,6 +15,9 @@ The station process opens the real drivers (``CanopenActuators``,
   3. builds the pose record and appends it with ``station.trace.TraceWriter``
      (flush + fsync; timed: ``store``).
 
+The rows (cases) are interleaved: each round measures one pose of every case in turn
+(round 0 a warm-up), so that load on the machine falls on every row alike.
+
 The configured budget of a snapshot is ``settle + (samples - 1) * period`` (the
 sleeps; the last round's reads start at its end). Overhead = wall - budget; the
 table gives it in ms and as a share of the budget, with the CANopen positions
@@ -121,33 +124,22 @@ def stats_ms(xs) -> tuple[float, float, float]:
     return statistics.fmean(ms), statistics.median(ms), ms[int(0.95 * (len(ms) - 1))]
 
 
-def run_case(drives, devices, writer, snap_cfg, poses, q0, rng, index0):
-    """``poses`` measured poses (plus one warm-up); per-pose times and per-device read times."""
-    reads: dict[str, list[float]] = {d.name: [] for d in devices}
-    time_reads(devices, reads)
-    rows = []
-    try:
-        for k in range(poses + 1):
-            target = [q + rng.uniform(-0.3, 0.3) for q in q0]
-            drives.move_to(target)
-            drives.wait_target_reached(30.0)
-            before = {n: len(v) for n, v in reads.items()}
-            t0 = time.perf_counter()
-            snap = snapshot_with(devices, snap_cfg)
-            t1 = time.perf_counter()
-            writer.append(pose_record(index0 + k, snap, len(q0)))
-            t2 = time.perf_counter()
-            if k == 0:                                  # warm-up
-                for v in reads.values():
-                    v.clear()
-                continue
-            last = sum(reads[d.name][-1] for d in devices)
-            assert all(len(v) - before[n] == snap_cfg.samples for n, v in reads.items())
-            rows.append((t1 - t0, t2 - t1, last))
-    finally:
-        for d in devices:
-            del d.read                                  # back to the class's method
-    return rows, reads
+def measure_pose(drives, devices, reads, writer, snap_cfg, q0, rng, index):
+    """One pose: a small move (not timed), the snapshot and the stored record (timed);
+    ``(snapshot s, store s, last round's reads s)``; ``reads`` gets the per-device
+    read times of the snapshot (:func:`time_reads`)."""
+    target = [q + rng.uniform(-0.3, 0.3) for q in q0]
+    drives.move_to(target)
+    drives.wait_target_reached(30.0)
+    before = {n: len(v) for n, v in reads.items()}
+    t0 = time.perf_counter()
+    snap = snapshot_with(devices, snap_cfg)
+    t1 = time.perf_counter()
+    writer.append(pose_record(index, snap, len(q0)))
+    t2 = time.perf_counter()
+    last = sum(reads[d.name][-1] for d in devices)
+    assert all(len(v) - before[n] == snap_cfg.samples for n, v in reads.items())
+    return t1 - t0, t2 - t1, last
 
 
 def main(argv=None) -> int:
@@ -186,16 +178,43 @@ def main(argv=None) -> int:
             rng, index = random.Random(7), 0
             cases = [(s, via, a.incl_rate) for s in SETTINGS for via in ("tpdo", "sdo")]
             cases += [(s, "tpdo", SIM_INCL_RATE) for s in SETTINGS]
-            for (samples, period, settle), via, rate in cases:
-                conn.send(("incl_rate", rate))
-                conn.recv()
-                time.sleep(0.2)                         # a few frames at the new rate
-                drives.read_via = via
-                snap_cfg = dataclasses.replace(cfg.snapshot, samples=samples, period=period, settle=settle)
-                rows, reads = run_case(drives, devices, writer, snap_cfg, a.poses, q0, rng, index)
-                index += a.poses + 1
-                results.append(((samples, period, settle), via, rate, rows))
-                read_rows[(samples, period, via, rate)] = reads
+            rows = {case: [] for case in cases}
+            sinks = {case: {d.name: [] for d in devices} for case in cases}
+            current: dict[str, list[float]] = {}
+            time_reads(devices, current)
+            rate_now = None
+            try:
+                # interleaved: each round measures one pose of every case in turn, so
+                # that a burst of load on the machine affects every case alike; round 0
+                # is a warm-up
+                for k in range(a.poses + 1):
+                    for case in cases:
+                        (samples, period, settle), via, rate = case
+                        if rate != rate_now:
+                            conn.send(("incl_rate", rate))
+                            conn.recv()
+                            time.sleep(0.2)             # a few frames at the new rate
+                            rate_now = rate
+                        drives.read_via = via
+                        snap_cfg = dataclasses.replace(cfg.snapshot, samples=samples,
+                                                       period=period, settle=settle)
+                        current.clear()
+                        current.update(sinks[case])
+                        row = measure_pose(drives, devices, current, writer, snap_cfg, q0,
+                                           rng, index)
+                        index += 1
+                        if k == 0:
+                            for v in sinks[case].values():
+                                v.clear()
+                        else:
+                            rows[case].append(row)
+            finally:
+                for d in devices:
+                    del d.read                          # back to the class's method
+            for case in cases:
+                (samples, period, settle), via, rate = case
+                results.append(((samples, period, settle), via, rate, rows[case]))
+                read_rows[(samples, period, via, rate)] = sinks[case]
             drives.read_via = "tpdo"
             n_poses = len(read_trace(path).poses)
             bare = {"read() by SYNC + 4 TPDOs": [], "read_sdo(), 4 SDO uploads": []}

@@ -36,6 +36,7 @@ import glob
 import json
 import os
 import shutil
+import re
 import subprocess
 import sys
 import tempfile
@@ -155,6 +156,9 @@ def run_module(name: str, work: Path, jobs: int, keep: bool, sample: int = 0, se
         tests = _existing(tests)
     base = (ROOT / "pyproject.toml").read_text()
     base = base.split("\n[tool.mutmut]")[0]
+    # mutmut maps tests to mutants in its own pytest process: no xdist workers
+    base = re.sub(r"^addopts = .*$", lambda m: re.sub(r' (-n|--dist) [^\s"]+', "", m.group(0)),
+                  base, flags=re.M)
     (scratch / "pyproject.toml").write_text(
         base + "\n[tool.mutmut]\n"
         f'source_paths = ["calibration", "drivers", "station", "app.py"]\n'

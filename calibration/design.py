@@ -67,7 +67,8 @@ class PoseInformation:
     def matrix(self, chosen, scaled: bool = False) -> np.ndarray:
         """Information matrix ``sum_i B_i^T B_i`` over the ``chosen`` candidates."""
         B = (self.scaled if scaled else self.blocks)[np.asarray(chosen, dtype=int)]
-        return np.einsum("upl,upk->lk", B, B)
+        B = B.reshape(-1, B.shape[-1])
+        return B.T @ B
 
     def poses(self, chosen) -> np.ndarray:
         """The pool's pose indices of the ``chosen`` candidates, in their order."""
@@ -138,7 +139,7 @@ def _logdet(M) -> float:
 
 def _gains(B: np.ndarray, Minv: np.ndarray) -> np.ndarray:
     """``log det(I + B_u M^-1 B_u^T)`` for every candidate block ``B_u``."""
-    S = np.einsum("upl,lk,uqk->upq", B, Minv, B)
+    S = (B @ Minv) @ B.transpose(0, 2, 1)      # B_u M^-1 B_u^T: two products (BLAS)
     S += np.eye(B.shape[1])
     sign, ld = np.linalg.slogdet(S)
     return np.where(sign > 0, ld, -np.inf)
@@ -225,7 +226,7 @@ def geometric_mean_std(std: np.ndarray) -> float:
 def propagate(J: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Predicted std of quantities ``y = J dx`` (``J: (rows, L)``): ``sqrt(diag(J C J^T))``."""
     J = np.atleast_2d(J)
-    return np.sqrt(np.maximum(np.einsum("rl,lk,rk->r", J, cov, J), 0.0))
+    return np.sqrt(np.maximum(np.einsum("rl,rl->r", J @ cov, J), 0.0))
 
 
 def _greedy(info: PoseInformation, start, done):

@@ -29,7 +29,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from calibration.errors import CalibrationError
 
@@ -41,6 +41,26 @@ CHI2_ALPHA = 1e-3
 ROUNDOFF = 1e-10
 # Leverage above which a row cannot be tested (its residual is forced to ~0).
 MAX_LEVERAGE = 1 - 1e-6
+
+
+# The tails of Student's t and chi-square by the scipy.special functions that
+# scipy.stats.t and scipy.stats.chi2 call (equal to the last bit for degrees of
+# freedom > 0, tests/calibration/test_quality.py); scipy.stats costs every
+# process about 0.5 s of imports.
+def t_isf(q, df):
+    """``scipy.stats.t.isf(q, df)``: the t value exceeded with probability ``q``."""
+    return -special.stdtrit(df, q)
+
+
+def t_logsf(t, df):
+    """``scipy.stats.t.logsf(t, df)``: log of the probability of exceeding ``t``."""
+    with np.errstate(divide="ignore"):
+        return np.log(special.stdtr(df, -np.asarray(t, dtype=float)))
+
+
+def chi2_sf(x, df):
+    """``scipy.stats.chi2.sf(x, df)``: probability of exceeding ``x``."""
+    return special.chdtrc(df, x)
 
 
 @dataclass(frozen=True)
@@ -245,7 +265,7 @@ def worst_row(r, h, row_channel, channels, *, testable=None,
     s2 = np.maximum(s2, (rss[rc] / np.maximum(dof[rc], 1)) * 1e-12 + 1e-300)
     t = np.where(ok, np.abs(r) / np.sqrt(s2 * one_h), 0.0)
     i = int(np.argmax(t))
-    thr = float(stats.t.isf(alpha / (2 * n_test), dof[rc[i]] - 1))
+    thr = float(t_isf(alpha / (2 * n_test), dof[rc[i]] - 1))
     if not t[i] > thr:
         return None, n_test
     return Outlier(i, channels[rc[i]], float(r[i]), float(t[i]), thr), n_test
@@ -302,11 +322,11 @@ def worst_prediction(e, std, dof, row_channel_new, channels, *,
     if n_test == 0:
         return None, 0
     t = np.where(ok, np.abs(e) / np.where(ok, sd, 1.0), 0.0)
-    logp = np.where(ok, stats.t.logsf(t, np.where(ok, d, 4.0)), 0.0)
+    logp = np.where(ok, t_logsf(t, np.where(ok, d, 4.0)), 0.0)
     i = int(np.argmin(logp))
     if not logp[i] < math.log(alpha / (2 * n_test)):
         return None, n_test
-    thr = float(stats.t.isf(alpha / (2 * n_test), d[i]))
+    thr = float(t_isf(alpha / (2 * n_test), d[i]))
     return Outlier(i, channels[rc[i]], float(e[i]), float(t[i]), thr), n_test
 
 
@@ -323,7 +343,7 @@ def chi_square(r, h, row_channel, channels, sigma_stated: dict,
         if not s or dof[k] <= 0.5:
             continue
         x2 = float(rss[k] / s ** 2)
-        p = float(stats.chi2.sf(x2, dof[k]))
+        p = float(chi2_sf(x2, dof[k]))
         out.append({"channel": ch, "stated_sigma": float(s),
                     "fitted_sigma": math.sqrt(rss[k] / dof[k]),
                     "ratio": math.sqrt(x2 / dof[k]), "chi2": x2, "dof": float(dof[k]),

@@ -76,12 +76,21 @@ def fixed_for_rows(model) -> tuple[str, ...]:
     return tuple(n for n in model.names if n not in learn or n in held)
 
 
-def staged_start(method: str, robot, data: MethodData, x, options: dict | None = None):
+#: iterations of a planning refit and of each of its stages: a fit of a few poses
+#: reaches its least squares within ten or twenty and may then crawl for hundreds as
+#: its noise weights, estimated on a few degrees of freedom, wander (a 9-pose refit
+#: took 1000 iterations and 2.5 s, a stage 300, while the arm waited); it is judged
+#: by what it explains (:meth:`ArmRounds.refit`), not by its step tolerance
+PLAN_MAX_ITER = 50
+
+
+def staged_start(method: str, robot, data: MethodData, x, options: dict | None = None,
+                 max_iter: int = 300):
     """Start values grown with the data: fits on the first quarter, half and three
     quarters of the poses in their recorded order (a session records from the
-    reference outwards), each from the last. For a robot so far from its start
-    values that the fit of every pose at once does not converge. None if no stage
-    gave finite values."""
+    reference outwards), each from the last, each of at most ``max_iter`` iterations.
+    For a robot so far from its start values that the fit of every pose at once does
+    not converge. None if no stage gave finite values."""
     m = len(data.qm)
     x = np.array(x, dtype=float)
     got = False
@@ -91,7 +100,7 @@ def staged_start(method: str, robot, data: MethodData, x, options: dict | None =
                                   channels={c: v[:k] for c, v in data.channels.items()})
         try:
             model = build(method, robot, sub, x, **(options or {}))
-            res = solve(model, SolverOptions(max_iter=300, fixed=fixed_for_rows(model)))
+            res = solve(model, SolverOptions(max_iter=max_iter, fixed=fixed_for_rows(model)))
         except (CalibrationError, np.linalg.LinAlgError, ValueError):
             continue
         if np.all(np.isfinite(res.x)):
@@ -179,7 +188,7 @@ class ArmRounds:
         start = told_start(fit_method, s.robot, s.nominal, s.reference_qm, ref.get("tilt"))
         starts = [start]
         if len(recs) >= 8:
-            staged = staged_start(fit_method, s.robot, data, start)
+            staged = staged_start(fit_method, s.robot, data, start, max_iter=PLAN_MAX_ITER)
             if staged is not None:
                 starts.insert(0, staged)
         best, why = None, "no fit"
@@ -188,7 +197,8 @@ class ArmRounds:
         for x0 in starts:
             try:
                 model = build(fit_method, s.robot, data, x0)
-                res = solve(model, SolverOptions(max_iter=1000, fixed=fixed_for_rows(model)))
+                res = solve(model, SolverOptions(max_iter=PLAN_MAX_ITER,
+                                                 fixed=fixed_for_rows(model)))
             except (CalibrationError, np.linalg.LinAlgError, ValueError) as e:
                 why = str(e)
                 continue

@@ -211,8 +211,9 @@ def watched_move(rig, target, predict: Predict, env, timeout: float) -> int:
     end = time.monotonic() + timeout
     unconfirmed = 0
     track = Track(n)
-    track.add(rig.read_timed(actuators_only=True))       # where the move starts
+    start = track.add(rig.read_timed(actuators_only=True))       # where the move starts
     rig.start_move(target)
+    arrival = predicted_arrival(rig, start, target)
     while True:
         timed = rig.read_timed()                # actuators first, then the sensors,
         track.add(timed)
@@ -234,13 +235,51 @@ def watched_move(rig, target, predict: Predict, env, timeout: float) -> int:
             log.info("envelope: %s while moving, not at rest: the move goes on",
                      describe(bad, env.tolerance))
             track = Track(n)
-            track.add(rig.read_timed(actuators_only=True))
+            start = track.add(rig.read_timed(actuators_only=True))
             rig.start_move(target)
+            arrival = predicted_arrival(rig, start, target)
             continue
         if np.max(np.abs(qm - target)) <= NEAR_TARGET or time.monotonic() > end:
             rig.wait_moved(max(0.1, end - time.monotonic()))
             return unconfirmed
-        time.sleep(env.poll)
+        time.sleep(nap(env.poll, arrival))
+
+
+#: s between readings once the predicted arrival has passed (the drive's own profile
+#: may end a little later than its profile velocity and acceleration say)
+ARRIVAL_POLL = 0.005
+
+
+def move_duration(start, target, velocity, acceleration) -> float:
+    """Seconds a move from ``start`` to ``target`` (actuator units, per axis) takes on
+    trapezoidal profiles of ``velocity`` (units/s) and ``acceleration`` (units/s^2) per
+    axis, each axis on its own (the slowest axis ends the move)."""
+    d = np.abs(np.asarray(target, dtype=float) - np.asarray(start, dtype=float))
+    v = np.broadcast_to(np.asarray(velocity, dtype=float), d.shape)
+    a = np.broadcast_to(np.asarray(acceleration, dtype=float), d.shape)
+    t = np.where(d < v * v / a, 2 * np.sqrt(d / a), d / v + v / a)
+    return float(t.max()) if t.size else 0.0
+
+
+def predicted_arrival(rig, start, target) -> float | None:
+    """``time.monotonic()`` at which a move started now from ``start`` to ``target``
+    ends by the drives' profile velocity and acceleration (None where the station
+    config does not set them: the drives' own profile is not known)."""
+    act = getattr(rig, "actuators", None)
+    v, a = getattr(act, "velocity", None), getattr(act, "acceleration", None)
+    if v is None or a is None:
+        return None
+    return time.monotonic() + move_duration(start, target, v, a)
+
+
+def nap(poll: float, arrival: float | None) -> float:
+    """How long the watch sleeps before its next reading: ``poll``, but no later than
+    the predicted ``arrival`` (then :data:`ARRIVAL_POLL` until the move ends), so that
+    a move is not watched for up to ``poll`` after it ended."""
+    if arrival is None:
+        return poll
+    left = arrival - time.monotonic()
+    return min(poll, left) if left > 0 else min(poll, ARRIVAL_POLL)
 
 
 def sm_predictor(method: str, robot, xi, reference_qm, distance_off: float = 0.0,

@@ -142,7 +142,7 @@ class AgebotPM(RobotModel):
         n = np.stack([d[..., 0] / s, d[..., 1] / s, np.ones_like(s)], axis=-1)  # dq_i/dD_i
         # dD_i = w x r_i = -[r_i]x w,  w = H dX
         dDdw = -_skew(r)
-        return np.einsum("mki,mkij,mjl->mkl", n, dDdw, euler_rates(X))
+        return (n[:, :, None, :] @ dDdw)[:, :, 0, :] @ euler_rates(X)   # n^T dDdw H
 
     def fk(self, qm, xi, guess=None, *, tol: float = 1e-13, max_iter: int = 50) -> np.ndarray:
         """Orientations ``X (m, 3)`` for ``qm (m, 3)`` by Newton on the IK equations.

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2
+from scipy import special
 
 # Below this (in the residual's SI units) a sigma estimate is round-off, not noise.
 SIGMA_FLOOR = 1e-14
@@ -32,9 +32,11 @@ class Weighting:
             self.sigma_dof = dict(memo[3])
             return dict(memo[2])
         rss = np.bincount(self.row_channel, weights=r * r, minlength=len(self.channels)).tolist()
-        used = self._channel_leverage(n_active)
-        out = {}
         known = self.known
+        # the leverage (a QR of the whole matrix) only serves the channels estimated here
+        used = ([None] * len(self.channels) if all(ch in known for ch in self.channels)
+                else self._channel_leverage(n_active))
+        out = {}
         est = {}  # channel -> (rss, dof) of the channels estimated here
         for ch, nc, rc, hc in zip(self.channels, self.channel_count.tolist(), rss, used):
             if ch in known:
@@ -171,4 +173,4 @@ def _homogeneous(rss_dof) -> bool:
     sp = sum(rc for rc, _ in rd) / nu
     t = nu * math.log(sp) - sum(d * math.log(rc / d) for rc, d in rd)
     t /= 1 + (sum(1 / d for _, d in rd) - 1 / nu) / (3 * (k - 1))
-    return float(chi2.sf(t, k - 1)) > HOMOGENEITY_ALPHA
+    return float(special.chdtrc(k - 1, t)) > HOMOGENEITY_ALPHA  # chi2.sf(t, k - 1)

@@ -136,3 +136,28 @@ def test_held_out_false_alarm_rate_is_the_bonferroni_alpha_with_extrapolated_row
     print(f"refused: {alarms / trials:.3f}; against the noise alone {naive / trials:.3f}")
     assert 0.02 <= alarms / trials <= 0.06, alarms / trials      # rows correlated: below alpha
     assert naive / trials > 0.2, naive / trials
+
+
+def test_tails_equal_scipy_stats_to_the_last_bit():
+    """The gate's t and chi-square tails (scipy.special: no scipy.stats import at
+    start-up) give scipy.stats' numbers exactly: fractional degrees of freedom, far
+    tails, zero and infinity included; so does the solver's homogeneity test."""
+    from scipy import stats
+
+    from calibration.solver import weighting
+
+    df = np.array([0.6, 1.0, 2.5, 3.2, 7.0, 22.9, 140.0, 3300.0, 1e5])[:, None]
+    x = np.r_[0.0, 1e-8, 0.3, 1.0, 2.7, 5.0, 12.0, 60.0, 400.0, 1e4, np.inf][None, :]
+    p = np.array([1e-12, 1e-7, 1.4e-5, 1e-3, 0.05, 0.5, 0.9])[None, :]
+    assert np.array_equal(q.chi2_sf(x, df), stats.chi2.sf(x, df))
+    assert np.array_equal(q.t_logsf(x, df), stats.t.logsf(x, df))
+    assert np.array_equal(q.t_isf(p, df), stats.t.isf(p, df))
+    rss_dof = [(2.0e-6, 20.0), (3.1e-6, 22.5), (9.0e-6, 21.0)]
+    for scale in (1.0, 1.5, 2.0, 3.0):
+        pairs = [(r * (scale if k == 2 else 1.0), d) for k, (r, d) in enumerate(rss_dof)]
+        got = weighting._homogeneous(pairs)
+        nu = sum(d for _, d in pairs)
+        sp = sum(r for r, _ in pairs) / nu
+        t = nu * np.log(sp) - sum(d * np.log(r / d) for r, d in pairs)
+        t /= 1 + (sum(1 / d for _, d in pairs) - 1 / nu) / 6
+        assert got == (float(stats.chi2.sf(t, 2)) > weighting.HOMOGENEITY_ALPHA)

@@ -2,6 +2,7 @@
 model while moving, and the simulated arm's physical limits seen over the wire."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import tomllib
@@ -89,6 +90,25 @@ def test_the_simulated_arm_refuses_a_target_beyond_its_travel(sim_rig):
     rig.move_to(start)
 
 
+@contextlib.contextmanager
+def slowed(rig, factor: float):
+    """The drives' profile velocity (0x6081) ``factor`` times lower while in the block
+    (the actuators' ``velocity`` too, which the watch predicts the arrival from)."""
+    act = rig.actuators
+    before = list(act.velocity)
+
+    def write(velocity):
+        for i, nid in enumerate(act.nodes):
+            act.sdo_write(nid, 0x6081, round(velocity[i] * act.resolution[i]))
+        act.velocity = list(velocity)
+
+    write([v / factor for v in before])
+    try:
+        yield
+    finally:
+        write(before)
+
+
 def test_the_watch_stops_a_move_the_model_does_not_explain(sim_rig):
     """The true model sees the move through; a model whose k2 is 30 % off stops the arm
     on the way, and says which channel departed (confirmed at rest)."""
@@ -104,12 +124,16 @@ def test_the_watch_stops_a_move_the_model_does_not_explain(sim_rig):
     watched_move(rig, start, sm_predictor("sm-distance-tilt", robot, truth, start), env, 20.0)
     wrong = truth.copy()
     wrong[robot.index("k2")] *= 1.3
-    with pytest.raises(EnvelopeStop) as e:      # departs more the farther it goes
-        watched_move(rig, target, sm_predictor("sm-distance-tilt", robot, wrong, start), env,
+    # departs more the farther it goes: four times as far at a quarter of the speed
+    # (0.7 s rather than 0.06 s of motion, so that the watch reads the arm on the way
+    # however busy the machine: on a loaded one the arm was there before a second reading)
+    far = start + 4 * (target - start)
+    with pytest.raises(EnvelopeStop) as e, slowed(rig, 4.0):
+        watched_move(rig, far, sm_predictor("sm-distance-tilt", robot, wrong, start), env,
                      20.0)
     assert "tilt" in e.value.departed or "distance" in e.value.departed
     here = np.array(rig.qm())
-    assert np.max(np.abs(here - target)) > 1.0          # stopped short of the target
+    assert np.max(np.abs(here - far)) > 1.0          # stopped short of the target
     np.testing.assert_allclose(here, e.value.qm, atol=5.0)     # where it was seen, give or take a read
     # what the arm really reads where it stopped (the next plan learns from it): the
     # true model's prediction at the stop's qm, within the readings' noise
@@ -120,6 +144,54 @@ def test_the_watch_stops_a_move_the_model_does_not_explain(sim_rig):
     with sim.control() as ctl:
         assert ctl.call(state=True)["target_reached"]
     assert math.isfinite(here.sum())
+
+
+def test_the_watch_wakes_when_the_move_ends_not_a_poll_later(sim_rig, monkeypatch):
+    """The watch reads the sensors every ``[envelope] poll`` s, but no later than when
+    the drives' profile (velocity and acceleration of the station config) ends the
+    move: it then follows the last millimetres closely and returns, instead of sleeping
+    through most of a poll with the arm already there. With a poll of 30 s every nap
+    ends by the predicted arrival."""
+    from station import envelope
+
+    sim, rig = sim_rig
+    robot = get_robot("agebot-sm")
+    truth = load_truth(UNSEEN).xi()
+    env = dataclasses.replace(rig.config.envelope, poll=30.0)
+    start = np.array(rig.qm())
+    rig.zero_drawwire()
+    target = start + np.array([4.0, 30.0, -25.0, 20.0])
+    act = rig.actuators
+    duration = envelope.move_duration(start, target, act.velocity, act.acceleration)
+    assert 0.05 < duration < 5.0
+    naps, nap = [], envelope.nap
+
+    def recorded(poll, arrival):
+        naps.append(nap(poll, arrival))
+        return min(naps[-1], 0.01)      # a 30 s nap would not be waited for
+
+    monkeypatch.setattr(envelope, "nap", recorded)
+    try:
+        watched_move(rig, target, sm_predictor("sm-distance-tilt", robot, truth, start), env,
+                     20.0)
+        np.testing.assert_allclose(rig.qm(), target, atol=1e-4)
+    finally:
+        rig.move_to(start)
+    assert max(naps, default=0.0) <= duration
+
+
+def test_move_duration_is_the_simulated_axes_profile():
+    from drivers.sim.axis import SimAxis
+    from station.envelope import move_duration
+
+    for d, v, a in ((0.3, 50.0, 400.0), (40.0, 50.0, 400.0), (6.25, 50.0, 400.0),
+                    (-30.0, 200.0, 2000.0), (0.0, 10.0, 10.0)):
+        axis = SimAxis(1.0, v, a)
+        axis.command(1.0 + d)
+        want = axis._duration()
+        assert move_duration([1.0], [1.0 + d], v, a) == pytest.approx(want, rel=1e-12, abs=0)
+    assert move_duration([0.0, 0.0], [1.0, 40.0], [50.0, 50.0], [400.0, 400.0]) == \
+        pytest.approx(40 / 50 + 50 / 400)
 
 
 def test_a_late_sensor_does_not_stop_a_move_the_model_explains(sim_rig):
