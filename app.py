@@ -25,13 +25,13 @@ import warnings
 
 def _cmd_batch(args) -> int:
     from calibration.solver import SolverOptions
-    from station.batch import calibrate_trace, format_table, write_outputs
+    from station.fitting.batch import calibrate_trace, format_table, write_outputs
 
     _check_outputs((args.out, "the parameter file"), (args.report, "the report"),
                    inputs=(args.trace,))
     opts = SolverOptions(max_iter=args.max_iter)
     if args.hold:
-        from station.batch import hold_patterns
+        from station.fitting.batch import hold_patterns
 
         opts = SolverOptions(max_iter=args.max_iter,
                              fixed=hold_patterns(args.trace, args.hold, args.method))
@@ -125,7 +125,7 @@ def _check_outputs(*outputs, inputs=()) -> None:
 
 
 def _cmd_params_verify(args) -> int:
-    from station.params_file import check_usable, read_params
+    from station.outputs.params_file import check_usable, read_params
 
     doc = read_params(args.file)
     check_usable(doc, args.file)
@@ -139,7 +139,7 @@ def _cmd_params_verify(args) -> int:
 
 
 def _cmd_params_export(args) -> int:
-    from station.export import export_command
+    from station.outputs.export import export_command
 
     for line in export_command(args):
         print(line)
@@ -147,7 +147,7 @@ def _cmd_params_export(args) -> int:
 
 
 def _cmd_trace_import(args) -> int:
-    from station.trace_import import import_command
+    from station.recording.trace_import import import_command
 
     _check_outputs((args.out, "the trace"),
                    inputs=(args.csv, args.robot, args.validation, args.joint_map))
@@ -173,7 +173,7 @@ def _cmd_trace_generate(args) -> int:
         raise ConfigError(f"--components is for pm-fk (the measured orientation angles), "
                           f"not {args.method}")
     if args.robot and is_urdf(args.robot):
-        from station.tracegen_urdf import generate_command
+        from station.simulation.tracegen_urdf import generate_command
 
         print(generate_command(args))
         return 0
@@ -187,12 +187,12 @@ def _cmd_trace_generate(args) -> int:
                           + ", ".join(m for m, mi in METHODS.items()
                                       if BUILTIN.get(mi.kind) == args.robot) + ")")
     if args.robot and args.robot not in ("agebot-sm", "agebot-pm"):
-        from station.tracegen_serial import generate_command
+        from station.simulation.tracegen_serial import generate_command
 
         print(generate_command(args))
         return 0
-    from station.tracegen import generate_from_truth
-    from station.units import MM_DEG, channel_si
+    from station.simulation.tracegen import generate_from_truth
+    from station.outputs.units import MM_DEG, channel_si
 
     noise = generate_from_truth(
         args.out, args.method, truth=args.truth, noise=args.noise or (), seed=args.seed,
@@ -429,9 +429,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "a local cluster)")
     st.add_argument("--workers", type=int, help="local cluster: worker processes (default: cores)")
     st.add_argument("--out", required=True, help="folder for study.jsonl and summary.json")
-    st.set_defaults(func=_delegate("station.study", "cli"))
+    st.set_defaults(func=_delegate("station.simulation.study", "cli"))
 
-    from station.truth_cli import add_parser as add_truth_parser
+    from station.simulation.truth_cli import add_parser as add_truth_parser
 
     add_truth_parser(sub)       # truth draw: a simulated robot around a nominal
 

@@ -24,8 +24,8 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from calibration import design as dz  # noqa: E402
 from calibration.methods import METHODS  # noqa: E402
 from calibration.robots import BUILTIN, get_robot  # noqa: E402
-from station.pose_design import DEFAULT_NOISE  # noqa: E402
-from station.tracegen import candidate_pool  # noqa: E402
+from station.planning.pose_design import DEFAULT_NOISE  # noqa: E402
+from station.simulation.tracegen import candidate_pool  # noqa: E402
 
 
 #: the built-in robots' methods (sm-position is a robot file's: a tracker on any arm)
@@ -37,8 +37,8 @@ def pool(method: str, pool_size: int, seed: int, robot_file: str | None):
     planning model (the nominal arm, the true wrist; a robot file's nominal)."""
     if robot_file:
         from drivers.robot_file import load_robot_file
-        from station import tracegen_serial as ts
-        from station.pose_design import pool_model
+        from station.simulation import tracegen_serial as ts
+        from station.planning.pose_design import pool_model
 
         robot = get_robot(load_robot_file(robot_file))
         _, ref, poses = ts.generate(robot, method, robot.nominal, count=pool_size, seed=seed)

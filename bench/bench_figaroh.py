@@ -5,7 +5,7 @@ bench_chain.py then prints "figaroh not installed".
 
 The same arm and data as bench_chain.py, given to FIGAROH the way its users
 give them: the nominal arm as a URDF (the station's own export,
-``station.export.urdf_text``: joints ``joint1..6``, the reflector the fixed
+``station.outputs.export.urdf_text``: joints ``joint1..6``, the reflector the fixed
 link ``tool0``), a unified YAML config (``full_params`` calibration
 level, base and tip frames unknown, one marker with position-only
 measurability) and the CSV of joint values and reflector positions. The
@@ -36,7 +36,7 @@ with warnings.catch_warnings():
     from figaroh.calibration import BaseCalibration
     from figaroh.calibration.calibration_tools import calc_updated_fkm
 
-from station.export import urdf_text  # noqa: E402
+from station.outputs.export import urdf_text  # noqa: E402
 
 JOINTS = [f"joint{i}" for i in range(1, 7)]
 

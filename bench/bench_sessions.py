@@ -2,10 +2,10 @@
 
 Each robot is drawn by ``drivers.sim.truth.draw_truth(robot, default_rng(seed))``
 (gear ratios +-40 %, lengths +-5 %, offsets +-0.03) with the devices' noise
-(``station.sim_sessions.DEVICE_NOISE``); the simulator runs in its own process
+(``station.simulation.sessions.DEVICE_NOISE``); the simulator runs in its own process
 and one unattended session (reference, plan, measure, calibrate, validate,
 export) runs against it. The result is scored against the truth in the frame
-the session captured (``station.sim_sessions``).
+the session captured (``station.simulation.sessions``).
 
 Prints per session the worst |error|/std and the largest excursion from the
 planned box, then the success rate, the worst normalized error, the RMS of
@@ -34,8 +34,8 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from station.planner import PlanRequest  # noqa: E402
-from station.sim_sessions import (DEFAULT_METHOD, d2_interval, run_session,  # noqa: E402
+from station.planning.arm_plan import PlanRequest  # noqa: E402
+from station.simulation.sessions import (DEFAULT_METHOD, d2_interval, run_session,  # noqa: E402
                                   station_truth, summary)
 
 FIRST_SEED = {"agebot-sm": 9100, "agebot-pm": 9200}   # seeds not used by any other test

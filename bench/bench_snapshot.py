@@ -12,7 +12,7 @@ The station process opens the real drivers (``CanopenActuators``,
   1. commands a small move and waits for target reached (not timed);
   2. ``snapshot_with(devices, SnapshotConfig(samples, period, settle))`` (timed:
      ``snapshot``);
-  3. builds the pose record and appends it with ``station.trace.TraceWriter``
+  3. builds the pose record and appends it with ``station.recording.trace.TraceWriter``
      (flush + fsync; timed: ``store``).
 
 The rows (cases) are interleaved: each round measures one pose of every case in turn
@@ -56,7 +56,7 @@ from drivers.config import load_station_config  # noqa: E402
 from drivers.endpoints import with_endpoints  # noqa: E402
 from drivers.rig import drawwire_from_config, inclinometer_from_config  # noqa: E402
 from drivers.snapshot import snapshot_with  # noqa: E402
-from station.trace import TraceWriter, read_trace  # noqa: E402
+from station.recording.trace import TraceWriter, read_trace  # noqa: E402
 
 CONFIG = ROOT / "fixtures" / "stations" / "sim-sm.toml"
 TRUTH = ROOT / "fixtures" / "truth" / "agebot-sm.json"

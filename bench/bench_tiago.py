@@ -103,8 +103,8 @@ def figures(doc, text):
 def marker_one_heldout(params: Path) -> float:
     """The held-out 3D RMS of point 1 alone (FIGAROH fits and scores marker 1)."""
     from calibration.methods import build
-    from station.export import calibrated_model
-    from station.trace import read_trace
+    from station.outputs.export import calibrated_model
+    from station.recording.trace import read_trace
 
     doc = json.loads(params.read_text())
     trace = read_trace(str(params.with_name(params.name.replace("p", "t", 1).replace(".json",
@@ -174,7 +174,7 @@ def main() -> int:
         assert rc == 0, text
         import yourdfpy
 
-        from station.export import calibrated_model
+        from station.outputs.export import calibrated_model
 
         robot, xi = calibrated_model(doc4)
         u0 = yourdfpy.URDF.load(str(a.data / "tiago_48_schunk.urdf"), load_meshes=False)

@@ -5,7 +5,7 @@ Each run draws an arm around fixtures/robots/m10ia-like.urdf (joint origins off 
 base's) at random, fixes three reflectors on the tool, simulates FIT + HELD poses with
 isotropic noise and some beams broken, writes the CSV the way the tracker and a FANUC
 controller export it (mm, degrees, J3 from the horizontal), imports it with the joint
-map and calibrates it through the gate (station.batch). The errors of the calibrated
+map and calibrates it through the gate (station.fitting.batch). The errors of the calibrated
 parameters against the truth's equivalent (the fit of noise-free readings of the same
 poses) are divided by the reported std; printed: success rate, RMS of error/std,
 share within 2 std, and the pooled d2 = e^T C^-1 e against its chi-square interval.
@@ -26,10 +26,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from station import tracegen_urdf as tg  # noqa: E402
-from station.batch import calibrate_trace  # noqa: E402
-from station.import_markers import import_markers  # noqa: E402
-from station.trace import write_trace  # noqa: E402
+from station.simulation import tracegen_urdf as tg  # noqa: E402
+from station.fitting.batch import calibrate_trace  # noqa: E402
+from station.recording.import_markers import import_markers  # noqa: E402
+from station.recording.trace import write_trace  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF = ROOT / "fixtures" / "robots" / "m10ia-like.urdf"

@@ -1,4 +1,4 @@
-"""The watched move's overhead: :func:`station.envelope.watched_move` against a plain
+"""The watched move's overhead: :func:`station.planning.envelope.watched_move` against a plain
 move to the same target (:meth:`drivers.rig.Rig.move_to`, which waits for the drives'
 target reached), on the simulated arm in its own process (4 CiA 402 drives behind the
 socketcand hub, the inclinometer, the Modbus draw-wire; the fixture's speeds).
@@ -30,8 +30,8 @@ from calibration.robots import get_robot  # noqa: E402
 from drivers.rig import Rig  # noqa: E402
 from drivers.sim.server import SimulatorProcess  # noqa: E402
 from drivers.sim.truth import load_truth  # noqa: E402
-from station import envelope  # noqa: E402
-from station.sim_sessions import fast_config  # noqa: E402
+from station.planning import envelope  # noqa: E402
+from station.simulation.sessions import fast_config  # noqa: E402
 
 TRUTH = ROOT / "fixtures" / "truth" / "agebot-sm-unseen.json"
 

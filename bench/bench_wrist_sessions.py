@@ -1,5 +1,5 @@
 """Whole simulated wrist sessions over wrists drawn around the report's
-(``station.sim_wrist``): per session whether it completed, the calibrated IK's
+(``station.simulation.wrist_sessions``): per session whether it completed, the calibrated IK's
 worst error against the true robot over +-15 deg (actuator units), the largest
 recorded orientation (the true wrist's), the rounds planned and the poses dropped
 by the model watch; then the success rate (complete, IK within 1 unit, nothing
@@ -23,8 +23,8 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import numpy as np  # noqa: E402
 
-from station.planner import PlanRequest  # noqa: E402
-from station.sim_wrist import run_wrist_session, wrist_truth  # noqa: E402
+from station.planning.arm_plan import PlanRequest  # noqa: E402
+from station.simulation.wrist_sessions import run_wrist_session, wrist_truth  # noqa: E402
 
 FIRST_SEED = 9250            # seeds no test uses
 

@@ -639,7 +639,7 @@ class SerialData:
         from calibration.robots import get_robot
         from drivers.robot_file import load_robot_file
         from drivers.sim.serial_robot import draw_serial_truth
-        from station.tracegen_serial import default_count, generate
+        from station.simulation.tracegen_serial import default_count, generate
 
         self.path, self.method = robot_path, method
         self.robot = get_robot(load_robot_file(robot_path))
@@ -685,7 +685,7 @@ class SerialData:
         calibration, else what is wrong; figures what was measured."""
         import numpy as np
 
-        from station.serial_plan import point_to_point_rms
+        from station.planning.serial_plan import point_to_point_rms
 
         try:
             doc = json.load(open(params_path))
@@ -888,7 +888,7 @@ class UrdfData:
 
         from calibration.robots import get_robot
         from drivers.urdf_file import load_urdf
-        from station import tracegen_urdf as tg
+        from station.simulation import tracegen_urdf as tg
 
         self.urdf = os.path.join(HERE, "fixtures", "robots", "m10ia-like.urdf")
         self.robot = get_robot(load_urdf(self.urdf, "base_link", "tool0"))
@@ -936,7 +936,7 @@ class UrdfData:
 
     def check(self, trace_path, params_path, stdout, outlier=None) -> tuple[str, str]:
         np = self.np
-        from station.trace import read_trace
+        from station.recording.trace import read_trace
 
         try:
             rob = read_trace(trace_path).robot_model()

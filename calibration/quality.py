@@ -1,6 +1,6 @@
 """Fit-quality statistics at a solution: outlier tests, noise consistency, pose spread.
 
-Pure numerics (no I/O); :mod:`station.batch` runs the gate with them.
+Pure numerics (no I/O); :mod:`station.fitting.batch` runs the gate with them.
 
 * Outliers: externally studentized residuals from the hat matrix of the
   weighted, linearized problem at the solution. For a row ``i`` of channel

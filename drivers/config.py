@@ -151,7 +151,7 @@ class DrawwireConfig:
     timeout: float = 1.0
 
 
-# units the operator reads (station/units.py); files stay SI
+# units the operator reads (station/outputs/units.py); files stay SI
 DISPLAY_LENGTHS = ("mm", "m", "cm", "um")
 DISPLAY_ANGLES = ("deg", "rad", "mrad")
 
@@ -190,7 +190,7 @@ ENVELOPE_TOLERANCE = {"distance": 0.05, "tilt": 0.0873, "roll": 0.0873, "pitch":
 
 @dataclass(frozen=True)
 class EnvelopeConfig:
-    """The session's safety envelope (:mod:`station.envelope`).
+    """The session's safety envelope (:mod:`station.planning.envelope`).
 
     qm_min, qm_max: per actuator, the range the station may command (actuator units;
                     None: the config sets no limit on that side). For the wrist: the
@@ -228,7 +228,7 @@ class SessionConfig:
     """``[session]``: how a headless session rides out a device's trouble.
 
     retry_window: seconds a failing pose (or the reference step) is retried, after the
-                  growing pauses of :func:`station.device_loss.backoff`, before the
+                  growing pauses of :func:`station.session.device_loss.backoff`, before the
                   session asks whether its device is gone (then it stops, naming it).
                   0 (default): three retries, after 0.25, 0.5 and 1 s. A node that
                   answers late for a while (a busy bus, a drive's firmware) is ridden

@@ -128,7 +128,7 @@ def checks() -> list[tuple[bool, str, str]]:
             out.append((False, f"Python package {dist}",
                         f"{type(e).__name__}: {e}; install with: pip install -e ."))
     try:
-        from station.report import template_environment
+        from station.outputs.report import template_environment
 
         template_environment().get_template("report.html.j2")
         out.append((True, "report template", "station/templates/report.html.j2"))

@@ -7,7 +7,7 @@ simulator would; without it the devices come from ``--config``. Progress
 command again on the same ``--out`` folder resumes a session that was killed.
 
 Guided touching (sm-plane, sm-self-redundancy) needs an operator: with
-``--simulate`` a simulated one (:mod:`station.sim_operator`) touches through the
+``--simulate`` a simulated one (:mod:`station.simulation.touch_operator`) touches through the
 simulator's control port, and the values the report takes as known (sm-plane:
 ``L4, theta0, a0`` and the plane; sm-self-redundancy: ``L4``) are read from the
 simulator's truth file as the engineer's measurements, unless ``--nominal`` gives
@@ -26,14 +26,14 @@ from pathlib import Path
 from calibration.errors import ConfigError
 from drivers.config import load_station_config
 from drivers.endpoints import load_endpoints, with_endpoints
-from station.planner import MUST_KNOW, TOUCH_METHODS, PlanRequest
-from station.session import Progress, Session
-from station.units import MM_DEG
+from station.planning.arm_plan import MUST_KNOW, TOUCH_METHODS, PlanRequest
+from station.session.session import Progress, Session
+from station.outputs.units import MM_DEG
 
 
 class TerminalProgress:
     """Observer printing progress: one updating line on a terminal, one line per pose
-    otherwise (logs, CI). Readings in the display units (:mod:`station.units`), but
+    otherwise (logs, CI). Readings in the display units (:mod:`station.outputs.units`), but
     the channels in ``hidden`` (a reading the method does not use)."""
 
     def __init__(self, stream=None, units=MM_DEG, hidden=()):
@@ -74,7 +74,7 @@ class TerminalProgress:
 def main(args: argparse.Namespace) -> int:
     from drivers.atomic import check_output_folder
     from drivers.sim.serial_robot import is_robot_file
-    from station.session import PARAMS, REPORT, TRACE, URDF
+    from station.session.session import PARAMS, REPORT, TRACE, URDF
 
     check_output_folder(args.out, "the session folder (--out)", (TRACE, PARAMS, REPORT, URDF),
                         inputs=tuple(p for p in (args.robot if is_robot_file(args.robot)
@@ -115,7 +115,7 @@ def main(args: argparse.Namespace) -> int:
             if args.method not in TOUCH_METHODS:
                 return _run(config, args.method, out, request, nominal, station=record,
                             accept=accept)
-            from station.sim_operator import SimulatedOperator
+            from station.simulation.touch_operator import SimulatedOperator
 
             with sim.control() as control:
                 return _run(config, args.method, out, request, {**nominal, **measured},
@@ -188,7 +188,7 @@ def parse_target(text: str | None) -> tuple[str, float] | None:
 
 def engineer_measurements(robot: str, method: str, truth: str | None, given: dict) -> dict:
     """Simulated station: the values an engineer measures before a guided-touching
-    session (:data:`station.planner.MUST_KNOW`), read from the simulator's truth file;
+    session (:data:`station.planning.arm_plan.MUST_KNOW`), read from the simulator's truth file;
     those ``given`` (``--nominal``) are kept."""
     from drivers.sim.server import default_truth_path
     from drivers.sim.truth import load_truth
@@ -208,7 +208,7 @@ def _run(config, method: str, out: Path, request: PlanRequest, nominal: dict, *,
          touch=None, measured: dict | None = None, station: dict | None = None,
          accept: bool = False) -> int:
     from calibration.methods import METHODS
-    from station.units import from_config
+    from station.outputs.units import from_config
 
     units = from_config(config)
     # the wrist's station may have a draw-wire: its distance means nothing to pm-*
@@ -248,7 +248,7 @@ def _recorded_poses(path: Path) -> int:
 
 def _session(config, method, out, request, nominal, touch, measured, station, progress,
              units, accept=False) -> int:
-    from station.batch import ConditioningWarning, format_table
+    from station.fitting.batch import ConditioningWarning, format_table
 
     with Session(config, method, out, request=request, observer=progress,
                  nominal=nominal, touch=touch, station=station,
@@ -268,7 +268,7 @@ def _session(config, method, out, request, nominal, touch, measured, station, pr
             print("guided touching by the simulated operator (it watches the contact through "
                   "the simulator's control port)", flush=True)
         with warnings.catch_warnings():
-            # said once, as the table's note (station.batch.format_table)
+            # said once, as the table's note (station.fitting.batch.format_table)
             warnings.simplefilter("ignore", ConditioningWarning)
             files = s.run()
         print()

@@ -31,11 +31,11 @@ def pytest_xdist_auto_num_workers(config):
 @pytest.fixture
 def quick_retries(monkeypatch):
     """The session's pauses before it retries a failed pose
-    (:data:`station.device_loss.BACKOFF_S`, 0.25 to 2 s for a real outage to pass) ten
+    (:data:`station.session.device_loss.BACKOFF_S`, 0.25 to 2 s for a real outage to pass) ten
     times shorter: for tests of faults that a pause does not cure (a drive at its
     limit, a device gone, frames lost at random). test_device_loss's short outage
     keeps the real pauses."""
-    from station import device_loss
+    from station.session import device_loss
 
     monkeypatch.setattr(device_loss, "BACKOFF_S", tuple(p / 10 for p in device_loss.BACKOFF_S))
 
@@ -46,7 +46,7 @@ def no_report(monkeypatch):
     second or more of CPU a session): for tests of the trace, the parameters and the
     devices. The report is tested by tests/station/test_report.py and by the session
     tests that read it."""
-    import station.report
+    import station.outputs.report
 
     def placeholder(path, *args, **kwargs):
         from pathlib import Path
@@ -54,4 +54,4 @@ def no_report(monkeypatch):
         Path(path).write_text("report\n")
         return Path(path)
 
-    monkeypatch.setattr(station.report, "write_report", placeholder)
+    monkeypatch.setattr(station.outputs.report, "write_report", placeholder)

@@ -60,9 +60,9 @@ def quick_config(folder: Path, robot: str, *, speed: float = SPEED, truth=None,
     """The simulated ``robot``'s station config (agebot-sm, agebot-pm) with moves
     ``speed`` times faster (velocity x ``speed``, acceleration x ``speed**2`` up to what
     a drive's 32-bit 0x6083 holds; with ``truth``, the envelope of that robot as
-    :func:`station.sim_sessions.fast_config` writes it) and the test timing of
+    :func:`station.simulation.sessions.fast_config` writes it) and the test timing of
     :func:`quick_text`, written into ``folder``."""
-    from station.sim_sessions import fast_config
+    from station.simulation.sessions import fast_config
 
     Path(folder).mkdir(parents=True, exist_ok=True)
     path = fast_config(robot, Path(folder), 1.0, truth)

@@ -66,7 +66,7 @@ class Tilt(PMMethod):
             self.x0, guess = self.start.x.copy(), self.start.X
         else:   # the start's own FK, from the readings' guess (its heading 0): the
             # heading, which the readings do not give, can lie far from 0 (a box centred
-            # on a model's heading at home, station.wrist_plan)
+            # on a model's heading at home, station.planning.wrist_plan)
             guess = guess_orientations(self.T_m, None)
             try:
                 guess = robot.fk(self.qm, self.x0[:self.nr], guess=guess)

@@ -32,7 +32,7 @@ calibrated ``distance_off``).
 point (m, base frame), ``phi`` the true angle of the last link (rad), ``distance``
 the signed distance (m) from the truth's sm-plane plane ``a x + b y + c z + 1 = 0``,
 positive on the side of the base origin (``null`` where the truth has no plane).
-The simulated operator of guided touching (:mod:`station.sim_operator`) watches it.
+The simulated operator of guided touching (:mod:`station.simulation.touch_operator`) watches it.
 
 Every command answers one JSON line: ``{"ok": true, ...}`` or ``{"error": "..."}``.
 """

@@ -1,4 +1,4 @@
-"""The operator's Qt wizard (PySide6) over :class:`station.session.Session`.
+"""The operator's Qt wizard (PySide6) over :class:`station.session.session.Session`.
 
 ``python app.py`` / ``python app.py gui [--simulate] [--config FILE]`` open it
 (:func:`station.gui.app.main`). The session and everything below it import no

@@ -24,7 +24,7 @@ from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 
 from station.gui.pictures import ARM, BAD, CABLE, INK, TARGET, ReferenceSteps
 from station.gui.plots import Canvas
-from station.units import MM_DEG
+from station.outputs.units import MM_DEG
 
 FLOOR_COLOR = "#8d6e63"
 INCL_AXIS = 0.12          # m: length of the inclinometer's drawn axes
@@ -61,10 +61,10 @@ def stick(robot, qm, xi) -> Stick:
 def view_box(robot, xi, qm) -> tuple[np.ndarray, np.ndarray]:
     """``(lo, hi)`` (m) of the box the picture shows: most (5 to 95 %) of the tool origins
     of random poses in the middle of the joint limits above the floor (the planned
-    workspace, :func:`station.serial_plan.safe_pool`) and of the arm at ``qm``, the
+    workspace, :func:`station.planning.serial_plan.safe_pool`) and of the arm at ``qm``, the
     first joint, with a margin; from just below the floor ``z = 0`` up (the arm stops
     at the floor)."""
-    from station.serial_plan import safe_pool
+    from station.planning.serial_plan import safe_pool
 
     xi = np.asarray(xi, dtype=float)[:robot.n_params]
     s = stick(robot, qm, xi)

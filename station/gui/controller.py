@@ -1,4 +1,4 @@
-"""The GUI's one link to the station: a :class:`~station.session.Session`, its
+"""The GUI's one link to the station: a :class:`~station.session.session.Session`, its
 devices (simulated in their own process with ``--simulate``) and the workers.
 
 Everything that touches a device or solves runs on :attr:`Controller.jobs`
@@ -57,9 +57,9 @@ class TraceSummary:
 
 def summarize_folder(folder) -> TraceSummary | None:
     """The session in ``folder`` (None if it holds no trace)."""
-    from station.resume import recorded_plan
-    from station.session import TRACE
-    from station.trace import read_trace
+    from station.recording.resume import recorded_plan
+    from station.session.session import TRACE
+    from station.recording.trace import read_trace
 
     folder = Path(folder)
     path = folder / TRACE
@@ -98,7 +98,7 @@ class Controller(QObject):
     A robot is a built-in name (:data:`ROBOTS`) or the path of a robot file.
     """
 
-    progressed = Signal(object)        # station.session.Progress
+    progressed = Signal(object)        # station.session.session.Progress
     eventLogged = Signal(dict)         # a trace event {t, kind, message, ...}
     stateChanged = Signal(str)         # "connected", "planned", "measuring", ...
     polled = Signal(object)            # list[DeviceReading] of one polling round
@@ -122,7 +122,7 @@ class Controller(QObject):
         self.sim = None                 # drivers.sim.server.SimulatorProcess
         self.sim_robot: str | None = None
         self.config = None              # drivers.config.StationConfig (resolved)
-        self.session = None             # station.session.Session
+        self.session = None             # station.session.session.Session
         self.rig: LockedRig | None = None
         self.rezeroed = False           # a resumed distance session went back to its reference
         self.last_readings: dict = {}
@@ -144,8 +144,8 @@ class Controller(QObject):
 
     @property
     def units(self):
-        """The display units (:mod:`station.units`) of the station config in use."""
-        from station.units import MM_DEG, from_config
+        """The display units (:mod:`station.outputs.units`) of the station config in use."""
+        from station.outputs.units import MM_DEG, from_config
 
         return from_config(self.config) if self.config is not None else MM_DEG
 
@@ -226,7 +226,7 @@ class Controller(QObject):
         from drivers.config import load_station_config
         from drivers.endpoints import load_endpoints, with_endpoints
         from drivers.rig import Rig
-        from station.session import Session
+        from station.session.session import Session
 
         from drivers.sim.serial_robot import is_robot_file
 

@@ -18,7 +18,7 @@ from PySide6.QtCore import QPointF, QRectF, Qt
 from PySide6.QtGui import QBrush, QColor, QFont, QPainter, QPainterPath, QPen
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
-from station.units import MM_DEG
+from station.outputs.units import MM_DEG
 
 INK, ARM, TARGET, CABLE, OK, BAD = ("#202124", "#3c6e9f", "#d35400", "#6a1b9a", "#1b7a2f",
                                      "#b3261e")

@@ -11,11 +11,11 @@ from PySide6.QtGui import QColor, QFont
 from PySide6.QtWidgets import (QHeaderView, QTableWidget, QTableWidgetItem, QVBoxLayout,
                                QWidget)
 
-from station.batch import describe_not_identified, not_identified
+from station.fitting.batch import describe_not_identified, not_identified
 from station.gui.plots import ConvergencePlots
 from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, heading, note
-from station.report import IDENT_GROUPS, IDENT_SYMBOL, group_of, param_units
-from station.units import MM_DEG, channel_si
+from station.outputs.report import IDENT_GROUPS, IDENT_SYMBOL, group_of, param_units
+from station.outputs.units import MM_DEG, channel_si
 
 GROUP_COLOR = {"identifiable": OK_COLOR, "no-influence": "#555555", "influence": BAD_COLOR,
                "fixed": "#1f4e9c"}
@@ -223,7 +223,7 @@ class CalibrationView(QWidget):
 
 def validation_rows(outcome) -> list[dict]:
     """Validation errors of an offline outcome (the session's own function)."""
-    from station.validation import validation_errors
+    from station.fitting.validation import validation_errors
 
     try:
         return validation_errors(outcome)

@@ -8,7 +8,7 @@ from PySide6.QtGui import QColor, QFont
 from PySide6.QtWidgets import (QFrame, QGridLayout, QHeaderView, QLabel, QScrollArea,
                                QSizePolicy, QTableWidget, QTableWidgetItem, QWidget)
 
-from station.units import MM_DEG, channel_si
+from station.outputs.units import MM_DEG, channel_si
 
 OK_COLOR, BAD_COLOR, WARN_COLOR = "#1b7a2f", "#b3261e", "#8a5a00"
 
@@ -49,7 +49,7 @@ def fixed(v: float, decimals: int) -> str:
 
 def channel_text(channel: str, value: float, units=None) -> tuple[str, str]:
     """A reading as the operator reads it: ``(value, unit)`` in the display units
-    (:mod:`station.units`: distance in mm, angles in degrees by default; actuator
+    (:mod:`station.outputs.units`: distance in mm, angles in degrees by default; actuator
     values in actuator units, u)."""
     if value is None or not isinstance(value, (int, float)) or not math.isfinite(value):
         return "\u2013", ""

@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from calibration.methods import METHODS, MethodData, build
 from calibration.robots import BUILTIN, get_robot
-from station.tracegen import generate
+from station.simulation.tracegen import generate
 
 KNOWN = {"sm-self-redundancy": ("L4",),
          "sm-plane": ("L4", "theta0", "a0", "plane_a", "plane_b", "plane_c")}

@@ -26,7 +26,7 @@ from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import BUILTIN, get_robot
 from calibration.solver import solve
 from drivers.sim.truth import draw_truth
-from station.tracegen import generate
+from station.simulation.tracegen import generate
 
 SAMPLES = 5  # readings averaged per pose (fixtures/stations/sim-*.toml)
 READING = {"distance": 1e-5, "angle": 1.7e-4}  # std of one reading

@@ -10,7 +10,7 @@ from calibration.methods import MethodData, build, extra_params
 from calibration.robots import get_robot
 from calibration.solver import SolverOptions, solve
 from drivers.robot_file import load_robot_file
-from station.tracegen_serial import generate
+from station.simulation.tracegen_serial import generate
 
 ROBOTS = Path(__file__).resolve().parents[2] / "fixtures" / "robots"
 

@@ -1,4 +1,4 @@
-"""Pose design (calibration/design.py, station/pose_design.py): the D-optimal
+"""Pose design (calibration/design.py, station/planning/pose_design.py): the D-optimal
 choice against exhaustive search and random plans, and the Cramer-Rao
 prediction against the scatter of real calibrations on the plan."""
 from __future__ import annotations
@@ -14,8 +14,8 @@ from calibration.errors import CalibrationError
 from calibration.methods import MethodData, build
 from calibration.robots import get_robot
 from calibration.solver import SolverOptions, solve
-from station import pose_design as pd
-from station.tracegen import candidate_pool
+from station.planning import pose_design as pd
+from station.simulation.tracegen import candidate_pool
 
 # the station's devices, averaged over 5 samples (the session's default)
 NOISE = {"distance": 1e-5 / np.sqrt(5), "tilt": 1.7e-4 / np.sqrt(5)}
@@ -153,7 +153,7 @@ def test_design_on_a_robot_file_arm_keeps_its_fixed_parameters():
     from pathlib import Path
 
     from drivers.robot_file import load_robot_file
-    from station import tracegen_serial as ts
+    from station.simulation import tracegen_serial as ts
 
     root = Path(__file__).resolve().parents[2]
     robot = get_robot(load_robot_file(root / "fixtures/robots/ur5-like-hayati.toml"))

@@ -15,7 +15,7 @@ from calibration.robots import get_robot
 from calibration.robots.serial import rpy_of
 from calibration.solver import SolverOptions, solve
 from drivers.urdf_file import load_urdf
-from station import tracegen_urdf as tg
+from station.simulation import tracegen_urdf as tg
 
 URDF = Path(__file__).resolve().parents[2] / "fixtures" / "robots" / "m10ia-like.urdf"
 

@@ -7,8 +7,8 @@ import os
 import pytest
 
 from station.gui.controller import Controller
-from station.lock import FolderLock, FolderLocked, holder
-from station.planner import PlanRequest
+from station.recording.lock import FolderLock, FolderLocked, holder
+from station.planning.arm_plan import PlanRequest
 from tests.gui.helpers import wait_idle
 
 

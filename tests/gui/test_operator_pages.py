@@ -13,7 +13,7 @@ from station.gui.controller import Controller
 from station.gui.pages import PageId
 from station.gui.pictures import FAR_M
 from station.gui.window import MainWindow
-from station.trace import read_trace
+from station.recording.trace import read_trace
 from tests.gui.helpers import ROOT, wait_idle
 from tests.gui.test_wizard_sm import TIMEOUT, connect
 from tests.simconfig import quick_config
@@ -133,7 +133,7 @@ def test_window_fits_its_screen_and_the_wheel_scrolls_the_page(qtbot, settings, 
 def test_results_name_pm_tilts_heading_as_not_identified(qtbot):
     """The results view of a pm-tilt calibration says the heading is not identified,
     with its std; pm-fk's does not."""
-    from station.batch import calibrate_trace
+    from station.fitting.batch import calibrate_trace
     from station.gui.results import CalibrationView
 
     view = CalibrationView()

@@ -10,12 +10,12 @@ import pytest
 from PySide6.QtCore import Qt
 
 from drivers.sim.truth import load_truth
-from station import serial_plan
-from station.export import calibrated_model
+from station.planning import serial_plan
+from station.outputs.export import calibrated_model
 from station.gui.arm3d import ArmFigure, stick
 from station.gui.pages import PageId
-from station.params_file import read_params
-from station.trace import read_trace
+from station.outputs.params_file import read_params
+from station.recording.trace import read_trace
 from station.gui.pictures import CABLE
 from tests.gui.helpers import ROOT, screenshot, wait_idle
 from tests.station.test_serial_session import _fast_config, _truth_file

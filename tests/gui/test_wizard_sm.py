@@ -14,8 +14,8 @@ from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
 from drivers.sim.truth import load_truth
 from station.gui.pages import PageId
-from station.params_file import read_params
-from station.trace import read_trace
+from station.outputs.params_file import read_params
+from station.recording.trace import read_trace
 from tests.gui.helpers import ROOT, SCREEN, screenshot, wait_idle
 from tests.simconfig import quick_config
 
@@ -72,7 +72,7 @@ def test_sm_distance_tilt_session(open_window, qtbot, tmp_path, answers):
 
     # 3 plan: planned on entry (not edited here: a re-planned session's resume is
     # covered by the session's own tests once it replays replaced plans). The wizard
-    # plans the arm in rounds (station/arm_rounds.py): the scout is the plan shown
+    # plans the arm in rounds (station/planning/arm_rounds.py): the scout is the plan shown
     qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
     plan = win.page(PageId.PLAN)
     qtbot.waitUntil(lambda: plan.table.rowCount() == 6, timeout=TIMEOUT)

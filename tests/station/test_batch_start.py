@@ -1,7 +1,7 @@
 """The final fit of an arm session's trace starts where it can reach the right minimum.
 
 ``fixtures/traces/sm-distance-tilt-drawn-9300.jsonl`` is the trace of a whole
-simulated session (``station.sim_sessions.run_session``) on the drawn arm
+simulated session (``station.simulation.sessions.run_session``) on the drawn arm
 ``station_truth("agebot-sm", 9300)``, recorded on a loaded machine: its readings are
 clean (the true model leaves residuals of the readings' noise at every pose), but
 from the bare nominal the fit of all its poses ends in a local minimum 1.5 cm RMS
@@ -19,9 +19,9 @@ import numpy as np
 
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.solver import SolverOptions, solve
-from station import batch
-from station.sim_sessions import station_truth
-from station.trace import read_trace
+from station.fitting import batch
+from station.simulation.sessions import station_truth
+from station.recording.trace import read_trace
 
 ROOT = Path(__file__).resolve().parents[2]
 DRAWN = ROOT / "fixtures" / "traces" / "sm-distance-tilt-drawn-9300.jsonl"

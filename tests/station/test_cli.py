@@ -81,7 +81,7 @@ def test_batch_prints_the_calibration_of_the_trace(tmp_path):
     """The printed table is the solver's result on that trace (computed here in
     process), and that result recovers the report's truth the fixture was made from."""
     from calibration.robots import get_robot
-    from station.batch import calibrate_trace
+    from station.fitting.batch import calibrate_trace
 
     trace = os.path.join(TRACES, "sm-distance.jsonl")
     r = app("batch", trace, "--out", str(tmp_path / "p.json"))

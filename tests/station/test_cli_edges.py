@@ -199,12 +199,12 @@ def test_params_export_to_a_device_is_refused(tmp_path, capsys, ur5_params):
 
 
 def test_batch_out_empty_is_refused_before_the_fit(capsys, monkeypatch):
-    import station.batch
+    import station.fitting.batch
 
     def no_fit(*a, **k):
         raise AssertionError("fitted before the output was checked")
 
-    monkeypatch.setattr(station.batch, "calibrate_trace", no_fit)
+    monkeypatch.setattr(station.fitting.batch, "calibrate_trace", no_fit)
     one_line(*run(capsys, "batch", TRACE, "--out", "")[::2], "parameter file", "empty")
 
 
@@ -350,7 +350,7 @@ def test_trace_generate_refuses_a_built_in_robot_that_is_not_the_method_s(tmp_pa
 
 
 def _resigned(doc, tmp_path, name="p.json", text=None):
-    from station.params_file import checksum
+    from station.outputs.params_file import checksum
 
     doc = json.loads(json.dumps(doc))
     doc["checksum"] = checksum(doc)
@@ -551,7 +551,7 @@ def test_an_exported_robot_file_reads_back_whatever_its_name(tmp_path):
 
     from calibration.robots import get_robot
     from drivers.robot_file import load_robot_file, parse_robot_file
-    from station.export import robot_file_text
+    from station.outputs.export import robot_file_text
 
     spec = load_robot_file(UR5)
     for name in ('a"b', "a\\b", "ä ö 😀", "x'y"):
@@ -577,7 +577,7 @@ def test_params_export_of_a_robot_named_over_two_lines_is_one_line(tmp_path, cap
 def test_a_study_summary_has_no_nan(tmp_path):
     """No calibration succeeded: the summary's figures are null, never NaN (which
     JSON has not)."""
-    from station.study import _json_safe, summarize
+    from station.simulation.study import _json_safe, summarize
 
     doc = _json_safe(summarize([{"design": "random", "ok": False, "error": "x",
                                  "index": 0}], ("random",)))
@@ -601,7 +601,7 @@ def test_the_retry_window_is_a_station_config_setting(tmp_path):
 
 
 def test_the_headless_policy_retries_within_the_window(monkeypatch):
-    from station import session as session_module
+    from station.session import session as session_module
 
     now = [100.0]
     monkeypatch.setattr(session_module.time, "monotonic", lambda: now[0])
@@ -617,12 +617,12 @@ def test_the_headless_policy_retries_within_the_window(monkeypatch):
 
 
 def test_a_session_folder_holding_a_device_is_refused_for_the_wizard_too(tmp_path):
-    """The wizard opens its sessions through :class:`station.session.Session`, which
+    """The wizard opens its sessions through :class:`station.session.session.Session`, which
     checks the folder as ``run --out`` does: a ``params.json`` there that is a device
     is refused before the session starts."""
     from calibration.errors import ConfigError
     from drivers.config import load_station_config
-    from station.session import Session
+    from station.session.session import Session
 
     folder = tmp_path / "session"
     folder.mkdir()

@@ -86,12 +86,12 @@ def _stub_long_work(monkeypatch):
     import drivers.check
     import drivers.sim.server
     import station.headless
-    import station.study
+    import station.simulation.study
 
     monkeypatch.setattr(drivers.sim.server, "SimulatorProcess", _accept)
     monkeypatch.setattr(drivers.sim.server.SimStation, "start", _accept)
     monkeypatch.setattr(station.headless, "_run", _accept)
-    monkeypatch.setattr(station.study, "run_study", _accept)
+    monkeypatch.setattr(station.simulation.study, "run_study", _accept)
     monkeypatch.setattr(drivers.check, "check", _accept)
 
 

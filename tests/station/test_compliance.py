@@ -10,10 +10,10 @@ import numpy as np
 import app as app_module
 from calibration.robots import get_robot
 from drivers.urdf_file import parse_urdf
-from station import tracegen_urdf as tg
-from station.batch import calibrate_trace
-from station.import_markers import import_markers
-from station.trace import write_trace
+from station.simulation import tracegen_urdf as tg
+from station.fitting.batch import calibrate_trace
+from station.recording.import_markers import import_markers
+from station.recording.trace import write_trace
 from tests.station.urdf_helpers import URDF, arm
 
 

@@ -135,7 +135,7 @@ def test_a_joint_out_of_limits_names_the_values_without_numpy(tmp_path, capsys):
 def test_a_urdf_joint_origin_far_from_the_urdf_is_implausible(tmp_path, capsys):
     """A URDF robot whose readings need a joint origin 20 cm off: refused as implausible,
     not calibrated into a robot that is not the one described."""
-    from station import tracegen_urdf as tg
+    from station.simulation import tracegen_urdf as tg
     from tests.station.urdf_helpers import arm, import_args
 
     rob = arm()
@@ -158,8 +158,8 @@ def test_a_parameter_identifiable_only_in_combination_says_so(name):
     truth with a plain std (it absorbs the held tool_d and tool_b). Now every
     parameter that absorbs a held one is named a combination (``absorbs``), and every
     other identifiable parameter is within its std of the truth."""
-    from station.batch import BatchOutcome, absorbed_names
-    from station.trace import Trace
+    from station.fitting.batch import BatchOutcome, absorbed_names
+    from station.recording.trace import Trace
     from tests.calibration.serial_helpers import data_of, fit, model_of, perturbed, robot
 
     rob = robot(name)

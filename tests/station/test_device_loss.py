@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from drivers.sim.server import SimulatorProcess
-from station.device_loss import DeviceLost
-from station.planner import PlanRequest
-from station.session import Session
-from station.trace import read_trace
+from station.session.device_loss import DeviceLost
+from station.planning.arm_plan import PlanRequest
+from station.session.session import Session
+from station.recording.trace import read_trace
 from tests.station.test_session import _session_config, fast_config
 
 REQUEST = PlanRequest(count=8, validation=2, seed=3)
@@ -157,8 +157,8 @@ def test_a_lost_answer_in_the_reference_tare_redoes_the_whole_capture(tmp_path, 
         # per move of the joints' direction test, then the capture's zero and the tare
         # snapshot: the tare's third reading gets no answer
         from calibration.robots import get_robot
-        from station.plausibility import direction_moves
-        from station.planner import reference_pose
+        from station.session.plausibility import direction_moves
+        from station.planning.arm_plan import reference_pose
 
         robot = get_robot("agebot-sm")
         target = reference_pose("sm-distance-tilt", robot.nominal,

@@ -17,9 +17,9 @@ import sys
 import pytest
 
 from calibration.errors import TraceFormatError
-from station import params_file
-from station.params_file import read_params, write_params
-from station.trace import TraceWriter, read_trace
+from station.outputs import params_file
+from station.outputs.params_file import read_params, write_params
+from station.recording.trace import TraceWriter, read_trace
 
 READER = r"""
 import sys

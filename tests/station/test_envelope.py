@@ -19,9 +19,9 @@ from drivers.errors import ProtocolError
 from drivers.rig import Rig
 from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import load_truth
-from station.envelope import (EnvelopeStop, Track, box_points, departures, limit_violation,
+from station.planning.envelope import (EnvelopeStop, Track, box_points, departures, limit_violation,
                               live_departures, sm_predictor, watched_move)
-from station.sim_sessions import fast_config
+from station.simulation.sessions import fast_config
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM_SM = ROOT / "fixtures" / "stations" / "sim-sm.toml"
@@ -152,7 +152,7 @@ def test_the_watch_wakes_when_the_move_ends_not_a_poll_later(sim_rig, monkeypatc
     move: it then follows the last millimetres closely and returns, instead of sleeping
     through most of a poll with the arm already there. With a poll of 30 s every nap
     ends by the predicted arrival."""
-    from station import envelope
+    from station.planning import envelope
 
     sim, rig = sim_rig
     robot = get_robot("agebot-sm")
@@ -182,7 +182,7 @@ def test_the_watch_wakes_when_the_move_ends_not_a_poll_later(sim_rig, monkeypatc
 
 def test_move_duration_is_the_simulated_axes_profile():
     from drivers.sim.axis import SimAxis
-    from station.envelope import move_duration
+    from station.planning.envelope import move_duration
 
     for d, v, a in ((0.3, 50.0, 400.0), (40.0, 50.0, 400.0), (6.25, 50.0, 400.0),
                     (-30.0, 200.0, 2000.0), (0.0, 10.0, 10.0)):
@@ -261,7 +261,7 @@ def test_a_suggested_reference_beyond_a_limit_is_brought_inside():
     (sm-distance's actuator 4 at -212.9 against -205): it is brought 5 % of the range
     inside, the other actuators kept; inside the limits, or without any, it is the
     nominal's own."""
-    from station.planner import reference_pose
+    from station.planning.arm_plan import reference_pose
 
     robot = get_robot("agebot-sm")
     free, _, _ = reference_pose("sm-distance", robot.nominal)

@@ -1,6 +1,6 @@
 """Property-based fuzzing (hypothesis) of the two file readers that take input from
-outside: the trace reader (station/trace.py) and the parameter-file reader
-(station/params_file.py). Any byte string, and any JSON edit of a good file, either
+outside: the trace reader (station/recording/trace.py) and the parameter-file reader
+(station/outputs/params_file.py). Any byte string, and any JSON edit of a good file, either
 reads or raises the project's error type with a one-line message; never another
 exception."""
 import json
@@ -12,8 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from calibration.errors import StationError
-from station.params_file import checksum, read_params
-from station.trace import read_trace
+from station.outputs.params_file import checksum, read_params
+from station.recording.trace import read_trace
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TRACES = os.path.join(ROOT, "fixtures", "traces")
@@ -158,7 +158,7 @@ def test_trace_reader_on_spliced_bytes(tmp_path, data):
 # -- parameter files ------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def good_params(tmp_path_factory):
-    from station.batch import calibrate_trace
+    from station.fitting.batch import calibrate_trace
 
     out = tmp_path_factory.mktemp("fuzz") / "p.json"
     calibrate_trace(os.path.join(TRACES, "sm-distance.jsonl"), out=str(out))

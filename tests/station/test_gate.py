@@ -1,4 +1,4 @@
-"""The fit-quality gate (station.gate) on robots that are not the report's: gross
+"""The fit-quality gate (station.fitting.gate) on robots that are not the report's: gross
 readings named and left out (or the fit refused naming them), a flipped tilt sign,
 a swapped Modbus word order, identical poses, held-out validation; never rc 0 with
 a biased result."""
@@ -15,11 +15,11 @@ from calibration.errors import CalibrationError
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
 from drivers.sim.truth import draw_truth
-from station.batch import calibrate
-from station.gate import FitQualityError
-from station.params_file import read_params
-from station.trace import read_trace, write_trace
-from station.tracegen import generate
+from station.fitting.batch import calibrate
+from station.fitting.gate import FitQualityError
+from station.outputs.params_file import read_params
+from station.recording.trace import read_trace, write_trace
+from station.simulation.tracegen import generate
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 NOISE = {"distance": 1e-4, "tilt": 2e-4}
@@ -245,7 +245,7 @@ def test_the_plans_eq60_minimum_is_the_gates(tmp_path, method, n_r, minimum):
     sm-distance-tilt where the gate asked for 35); a trace with an exact zero keeps
     the brief's N_R."""
     from calibration.identifiability import minimum_poses
-    from station.planner import minimum_count, parameter_count
+    from station.planning.arm_plan import minimum_count, parameter_count
 
     def zero_is_a_reading(path):
         lines = open(path).read().splitlines()

@@ -1,4 +1,4 @@
-"""The gate's held-out check (station.validation, station.gate): each held-out
+"""The gate's held-out check (station.fitting.validation, station.fitting.gate): each held-out
 reading against its own prediction std (noise plus the fitted parameters'
 uncertainty); one beyond the Bonferroni threshold is named and the fit refused,
 an honest trace is not; the leave-one-out confirmation weighs the row's leverage."""
@@ -12,10 +12,10 @@ import pytest
 
 from calibration import quality as q
 from calibration.errors import CalibrationError
-from station import gate
-from station.batch import calibrate
-from station.gate import FitQualityError
-from station.trace import read_trace
+from station.fitting import gate
+from station.fitting.batch import calibrate
+from station.fitting.gate import FitQualityError
+from station.recording.trace import read_trace
 from tests.station.test_gate import NOISE, app, make_trace
 
 HELD = 10       # the trace's last poses held out

@@ -1,4 +1,4 @@
-"""One session per output folder (station.lock): the second is refused with one line
+"""One session per output folder (station.recording.lock): the second is refused with one line
 naming the first one's process, and a lock left by a crashed run is taken over."""
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ import pytest
 
 from drivers.config import load_station_config
 from drivers.sim.server import SimulatorProcess
-from station.lock import FolderLock, FolderLocked, holder
-from station.session import Session
-from station.trace import read_trace
+from station.recording.lock import FolderLock, FolderLocked, holder
+from station.session.session import Session
+from station.recording.trace import read_trace
 from tests.station.test_session import FIX, ROOT, _poses_in, fast_config
 
 
@@ -40,7 +40,7 @@ def test_a_session_holds_its_folder_until_closed(tmp_path):
 
 def test_a_stale_lock_of_a_killed_run_is_taken_over(tmp_path):
     folder = tmp_path / "run"
-    code = ("import sys, time; from station.lock import FolderLock; "
+    code = ("import sys, time; from station.recording.lock import FolderLock; "
             f"FolderLock({str(folder)!r}).acquire(); print('locked', flush=True); time.sleep(60)")
     p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:

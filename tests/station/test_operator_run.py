@@ -50,7 +50,7 @@ def test_default_runs_are_reproducible_and_a_finished_folder_stays(tmp_path):
     assert poses[0] == poses[1]
     fit = [r for r in poses[0] if r["use"] == "fit"]
     # the default plans the arm in rounds: a 6-pose scout and 6 in 30 % of the box on
-    # top of the 8 asked for, in the whole box (station/arm_rounds.py); reproducible too
+    # top of the 8 asked for, in the whole box (station/planning/arm_rounds.py); reproducible too
     assert len(fit) == 8 + 6 + 6 and len(poses[0]) > len(fit)     # and the held-out ones
     plans = [r for r in ta if r["record"] == "event" and r["kind"] == "plan"]
     assert sorted({p["round"] for ev in plans for p in ev["poses"]}) == [0, 1, 2]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import re
 
-from station.report import _plan_view
+from station.outputs.report import _plan_view
 from tests.station.test_cli import TRACES, app
 
 DRAWN = os.path.join(TRACES, "sm-distance-tilt-drawn-9300.jsonl")

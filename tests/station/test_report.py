@@ -1,4 +1,4 @@
-"""The HTML calibration report (station/report.py): one self-contained file,
+"""The HTML calibration report (station/outputs/report.py): one self-contained file,
 written atomically, escaped, with the figures embedded as PNG."""
 import base64
 import json
@@ -12,8 +12,8 @@ import markupsafe
 import pytest
 
 import app
-from station.batch import calibrate_trace
-from station.report import ReportError, write_report
+from station.fitting.batch import calibrate_trace
+from station.outputs.report import ReportError, write_report
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TRACES = os.path.join(ROOT, "fixtures", "traces")
@@ -195,26 +195,26 @@ def test_unwritable_path_is_a_clear_error_and_leaves_nothing(tmp_path, sm_report
 def test_failed_write_leaves_no_partial_file(tmp_path, sm_report, monkeypatch):
     """A failure while writing (disk full, ...) removes the temporary file and
     keeps a previous report as it was."""
-    import station.params_file
-    import station.report
+    import station.outputs.params_file
+    import station.outputs.report
 
-    monkeypatch.setattr(station.report, "render_report", lambda *a, **k: "<!DOCTYPE html>" * 1000)
+    monkeypatch.setattr(station.outputs.report, "render_report", lambda *a, **k: "<!DOCTYPE html>" * 1000)
     old = tmp_path / "r.html"
     old.write_text("previous report")
 
     def full(src, dst):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(station.params_file.os, "replace", full)
+    monkeypatch.setattr(station.outputs.params_file.os, "replace", full)
     with pytest.raises(ReportError, match="No space left on device"):
         write_report(old, sm_report[0])
     assert os.listdir(tmp_path) == ["r.html"] and old.read_text() == "previous report"
 
 
 def test_batch_cli_unwritable_report_is_one_line(tmp_path, capsys, monkeypatch):
-    import station.report
+    import station.outputs.report
 
-    monkeypatch.setattr(station.report, "render_report", lambda *a, **k: "<!DOCTYPE html>")
+    monkeypatch.setattr(station.outputs.report, "render_report", lambda *a, **k: "<!DOCTYPE html>")
     bad = tmp_path / "missing" / "r.html"
     rc = app.main(["batch", os.path.join(TRACES, "sm-distance-tilt.jsonl"),
                    "--out", str(tmp_path / "p.json"), "--report", str(bad)])
@@ -248,7 +248,7 @@ class Cells(HTMLParser):
 def test_no_table_cell_is_long_and_the_plan_is_its_own_table(sm_report):
     """The 79-pose plan is a table of its own (index, qm, target, held out), not raw
     JSON in the events table; no cell anywhere exceeds CELL_MAX characters."""
-    from station.report import CELL_MAX
+    from station.outputs.report import CELL_MAX
 
     _, _, text = sm_report
     p = Cells()
@@ -275,8 +275,8 @@ def test_summary_has_the_validation_headline(sm_report):
 def test_validation_after_bars_are_visible():
     """"After" errors 1000 times smaller than "before" still get bars of visible
     height (log axis), in the display units."""
-    from station.report_figures import validation_figure
-    from station.units import MM_DEG
+    from station.outputs.report_figures import validation_figure
+    from station.outputs.units import MM_DEG
 
     rows = [{"channel": "distance", "unit": "m", "n": 13, "rms_before": 0.0476,
              "rms_after": 4.71e-06, "max_before": 0.12, "max_after": 1.1e-05},
@@ -299,7 +299,7 @@ def test_units_policy():
     """People read mm and degrees (or the config's [display]); the config's choices
     are the units module's."""
     from drivers.config import DISPLAY_ANGLES, DISPLAY_LENGTHS, parse_station_config
-    from station.units import ANGLES, LENGTHS, MM_DEG, Units, describe_error, from_config
+    from station.outputs.units import ANGLES, LENGTHS, MM_DEG, Units, describe_error, from_config
     from drivers.snapshot import UnstableReading, Violation
 
     assert set(DISPLAY_LENGTHS) == set(LENGTHS) and set(DISPLAY_ANGLES) == set(ANGLES)

@@ -23,9 +23,9 @@ from calibration.robots import get_robot
 from drivers.rig import Rig
 from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import load_truth, save_truth
-from station.planner import PlanRequest
-from station.session import Session
-from station.trace import read_trace
+from station.planning.arm_plan import PlanRequest
+from station.session.session import Session
+from station.recording.trace import read_trace
 from tests.simconfig import quick_config
 from tests.station.test_session import FIX, _session_config, referenced_folder
 
@@ -33,9 +33,9 @@ from tests.station.test_session import FIX, _session_config, referenced_folder
 def _no_figures(monkeypatch):
     """The HTML report (matplotlib figures, ~90 % of a session's time here) is not what
     these tests compare: a one-line report stands in (tests/station/test_report.py)."""
-    import station.report
+    import station.outputs.report
 
-    monkeypatch.setattr(station.report, "write_report",
+    monkeypatch.setattr(station.outputs.report, "write_report",
                         lambda path, *a, **k: Path(path).write_text("report\n"))
 
 
@@ -187,7 +187,7 @@ def test_poses_skipped_for_a_fault_are_measured_again_on_resume(tmp_path):
     """Offline (no devices): a plan with one pose skipped for a fault and one for lack
     of contact; the resumed session measures the first again, not the second, and
     says what it will redo."""
-    from station import resume
+    from station.recording import resume
 
     config, out = referenced_folder(tmp_path)
     with Session(config, "sm-distance-tilt", out, request=PlanRequest(count=6, validation=2)) as s:

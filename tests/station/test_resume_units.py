@@ -1,4 +1,4 @@
-"""The session's resume decisions (station.resume) on synthetic trace events and
+"""The session's resume decisions (station.recording.resume) on synthetic trace events and
 session states: which skipped poses are measured again, why a pose was skipped,
 what must come before the next measurement, a trace cut in its header, and which
 poses a resumed session counts as done, skipped or still to measure. Each
@@ -11,9 +11,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from station import resume
-from station.planner import PlannedPose
-from station.resume import DROPPED, FAULT, NO_CONTACT, Redo, redo, remeasurable, skip_reason
+from station.recording import resume
+from station.planning.arm_plan import PlannedPose
+from station.recording.resume import DROPPED, FAULT, NO_CONTACT, Redo, redo, remeasurable, skip_reason
 
 
 def _skip(i, reason=None, message="pose skipped"):

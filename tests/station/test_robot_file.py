@@ -12,8 +12,8 @@ import pytest
 
 from calibration.errors import ConfigError, TraceFormatError
 from drivers.robot_file import load_robot_file, parse_robot_file
-from station.batch import calibrate, calibrate_trace
-from station.trace import read_trace, write_trace
+from station.fitting.batch import calibrate, calibrate_trace
+from station.recording.trace import read_trace, write_trace
 from tests.station.test_cli import ROOT, TRACES, app
 
 ROBOTS = os.path.join(ROOT, "fixtures", "robots")
@@ -107,7 +107,7 @@ def test_generate_and_batch_need_nothing_but_the_trace(tmp_path):
     p, html = tmp_path / "p.json", tmp_path / "r.html"
     r = app("batch", str(t), "--out", str(p), "--report", str(html), cwd=str(tmp_path))
     assert r.returncode == 0, r.stderr
-    from station.report import param_units
+    from station.outputs.report import param_units
 
     units = param_units(read_trace(t))
     assert units["beta2"] == "rad" and units["d4"] == "m" and units["k1"] == "rad/u"
@@ -178,8 +178,8 @@ def test_urdf_and_calibrated_robot_file_give_the_parameter_files_model(tmp_path)
     import yourdfpy
 
     from calibration.robots import get_robot
-    from station.export import calibrated_model
-    from station.params_file import read_params
+    from station.outputs.export import calibrated_model
+    from station.outputs.params_file import read_params
 
     t, p = tmp_path / "t.jsonl", tmp_path / "p.json"
     r = app("trace", "generate", "--robot", os.path.join(ROBOTS, "ur5-like-hayati.toml"),

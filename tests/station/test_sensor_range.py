@@ -14,9 +14,9 @@ from calibration.errors import ConfigError
 from drivers.config import load_station_config
 from drivers.endpoints import with_endpoints
 from drivers.sim.server import SimulatorProcess
-from station.planner import PlanRequest
-from station.session import Session
-from station.trace import read_trace
+from station.planning.arm_plan import PlanRequest
+from station.session.session import Session
+from station.recording.trace import read_trace
 from tests.station.test_cli import app
 from tests.station.test_serial_session import HAYATI, _fast_config, _truth_file
 from tests.simconfig import quick_config
@@ -66,10 +66,10 @@ def test_robot_file_session_plans_only_readable_orientations(tmp_path):
 
 
 def test_a_reading_beyond_the_range_is_not_recorded(tmp_path):
-    from station.session import Session as S
+    from station.session.session import Session as S
 
     cfg = load_station_config(_ranged(_fast_config(tmp_path, HAYATI)))
-    from station import plausibility
+    from station.session import plausibility
 
     said = plausibility.range_problems(cfg, {"roll": math.radians(75), "pitch": 0.1}, "here")
     assert len(said) == 1 and "roll reads +75.0 deg here" in said[0]

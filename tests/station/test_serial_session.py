@@ -15,13 +15,13 @@ from drivers.sim.serial_robot import (SimulatedSerial, draw_serial_truth, sim_co
                                       sim_config_data)
 from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import save_truth
-from station import serial_plan
-from station.export import calibrated_model
-from station.params_file import read_params
-from station.planner import PlanRequest
-from station.session import Session
-from station.sim_serial import equivalent_truth, serial_config, serial_truth_vector
-from station.trace import read_trace
+from station.planning import serial_plan
+from station.outputs.export import calibrated_model
+from station.outputs.params_file import read_params
+from station.planning.arm_plan import PlanRequest
+from station.session.session import Session
+from station.simulation.serial_sessions import equivalent_truth, serial_config, serial_truth_vector
+from station.recording.trace import read_trace
 from tests.simconfig import quick_text
 from tests.station.test_session import session_bound
 

@@ -30,11 +30,11 @@ from drivers.config import load_station_config
 from drivers.endpoints import with_endpoints
 from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import draw_truth, load_truth, save_truth
-from station.batch import calibrate
-from station.params_file import read_params
-from station.planner import PlanRequest
-from station.session import Session
-from station.trace import read_trace
+from station.fitting.batch import calibrate
+from station.outputs.params_file import read_params
+from station.planning.arm_plan import PlanRequest
+from station.session.session import Session
+from station.recording.trace import read_trace
 from tests.simconfig import quick_config
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -298,7 +298,7 @@ def test_device_faults_mid_session_are_survived_and_recorded(tmp_path, quick_ret
 def referenced_folder(tmp_path: Path):
     """Offline (no devices): the simulated SM station's config and a session folder
     whose sm-distance-tilt trace holds its header and a reference, nothing more."""
-    from station.trace import TraceWriter
+    from station.recording.trace import TraceWriter
 
     robot = get_robot("agebot-sm")
     config = load_station_config(FIX / "stations" / "sim-sm.toml")

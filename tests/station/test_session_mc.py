@@ -2,7 +2,7 @@
 
 Each arm is drawn around the nominal (``draw_truth``: gear ratios +-40 %, lengths
 +-5 %, offsets +-0.03) with the noise real devices have; the simulator runs in its
-own process and the session runs unattended (``station.sim_sessions``). The
+own process and the session runs unattended (``station.simulation.sessions``). The
 result is compared with the truth in the frame the session captured, angles
 modulo 2 pi; ``distance_off`` with the simulated draw-wire's zero reading.
 Seeds 9300-9309 and 9422 are used nowhere else (the bench uses 9100-).
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from calibration.robots import get_robot
-from station.planner import PlanRequest
-from station.sim_sessions import d2_interval, run_session, station_truth, summary
-from station.trace import read_trace
+from station.planning.arm_plan import PlanRequest
+from station.simulation.sessions import d2_interval, run_session, station_truth, summary
+from station.recording.trace import read_trace
 
 FAR_SEED = 9422          # k1, k2, k4 32-38 % below the nominal, k3 16 % above
 SLOW_SEEDS = range(9300, 9310)

@@ -6,7 +6,7 @@ One session's parameters are one draw: a bound on them (the fast tests in
 bit-identical when rerun, so 3 std on each would fail an honest one 4-7 % of
 the time) catches gross errors and biases of ~4 std, not a std that is 20 %
 optimistic. Here whole
-simulated sessions (``station.sim_sessions``: the simulator in its own process,
+simulated sessions (``station.simulation.sessions``: the simulator in its own process,
 one unattended session, the result against the truth in the session's own
 terms) are pooled over arms drawn around the nominal (``draw_truth``) with the
 devices' noise (distance 1e-5 m, tilt 1.7e-4 rad per reading), one seed per
@@ -46,8 +46,8 @@ from scipy.stats import t as student_t
 
 from calibration.solver.weighting import t_inflation
 
-from station.planner import PlanRequest
-from station.sim_sessions import d2_interval, run_session, station_truth, summary
+from station.planning.arm_plan import PlanRequest
+from station.simulation.sessions import d2_interval, run_session, station_truth, summary
 
 ROOT = Path(__file__).resolve().parents[2]
 UR5 = str(ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml")
@@ -144,9 +144,9 @@ def _check_pool(tmp_path, parts):
 
 @pytest.fixture
 def no_report(monkeypatch):
-    import station.report
+    import station.outputs.report
 
-    monkeypatch.setattr(station.report, "write_report",      # not what is judged here
+    monkeypatch.setattr(station.outputs.report, "write_report",      # not what is judged here
                         lambda path, *a, **k: Path(path).write_text("report\n"))
 
 

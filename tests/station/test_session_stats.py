@@ -1,4 +1,4 @@
-"""The pooled statistic of whole sessions (station.sim_sessions): one session's
+"""The pooled statistic of whole sessions (station.simulation.sessions): one session's
 parameter errors move together (one data set), so the pool is judged by
 ``d2 = z^T corr^-1 z`` of each session and the whitened errors, which an honest
 std makes independent whatever the correlation. Synthetic sessions with a known,
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.solver.weighting import t_inflation
-from station.sim_sessions import SessionScore, d2_interval, summary
+from station.simulation.sessions import SessionScore, d2_interval, summary
 
 K, SESSIONS, POOLS = 14, 8, 200
 

@@ -1,7 +1,7 @@
 """Guided touching sessions (sm-plane, sm-self-redundancy; report 7.4, 7.3).
 
 The simulator runs in its own process; the simulated operator
-(``station.sim_operator``) sees the contact through the simulator's control port
+(``station.simulation.touch_operator``) sees the contact through the simulator's control port
 and jogs the robot through the session, as an operator with a feeler gauge
 would. The influence parameters the report takes as known (sm-plane: L4,
 theta0, a0 and the plane; sm-self-redundancy: L4) are given their true values
@@ -22,12 +22,12 @@ from calibration.robots import get_robot
 from drivers.config import load_station_config
 from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import load_truth
-from station import planner
-from station.params_file import read_params
-from station.planner import PlanRequest
-from station.session import Session
-from station.sim_operator import SimulatedOperator
-from station.trace import read_trace
+from station.planning import arm_plan as planner
+from station.outputs.params_file import read_params
+from station.planning.arm_plan import PlanRequest
+from station.session.session import Session
+from station.simulation.touch_operator import SimulatedOperator
+from station.recording.trace import read_trace
 from tests.station.test_session import _identifiable_within, _session_config, fast_config
 
 ROOT = Path(__file__).resolve().parents[2]

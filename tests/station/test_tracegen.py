@@ -1,12 +1,12 @@
-"""Trace generation from a truth file plus command-line noise (station.tracegen)."""
+"""Trace generation from a truth file plus command-line noise (station.simulation.tracegen)."""
 import numpy as np
 import pytest
 
 from calibration.errors import ConfigError
 from calibration.methods import METHODS
-from station.planner import MUST_KNOW
-from station.trace import read_trace
-from station.tracegen import generate_from_truth, parse_noise, reading_noise
+from station.planning.arm_plan import MUST_KNOW
+from station.recording.trace import read_trace
+from station.simulation.tracegen import generate_from_truth, parse_noise, reading_noise
 
 
 def test_parse_noise():
@@ -55,7 +55,7 @@ def test_every_method_generates_on_its_built_in_robot_and_calibrates(tmp_path, m
     in a captured base frame, not the wrist's compensated pairs: judged elsewhere by
     their frame or actuator equivalence) it is back at the truth within a few std."""
     from calibration.robots import BUILTIN, get_robot
-    from station.batch import calibrate_trace
+    from station.fitting.batch import calibrate_trace
 
     out = tmp_path / f"{method}.jsonl"
     noise = {"pose": "pose=1e-5", "position": "position=1e-5", "distance": "distance=1e-5",
@@ -83,7 +83,7 @@ def test_every_method_generates_on_its_built_in_robot_and_calibrates(tmp_path, m
 def test_sm_markers_generates_on_a_urdf_robot_and_not_on_a_built_in_one(tmp_path):
     """sm-markers has no built-in robot: a URDF robot's trace generates and calibrates
     through the gate with its stated noise; without a URDF, one line says what it takes."""
-    from station.batch import calibrate_trace
+    from station.fitting.batch import calibrate_trace
     from tests.station.test_cli import app
     from tests.station.urdf_helpers import URDF
 

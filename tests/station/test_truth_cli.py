@@ -88,7 +88,8 @@ def test_truth_of_another_robot_refused_in_one_line(tmp_path):
 def test_conditioning_warning_said_once_without_a_source_line(monkeypatch, capsys, tmp_path):
     """The headless run prints the table's note; the warning behind it is not printed
     again (with the file and line that raised it) on stderr."""
-    from station import batch, headless
+    from station import headless
+    from station.fitting import batch
 
     note = "joints 2 and 3 of x have (nearly) parallel axes: d2 is ill-conditioned there"
 

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import app as app_module
-from station import tracegen_urdf as tg
-from station.batch import calibrate_trace
-from station.trace import read_trace
+from station.simulation import tracegen_urdf as tg
+from station.fitting.batch import calibrate_trace
+from station.recording.trace import read_trace
 from tests.station.urdf_helpers import URDF, arm, import_args, tracker_case
 
 
@@ -78,7 +78,7 @@ def test_the_exported_urdf_keeps_every_name_and_its_fk_is_the_parameter_file_s(t
     u1 = yourdfpy.URDF.load(str(tmp_path / "cal.urdf"), load_meshes=False)
     assert [j.name for j in u1.robot.joints] == [j.name for j in u0.robot.joints]
     assert [lk.name for lk in u1.robot.links] == [lk.name for lk in u0.robot.links]
-    from station.export import calibrated_model
+    from station.outputs.export import calibrated_model
 
     robot, xi = calibrated_model(json.loads((tmp_path / "p.json").read_text()))
     x0 = xi.copy()
@@ -234,8 +234,8 @@ def test_drawn_arms_seen_by_a_tracker_are_calibrated_within_their_std(tmp_path):
     and degrees through the J2/J3 coupling, imported and calibrated through the gate:
     the errors against the truth's equivalent over the reported std have an RMS in
     0.8-1.3 and 90 % of them lie within 2 std."""
-    from station.import_markers import import_markers
-    from station.trace import write_trace
+    from station.recording.import_markers import import_markers
+    from station.recording.trace import write_trace
 
     rob, zs, passed = arm(), [], 0
     for seed in range(7100, 7120):

@@ -11,7 +11,7 @@ import sys
 import pytest
 
 import app as app_module
-from station.params_file import checksum, read_params
+from station.outputs.params_file import checksum, read_params
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TRACE = os.path.join(ROOT, "fixtures", "traces", "sm-distance-tilt.jsonl")
@@ -94,7 +94,7 @@ def _no_space(*_a, **_k):
 def test_disk_full_writing_the_parameter_file(trace, tmp_path, monkeypatch, capsys):
     """ENOSPC from the parameter file's writer after the report was written: the
     report is removed again, nothing is left."""
-    import station.params_file as pf
+    import station.outputs.params_file as pf
 
     monkeypatch.setattr(pf, "write_atomic", _no_space)
     rc = app_module.main(["batch", str(trace), "--out", str(tmp_path / "p.json"),

@@ -1,4 +1,4 @@
-"""The wrist's growing box (station/wrist_plan.py) without devices: the planner's
+"""The wrist's growing box (station/planning/wrist_plan.py) without devices: the planner's
 rounds against a drawn wrist's true kinematics, the envelope checks and the stops."""
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from calibration.errors import CalibrationError
 from calibration.robots import get_robot
 from calibration.robots.agebot_pm import envelope_violation, gravity_tilt, rot_xyz
 from drivers.sim.truth import draw_truth
-from station.planner import PlanRequest
-from station.wrist_plan import (ADVICE, BOX_DEG, TOLERANCE_DEG, WristPlanner,
+from station.planning.arm_plan import PlanRequest
+from station.planning.wrist_plan import (ADVICE, BOX_DEG, TOLERANCE_DEG, WristPlanner,
                                 WristStopped)
 
 ROBOT = get_robot("agebot-pm")
@@ -145,7 +145,7 @@ def test_watch_names_the_deviation():
     planner.xi = xi
     X = np.radians([5.0, -3.0, 2.0])
     qm = ROBOT.ik(X, xi)
-    from station.planner import PlannedPose
+    from station.planning.arm_plan import PlannedPose
     pose = PlannedPose(3, tuple(qm), tuple(X), "fit", 1)
     assert planner.watch(pose, {"qm": list(qm), "orientation": list(X)}) is None
     off = X + [0.0, math.radians(TOLERANCE_DEG + 1), 0.0]

@@ -11,9 +11,9 @@ import pytest
 from calibration.errors import StationError
 from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import save_truth
-from station.sim_wrist import fast_config, wrist_truth
-from station.trace import read_trace
-from station.wrist_plan import SCOUT_COUNT
+from station.simulation.wrist_sessions import fast_config, wrist_truth
+from station.recording.trace import read_trace
+from station.planning.wrist_plan import SCOUT_COUNT
 from tests.station.test_session import ROOT
 
 
@@ -54,13 +54,13 @@ def test_a_wrist_with_its_sensor_mapped_wrong_stops_after_the_scout(tmp_path, mo
     """Past the start's test move (switched off here: a mapping it cannot see), no model
     of the wrist explains the scout's readings: the session stops after the scout poses
     near home, with the trace kept and a one-line message naming what to do."""
-    import station.plausibility
+    import station.session.plausibility
 
-    from station.planner import PlanRequest
-    from station.session import Session
+    from station.planning.arm_plan import PlanRequest
+    from station.session.session import Session
     from tests.station.test_session import _session_config
 
-    monkeypatch.setattr(station.plausibility, "check_wrist", lambda session: None)
+    monkeypatch.setattr(station.session.plausibility, "check_wrist", lambda session: None)
     truth = wrist_truth(9400)
     save_truth(truth, tmp_path / "truth.json")
     cfg = fast_config(tmp_path)

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from station.planner import PlanRequest
-from station.sim_wrist import run_wrist_session, wrist_truth
+from station.planning.arm_plan import PlanRequest
+from station.simulation.wrist_sessions import run_wrist_session, wrist_truth
 
 SEEDS = {"pm-fk": range(9350, 9357), "pm-tilt": range(9360, 9366)}  # used by no other test or bench
 

@@ -1,14 +1,14 @@
 """A simulated industrial arm seen by a laser tracker, exported as a user gets it:
 the tracker's raw frame, millimetres, three reflectors, joint values in degrees as a
 FANUC controller prints them (J3 counted from the horizontal):
-:func:`station.tracegen_urdf.tracker_export`."""
+:func:`station.simulation.tracegen_urdf.tracker_export`."""
 from __future__ import annotations
 
 from pathlib import Path
 
 from calibration.robots import get_robot
 from drivers.urdf_file import load_urdf
-from station import tracegen_urdf as tg
+from station.simulation import tracegen_urdf as tg
 
 ROOT = Path(__file__).resolve().parents[2]
 URDF = ROOT / "fixtures" / "robots" / "m10ia-like.urdf"

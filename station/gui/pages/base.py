@@ -14,7 +14,7 @@ def error_text(e: BaseException) -> str:
 
     if isinstance(e, StationError):
         from station.gui.widgets import display_units
-        from station.units import describe_error
+        from station.outputs.units import describe_error
 
         return describe_error(e, display_units())   # a snapshot's limits with units
     return f"{type(e).__name__}: {e}"

@@ -84,7 +84,7 @@ class ExportPage(Page):
         self.verified.setText("Writing\u2026")
 
         def job(s):
-            from station.params_file import read_params
+            from station.outputs.params_file import read_params
 
             files = s.export()
             doc = read_params(files["params"])

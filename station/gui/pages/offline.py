@@ -71,7 +71,7 @@ class OfflinePage(Page):
             self.open_trace(path)
 
     def open_trace(self, path) -> bool:
-        from station.trace import read_trace
+        from station.recording.trace import read_trace
 
         # whatever happens, nothing of the previous trace stays on the page
         self.path, self.outcome, self.validation, self.saved = None, None, None, {}
@@ -100,7 +100,7 @@ class OfflinePage(Page):
     def calibrate(self) -> None:
         if self.path is None or self.controller.offline.busy:
             return
-        from station.batch import calibrate_trace
+        from station.fitting.batch import calibrate_trace
 
         path = str(self.path)
         self.view.clear()
@@ -143,8 +143,8 @@ class OfflinePage(Page):
             self.save_report(path)
 
     def save_params(self, path) -> dict | None:
-        from station.batch import outcome_document
-        from station.params_file import write_params
+        from station.fitting.batch import outcome_document
+        from station.outputs.params_file import write_params
 
         try:
             doc = write_params(path, outcome_document(self.outcome, str(self.path)))
@@ -157,7 +157,7 @@ class OfflinePage(Page):
 
     def save_report(self, path) -> None:
         """Write the report on the worker (its figures take a moment)."""
-        from station.report import write_report
+        from station.outputs.report import write_report
 
         outcome, validation = self.outcome, self.validation
         self._say("Writing the report\u2026")

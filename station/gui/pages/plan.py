@@ -13,10 +13,10 @@ from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QHBoxLayout, QHeade
                                QTableWidgetItem)
 
 from station.gui.pages.base import Page
-from station.pose_design import design_text
+from station.planning.pose_design import design_text
 from station.gui.plots import WorkspacePlot
 from station.gui.widgets import BAD_COLOR, OK_COLOR, fixed, note, target_coords
-from station.planner import PM_SCOUT_COUNT
+from station.planning.arm_plan import PM_SCOUT_COUNT
 
 
 class PlanPage(Page):

@@ -14,9 +14,9 @@ from calibration.robots import get_robot
 from drivers.sim.serial_robot import is_robot_file
 from station.gui.controller import ROBOTS, summarize_folder
 from station.gui.pages.base import Page, error_text
-from station.arm_rounds import ROUND_METHODS
+from station.planning.arm_rounds import ROUND_METHODS
 from station.gui.widgets import BAD_COLOR, OK_COLOR, DeviceTable, note
-from station.planner import SESSION_METHODS, PlanRequest
+from station.planning.arm_plan import SESSION_METHODS, PlanRequest
 
 # the method a new session starts with (the README's): distance + tilt leaves none of
 # the arm's parameters uncalibrated; the wrist's full orientation
@@ -46,8 +46,8 @@ def robot_model(robot: str):
 def draw_truth_file(robot_file: str, folder: Path, seed: int) -> Path:
     """A simulated arm of ``robot_file`` that is not its nominal, saved as
     ``folder/sim-truth.json``: what ``app.py truth draw`` writes
-    (:func:`station.truth_cli.draw_truth_file`)."""
-    from station.truth_cli import draw_truth_file as draw
+    (:func:`station.simulation.truth_cli.draw_truth_file`)."""
+    from station.simulation.truth_cli import draw_truth_file as draw
 
     folder.mkdir(parents=True, exist_ok=True)
     return draw(robot_file, folder / "sim-truth.json", seed)
@@ -143,7 +143,7 @@ class SetupPage(Page):
         self.count.setMinimumWidth(280)
         form.addRow("&Poses to fit:", self.count)
         # the arm's distance methods: rounds inside the live-watched envelope
-        # (station/arm_rounds.py), as app.py run does; unticked is its --one-shot
+        # (station/planning/arm_rounds.py), as app.py run does; unticked is its --one-shot
         self.rounds = QCheckBox(ROUNDS_TEXT)
         self.rounds.setChecked(True)
         self._rounds_wanted = True

@@ -1,0 +1,87 @@
+"""``python app.py truth draw --robot R --seed N --out FILE``: a simulated robot that
+is not the nominal, for ``run --simulate``, ``simulate`` and the wizard's ``--truth``.
+
+The robot (a built-in name or a robot file) is drawn around its nominal as the
+study and the session benchmark draw theirs (:func:`station.simulation.sessions.station_truth`:
+gear ratios within ``+-gear`` relative, lengths within ``+-length`` relative, offsets
+and angles within ``+-offset`` rad; a robot file's ``fixed`` parameters held), with
+the station's devices' noise and, for a robot file, its tool inclinometer mounted a
+little off square. The simulator's noise is seeded by ``seed`` too, so a session on
+the file is repeatable. The wizard's "Draw one" writes the same file.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from calibration.errors import ConfigError
+
+
+def draw_truth_file(robot: str, out, seed: int, *, gear: float | None = None,
+                    length: float | None = None, offset: float | None = None) -> Path:
+    """Draw ``robot`` (seed ``seed``; spreads as the study's, None: its defaults) and
+    write the truth file ``out`` atomically; returns its path."""
+    from drivers.sim.serial_robot import is_robot_file
+    from drivers.sim.truth import DRAW_SPREAD, save_truth
+    from station.simulation.sessions import station_truth
+
+    given = {"gear": gear, "length": length, "offset": offset}
+    for name, v in given.items():
+        if v is not None and not (math.isfinite(v) and 0 <= v < (1 if name != "offset"
+                                                                  else math.inf)):
+            raise ConfigError(f"--{name} {v:g}: expected a spread >= 0"
+                              + (" and < 1 (relative)" if name != "offset" else " (rad)"))
+    if is_robot_file(robot):
+        from drivers.robot_file import load_robot_file
+
+        load_robot_file(robot)          # a robot file that cannot be read: said in one line
+    elif robot not in ("agebot-sm", "agebot-pm"):
+        raise ConfigError(f"--robot {robot}: not a robot (agebot-sm, agebot-pm or a robot "
+                          "file, TOML)")
+    draw = {k: (DRAW_SPREAD[k] if v is None else float(v)) for k, v in given.items()}
+    truth = station_truth(robot, int(seed), **draw)
+    out = Path(out)
+    if out.parent and not out.parent.is_dir():
+        out.parent.mkdir(parents=True, exist_ok=True)
+    save_truth(truth, out)
+    return out
+
+
+def cli(args: argparse.Namespace) -> int:
+    from drivers.sim.truth import DRAW_SPREAD
+
+    from drivers.atomic import check_writable
+
+    check_writable(args.out, "the truth file", inputs=(args.robot,))
+    path = draw_truth_file(args.robot, args.out, args.seed, gear=args.gear,
+                           length=args.length, offset=args.offset)
+    spread = {k: DRAW_SPREAD[k] if getattr(args, k) is None else getattr(args, k)
+              for k in ("gear", "length", "offset")}
+    print(f"truth written to {path}: {args.robot} drawn around its nominal (seed {args.seed}; "
+          f"gear ratios +-{spread['gear']:.3g}, lengths +-{spread['length']:.3g} relative, "
+          f"offsets +-{math.degrees(spread['offset']):.3g}\u00b0); use it with --truth "
+          f"{path}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    """``truth draw`` on the app's sub-command parser ``sub``."""
+    from drivers.sim.truth import DRAW_SPREAD
+
+    t = sub.add_parser("truth", help="simulator truth files")
+    tsub = t.add_subparsers(dest="truth_command", required=True)
+    d = tsub.add_parser("draw", help="draw a simulated robot around a robot file's (or "
+                                     "AGEBOT's) nominal, for --truth")
+    d.add_argument("--robot", required=True, metavar="ROBOT",
+                   help="a robot file (TOML), agebot-sm or agebot-pm")
+    d.add_argument("--seed", type=int, default=0, help="seed of the draw and of the "
+                   "simulator's noise (default 0)")
+    d.add_argument("--out", required=True, help="the truth file to write (JSON)")
+    d.add_argument("--gear", type=float, help="gear ratios within +-GEAR (relative; default "
+                   f"{DRAW_SPREAD['gear']:g}, as the study command)")
+    d.add_argument("--length", type=float, help="lengths within +-LENGTH (relative; default "
+                   f"{DRAW_SPREAD['length']:g})")
+    d.add_argument("--offset", type=float, help="offsets and angles within +-OFFSET (rad; "
+                   f"default {DRAW_SPREAD['offset']:g})")
+    d.set_defaults(func=cli)
