@@ -25,7 +25,9 @@ import warnings
 
 def _cmd_batch(args) -> int:
     from calibration.solver import SolverOptions
-    from station.fitting.batch import calibrate_trace, format_table, write_outputs
+    from station.fitting.batch import calibrate_trace
+    from station.outputs.fit_summary import format_table
+    from station.outputs.report import write_outputs
 
     _check_outputs((args.out, "the parameter file"), (args.report, "the report"),
                    inputs=(args.trace,))

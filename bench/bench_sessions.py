@@ -34,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from station.planning.arm_plan import PlanRequest  # noqa: E402
+from station.planning.request import PlanRequest  # noqa: E402
 from station.simulation.sessions import (DEFAULT_METHOD, d2_interval, run_session,  # noqa: E402
                                   station_truth, summary)
 

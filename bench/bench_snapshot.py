@@ -56,7 +56,8 @@ from drivers.config import load_station_config  # noqa: E402
 from drivers.endpoints import with_endpoints  # noqa: E402
 from drivers.rig import drawwire_from_config, inclinometer_from_config  # noqa: E402
 from drivers.snapshot import snapshot_with  # noqa: E402
-from station.recording.trace import TraceWriter, read_trace  # noqa: E402
+from station.recording.trace import read_trace  # noqa: E402
+from station.recording.trace_writer import TraceWriter
 
 CONFIG = ROOT / "fixtures" / "stations" / "sim-sm.toml"
 TRUTH = ROOT / "fixtures" / "truth" / "agebot-sm.json"

@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from station.simulation import tracegen_urdf as tg  # noqa: E402
 from station.fitting.batch import calibrate_trace  # noqa: E402
 from station.recording.import_markers import import_markers  # noqa: E402
-from station.recording.trace import write_trace  # noqa: E402
+from station.recording.trace_writer import write_trace  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF = ROOT / "fixtures" / "robots" / "m10ia-like.urdf"

@@ -23,7 +23,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import numpy as np  # noqa: E402
 
-from station.planning.arm_plan import PlanRequest  # noqa: E402
+from station.planning.request import PlanRequest  # noqa: E402
 from station.simulation.wrist_sessions import run_wrist_session, wrist_truth  # noqa: E402
 
 FIRST_SEED = 9250            # seeds no test uses

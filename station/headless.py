@@ -26,7 +26,7 @@ from pathlib import Path
 from calibration.errors import ConfigError
 from drivers.config import load_station_config
 from drivers.endpoints import load_endpoints, with_endpoints
-from station.planning.arm_plan import MUST_KNOW, TOUCH_METHODS, PlanRequest
+from station.planning.request import TOUCH_METHODS, PlanRequest
 from station.session.session import Progress, Session
 from station.outputs.units import MM_DEG
 
@@ -96,6 +96,8 @@ def main(args: argparse.Namespace) -> int:
     if args.simulate:
         from drivers.sim.serial_robot import is_robot_file
         from drivers.sim.server import SimulatorProcess, load_sim_config
+        from station.simulation.simulated_station import (engineer_measurements,
+                                                          simulated_station)
 
         config = load_sim_config(args.robot, args.config)
         if not is_robot_file(args.robot) and config.robot != args.robot:
@@ -134,43 +136,6 @@ def main(args: argparse.Namespace) -> int:
     return _run(config, args.method, out, request, nominal, accept=accept)
 
 
-def simulated_station(robot: str, truth: str | None, sim_seed: int | None):
-    """``(truth, seed, record)`` of a simulated station (the headless run's and the
-    wizard's): the truth file (a built-in robot's fixture by default; a robot file
-    needs one), the simulator's seed (:func:`simulator_seed`) and the trace header's
-    ``station`` record of them."""
-    from drivers.sim.serial_robot import is_robot_file
-    from drivers.sim.server import default_truth_path
-
-    from drivers.sim.server import truth_of
-
-    if is_robot_file(robot) and not truth:
-        raise ConfigError(f"a simulated {robot} needs --truth: a truth file of the "
-                          "robot file (what the simulated arm really is); draw one with: "
-                          f"{draw_command(robot)}")
-    truth_of(robot, truth)          # of this robot: refused here in one line
-    truth = str(truth or default_truth_path(robot))
-    seed = simulator_seed(truth, sim_seed)
-    return truth, seed, {"simulator": {"truth": truth, "seed": seed, "pose_noise": True}}
-
-
-def draw_command(robot: str) -> str:
-    """The command line that draws a truth file around ``robot`` (``app.py truth draw``)."""
-    return shlex.join(["python", "app.py", "truth", "draw", "--robot", robot, "--seed", "1",
-                       "--out", "truth.json"])
-
-
-def simulator_seed(truth: str, given: int | None) -> int:
-    """The simulator's seed: ``--sim-seed``, else the truth file's, else 0 (a default
-    run is always seeded, so that it can be repeated)."""
-    if given is not None:
-        return int(given)
-    from drivers.sim.truth import load_truth
-
-    seed = load_truth(truth).seed
-    return int(seed) if seed is not None else 0
-
-
 def parse_target(text: str | None) -> tuple[str, float] | None:
     """``--target-std``: ``STD`` (the tool's held-out error) or ``NAME=STD``."""
     if not text:
@@ -184,24 +149,6 @@ def parse_target(text: str | None) -> tuple[str, float] | None:
         raise ConfigError(f"--target-std {text!r}: expected STD or NAME=STD with a number > 0, "
                           f"e.g. 5e-5 (m) or k1=1e-6")
     return (name.strip() if eq else "heldout", std)
-
-
-def engineer_measurements(robot: str, method: str, truth: str | None, given: dict) -> dict:
-    """Simulated station: the values an engineer measures before a guided-touching
-    session (:data:`station.planning.arm_plan.MUST_KNOW`), read from the simulator's truth file;
-    those ``given`` (``--nominal``) are kept."""
-    from drivers.sim.server import default_truth_path
-    from drivers.sim.truth import load_truth
-
-    t = load_truth(truth or default_truth_path(robot))
-    values = dict(t.parameters)
-    if t.plane is not None:
-        values.update(zip(("plane_a", "plane_b", "plane_c"), t.plane))
-    missing = [k for k in MUST_KNOW[method] if k not in given and k not in values]
-    if missing:
-        raise ConfigError(f"{method} needs {', '.join(missing)}: the truth file gives none; "
-                          f"give them with --nominal NAME=VALUE", source=t.source)
-    return {k: float(values[k]) for k in MUST_KNOW[method] if k not in given}
 
 
 def _run(config, method: str, out: Path, request: PlanRequest, nominal: dict, *,
@@ -248,7 +195,8 @@ def _recorded_poses(path: Path) -> int:
 
 def _session(config, method, out, request, nominal, touch, measured, station, progress,
              units, accept=False) -> int:
-    from station.fitting.batch import ConditioningWarning, format_table
+    from station.fitting.batch import ConditioningWarning
+    from station.outputs.fit_summary import format_table
 
     with Session(config, method, out, request=request, observer=progress,
                  nominal=nominal, touch=touch, station=station,

@@ -8,7 +8,6 @@ node; ``from pkg import name`` is an edge to ``pkg.name`` when that is a module,
 each of them too, except to the packages the importing module itself sits in (they ran before
 it: that is containment, not a dependency)."""
 import ast
-import os
 import sys
 from pathlib import Path
 
@@ -133,15 +132,13 @@ def describe(found):
 
 
 def room(module):
-    """The layer a module lives in: its package below ``station`` (``station.planning``), or
-    the top-level package (``calibration``, ``drivers``), or ``station`` for a module that
-    sits directly in it."""
+    """The room a module lives in: its package below ``station`` (``station.planning``), a
+    module directly in station/ (``station.headless``), or its top-level package
+    (``calibration``, ``drivers``, ``station`` for station/__init__)."""
     parts = module.split(".")
-    if parts[0] == "station" and len(parts) > 2:
+    if parts[0] == "station" and len(parts) >= 2:
         return ".".join(parts[:2])
-    if parts[0] == "station" and len(parts) == 2 and (ROOT / "station" / parts[1]).is_dir():
-        return module
-    return parts[0] if parts[0] != "station" else "station"
+    return parts[0]
 
 
 def room_graph(graph):
@@ -186,35 +183,28 @@ def test_no_cycle_between_rooms():
     assert not found, "cycles between rooms:\n" + describe(found)
 
 
-# what each room may import besides itself; the layers point one way:
-# gui -> session -> planning/fitting/recording/outputs -> calibration, drivers
-STATION_ROOMS = {
-    "station.recording": {"calibration", "drivers"},
-    "station.outputs": {"calibration", "drivers", "station.recording"},
-    "station.planning": {"calibration", "drivers", "station.recording", "station.outputs"},
-    "station.fitting": {"calibration", "drivers", "station.recording", "station.outputs"},
-    "station.session": {"calibration", "drivers", "station.recording", "station.outputs",
-                        "station.planning", "station.fitting"},
-    "station.simulation": {"calibration", "drivers", "station.recording", "station.outputs",
-                           "station.planning", "station.fitting", "station.session"},
-    "station.gui": {"calibration", "drivers", "station.recording", "station.outputs",
-                    "station.planning", "station.fitting", "station.session",
-                    "station.simulation"},
-}
+# what each room may import besides itself: the layers point one way,
+# the faces (gui, headless) -> simulation -> session -> planning -> fitting -> outputs
+# -> recording -> calibration, drivers
+_BELOW = ["calibration", "drivers", "station.recording", "station.outputs", "station.fitting",
+          "station.planning", "station.session", "station.simulation"]
+STATION_ROOMS = {room: set(_BELOW[:i]) for i, room in enumerate(_BELOW) if i >= 2}
+STATION_ROOMS["station.doctor"] = {"calibration", "drivers", "station.outputs"}  # app.py doctor
+STATION_ROOMS["station.headless"] = set(_BELOW)                        # app.py run
+STATION_ROOMS["station.gui"] = set(_BELOW) | {"station.doctor"}        # the wizard
 
 
 def test_layers_point_one_way():
     """calibration imports neither drivers nor station; drivers never import station; each
-    room under station/ imports only the rooms below it (:data:`STATION_ROOMS`)."""
+    room of station/ imports only the rooms below it (:data:`STATION_ROOMS`)."""
     wrong = []
     for module, targets in sorted(import_graph().items()):
         here = room(module)
         for target in sorted(targets):
             there = room(target)
-            if there == here:
+            if there == here or target == "station":
                 continue
-            if here == "calibration" or (here == "drivers" and there == "station") or \
-                    (here == "drivers" and there.startswith("station")):
+            if here == "calibration" or (here == "drivers" and there.startswith("station")):
                 wrong.append(f"{module} -> {target}")
             elif here in STATION_ROOMS and there not in STATION_ROOMS[here]:
                 wrong.append(f"{module} -> {target}")
@@ -222,12 +212,8 @@ def test_layers_point_one_way():
 
 
 def test_station_modules_sit_in_rooms():
-    """Every module of station/ lives in one of :data:`STATION_ROOMS` (the entry point
-    ``station/cli.py`` aside), so the layer test above covers all of them."""
+    """Every module of station/ lives in one of :data:`STATION_ROOMS`, so the layer test
+    above covers all of them."""
     loose = [m for m in import_graph() if m.startswith("station.")
-             and room(m) not in STATION_ROOMS and m not in TOP_LEVEL]
+             and room(m) not in STATION_ROOMS]
     assert not loose, f"station/ modules outside a room: {loose}"
-
-
-# modules directly in station/: the command-line glue that app.py delegates to
-TOP_LEVEL = set()

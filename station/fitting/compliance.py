@@ -150,7 +150,7 @@ def compare(trace, calibrate, payload: dict | None = None):
     rigid fit the gate refuses is compared all the same (a bent arm's rigid model does
     not predict), and its refusal stands unless the compliant fit passes and is
     supported. Returns ``(chosen outcome, comparison dict)``."""
-    from station.fitting.gate import FitQualityError
+    from station.fitting.verdict import FitQualityError
 
     offered = compliant_trace(trace, payload)     # a robot without inertials: an error
     try:

@@ -14,9 +14,9 @@
    :func:`calibration.quality.worst_prediction`).
 4. Spread: the fit poses must hold enough distinct poses for the identifiable
    parameters (eq. 60), and the method must identify what a well-spread set of
-   poses identifies (:func:`station.planning.arm_plan.parameter_count`).
+   poses identifies (:func:`station.fitting.pose_count.parameter_count`).
 
-A failed gate raises :class:`FitQualityError` (with the outcome, so that a GUI
+A failed gate raises :class:`~station.fitting.verdict.FitQualityError` (with the outcome, so that a GUI
 can still show it) unless the operator accepts the fit explicitly; the result
 goes into the parameter file as ``fit.quality``.
 """
@@ -24,89 +24,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from calibration import identifiability as ident
 from calibration import quality as q
 from calibration.errors import CalibrationError
-
-# The calibrated fit may predict the held-out poses at most this much worse than
-# the start values before the gate calls it worse (noise on an already good start).
-VALIDATION_TOLERANCE = 1.1
-
-
-class FitQualityError(CalibrationError):
-    """The fit failed the quality gate; ``outcome`` holds it (not written)."""
-
-    def __init__(self, message: str, outcome=None):
-        super().__init__(message)
-        self.outcome = outcome
-
-
-class NotConverged(CalibrationError):
-    """The calibration did not converge; ``model`` is the measurement model tried."""
-
-    def __init__(self, message: str, model=None):
-        super().__init__(message)
-        self.model = model
-
-
-@dataclass
-class Quality:
-    """The gate's result (``fit.quality`` of the parameter file)."""
-
-    outliers: list[dict] = field(default_factory=list)
-    checks: list[dict] = field(default_factory=list)
-    accepted: bool = False
-    excluded: list[dict] = field(default_factory=list)   # by the operator: pose, reason
-
-    @property
-    def passed(self) -> bool:
-        return all(c["ok"] for c in self.checks)
-
-    @property
-    def failures(self) -> list[str]:
-        return [c["message"] for c in self.checks if not c["ok"]]
-
-    def check(self, name: str, ok: bool, message: str, **figures) -> None:
-        self.checks.append({"check": name, "ok": bool(ok), "message": message, **figures})
-
-    def as_dict(self) -> dict:
-        out = {"passed": self.passed, "accepted": self.accepted,
-               "outliers": [dict(o) for o in self.outliers],
-               "checks": [dict(c) for c in self.checks]}
-        if self.excluded:
-            out["excluded"] = [dict(e) for e in self.excluded]
-        return out
-
-    def lines(self) -> list[str]:
-        """Human-readable lines (CLI table, GUI)."""
-        out = [f"excluded by the operator: pose {e['pose']} ({e['reason']})"
-               for e in self.excluded]
-        for o in self.outliers:
-            res = (f"{o['residual'] * 1e3:.4g} mm from its prediction" if "point" in o
-                   else f"residual {o['residual']:.4g}")
-            out.append(f"outlier excluded: {describe(o)} ({res}, studentized {o['t']:.3g} > "
-                       f"{o['threshold']:.3g})")
-        for c in self.checks:
-            out.append(("ok: " if c["ok"] else "FAILED: ") + c["message"])
-        if not self.passed:
-            out.append("fit quality: FAILED" + (", accepted by the operator (--accept-poor-fit)"
-                                                 if self.accepted else ""))
-        else:
-            out.append("fit quality: passed")
-        return out
-
-    def summary(self) -> str:
-        """One line: what failed, with its figures."""
-        return "; ".join(self.failures) if self.failures else "passed"
-
-
-def max_outliers(n_poses: int) -> int:
-    """At most one pose in ten (at least one) may be excluded as an outlier."""
-    return max(1, n_poses // 10)
+from station.fitting.gate_checks import (check_explains, check_plausible, check_plausible_serial,
+                                         check_poses, check_validation, people)
+from station.fitting.pose_count import NR_P, parameter_count
+from station.fitting.verdict import FitQualityError, NotConverged, Quality, describe, max_outliers
 
 
 def point_of_row(model, row: int) -> int | None:
@@ -115,12 +42,6 @@ def point_of_row(model, row: int) -> int | None:
     if groups is None or marker is None:
         return None
     return int(marker[int(groups[row])]) + 1
-
-
-def describe(o: dict) -> str:
-    """``pose 5 marker`` (sm-markers: ``pose 5 point 2``) for an outlier entry."""
-    return f"pose {o['pose']} point {o['point']}" if "point" in o else \
-        f"pose {o['pose']} {o['channel']}"
 
 
 def row_poses(model) -> np.ndarray | None:
@@ -232,8 +153,6 @@ def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | Non
 def check_spread(trace, model) -> None:
     """Before fitting: refuse a set of poses with fewer distinct poses than eq. 60
     asks for the parameters the method identifies (e.g. all poses identical)."""
-    from station.planning.arm_plan import NR_P, parameter_count
-
     qm = getattr(model, "qm", None)
     if qm is None or trace.method not in NR_P or "robot_file" in trace.header:
         return    # NR_P counts AGEBOT's parameters
@@ -436,275 +355,20 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
         verdict = "fit" if c["ok"] else "do not fit"
         quality.check("noise", c["ok"],
                       f"noise: {c['channel']} residuals {verdict} the stated sigma "
-                      f"{_people(c['stated_sigma'], c['channel'])} (fitted "
-                      f"{_people(c['fitted_sigma'], c['channel'])}, "
+                      f"{people(c['stated_sigma'], c['channel'])} (fitted "
+                      f"{people(c['fitted_sigma'], c['channel'])}, "
                       f"{c['ratio']:.3g} times; chi-square {c['chi2']:.4g} on {c['dof']:.1f} "
                       f"degrees of freedom, p = {c['p']:.2g})",
                       **{k: c[k] for k in ("channel", "stated_sigma", "fitted_sigma", "ratio",
                                            "chi2", "dof", "p")})
-    _spread(quality, trace, model, result)
+    check_poses(quality, trace, model, result)
     if "robot_file" not in trace.header:    # AGEBOT's parameters, whose kinds are known
-        _plausible(quality, model, result, trace.method)
+        check_plausible(quality, model, result, trace.method)
     else:                                   # robot files and URDF robots
-        _plausible_serial(quality, model, result)
-        _explains(quality, model, result)
+        check_plausible_serial(quality, model, result)
+        check_explains(quality, model, result)
     validation = None
     if validate is not None and trace.validation_poses:
         validation = validate(trace, model, result)
-        by_points = any(v.get("points") for v in validation)
-        for v in validation:
-            before, after = v.get("rms_before"), v.get("rms_after")
-            pts = v.get("points")
-            if by_points and not pts:
-                continue              # points on the tool: judged once, by their 3D errors
-            if pts:
-                before, after = pts.get("rms_before"), pts.get("rms_after")
-            if before is None or after is None or not math.isfinite(after):
-                continue
-            ok = after <= VALIDATION_TOLERANCE * before
-            if pts:
-                w = pts["worst"][0]
-                verb = "went" if ok else "is worse than the start:"
-                text = (f"validation: held-out points' 3D RMS {verb} "
-                        f"{mm(pts.get('rms_before'))} -> {mm(pts['rms_after'])} mm "
-                        f"(max {mm(pts['max_after'])} mm at pose {w['pose']} point {w['point']}; "
-                        f"{pts['n']} points of {pts['poses']} poses)")
-            else:
-                text = (f"validation: {v['channel']} RMS on {v['n']} held-out rows "
-                        f"{'went' if ok else 'is worse than the start:'} "
-                        f"{_people(before, v['channel'], v['unit'])} -> "
-                        f"{_people(after, v['channel'], v['unit'])}")
-            extra = {"points": dict(pts)} if pts else {}
-            quality.check("validation", ok, text, channel=v["channel"], rms_before=before,
-                          rms_after=after, **extra)
-        for v in validation:
-            out = v.get("outside_range")
-            if out:
-                named = ", ".join(f"pose {p['pose']} ({p['why']})" for p in out["poses"][:3])
-                more = f" and {len(out['poses']) - 3} more" if len(out["poses"]) > 3 else ""
-                unit = "mm" if v.get("points") else v["unit"]
-                fig = ((mm(out["rms"]), mm(out["max"])) if v.get("points")
-                       else (f"{out['rms']:.4g}", f"{out['max']:.4g}"))
-                quality.check("extrapolation", True,
-                              f"validation: {len(out['poses'])} held-out pose(s) lie outside "
-                              f"the fitted poses' joint ranges: {named}{more}; their errors "
-                              f"(RMS {fig[0]}, max {fig[1]} {unit}) are an extrapolation, "
-                              "reported and not judged", channel=v["channel"],
-                              outside_range=out)
-        for v in validation:
-            o = v.get("outlier")
-            if o:
-                where = f"pose {o['pose']}" if o.get("pose") is not None else "a held-out pose"
-                if "point" in o:
-                    what = (f"validation: held-out {where} point {o['point']} is "
-                            f"{mm(o['residual'])} mm off the calibration's prediction, "
-                            f"{o['t']:.3g} times its predicted std (threshold "
-                            f"{o['threshold']:.3g} over {o['rows_tested']} held-out points)")
-                else:
-                    what = (f"validation: held-out {where} {v['channel']} is "
-                            f"{o['residual']:.4g} {v['unit']} off the calibration's "
-                            f"prediction, {o['t']:.3g} times its predicted std {o['std']:.3g} "
-                            f"{v['unit']} (threshold {o['threshold']:.3g} over "
-                            f"{o['rows_tested']} held-out rows)")
-                quality.check("validation", False, what + ": a bad reading or a model that "
-                              "does not predict; check that pose's reading",
-                              channel=v["channel"], heldout=dict(o))
+        check_validation(quality, validation)
     return quality, trace, model, result, validation
-
-
-def _people(v, channel: str, si: str | None = None) -> str:
-    """A channel's figure for people: mm and degrees with the unit (station.outputs.units)."""
-    from station.outputs.units import MM_DEG, channel_si
-
-    return MM_DEG.text(v, si if si is not None else channel_si(channel), ".4g")
-
-
-def mm(v) -> str:
-    """A length in metres as millimetres for people (``-`` where unknown)."""
-    return "-" if v is None or not math.isfinite(v) else f"{v * 1e3:.3g}"
-
-
-def _spread(quality, trace, model, result) -> None:
-    from station.planning.arm_plan import NR_P, parameter_count
-
-    qm = getattr(model, "qm", None)
-    if qm is None:
-        return
-    distinct = q.distinct_poses(qm)
-    n_id = result.n_identifiable
-    need = ident.minimum_poses(n_id, model.p)
-    expected = (parameter_count(trace.method, trace.distance_zero) if trace.method in NR_P
-                else n_id)
-    if "robot_file" in trace.header:
-        expected = n_id    # NR_P counts AGEBOT's parameters
-    if trace.method == "pm-fk" and trace.header.get("components"):
-        expected = n_id    # fewer components may identify fewer parameters
-    ok = distinct >= min(need, model.n_poses) and n_id >= expected
-    why = ""
-    if n_id < expected:
-        why = (f"; only {n_id} of {len(result.names)} parameters are identifiable where a "
-               f"well-spread set of poses identifies {expected}")
-    quality.check("poses", ok, f"poses: {distinct} distinct of {model.n_poses} fitted "
-                  f"(eq. 60 recommends >= {need} for {n_id} identifiable){why}",
-                  distinct=distinct, poses=int(model.n_poses), identifiable=int(n_id),
-                  expected_identifiable=int(expected))
-
-
-# Calibrated gear ratios and lengths must stay within this factor of their start
-# values (a sign flip or a halving is a mis-wired reading, not a robot).
-PLAUSIBLE_FACTOR = 2.0
-
-
-def _plausible(quality, model, result, method) -> None:
-    """The robot's gear ratios (``k*``) and lengths keep their sign and stay within
-    :data:`PLAUSIBLE_FACTOR` of the start; offsets, a method's extra parameters
-    (plane, inclinometer mount) and sm-distance-tilt's frame (``a0``) are free."""
-    frame = ("a0",) if method == "sm-distance-tilt" else ()
-    robot = getattr(model, "robot", None)
-    own = set(robot.param_names) if robot is not None else set()
-    bad = []
-    for j, (name, st) in enumerate(zip(result.names, result.status)):
-        if (not st.identifiable or name.endswith("_off") or name.startswith(("theta", "plane_"))
-                or name in frame or name not in own):
-            continue
-        x0, x = float(model.x0[j]), float(result.x[j])
-        if x0 == 0 or not math.isfinite(x):
-            continue
-        ratio = x / x0
-        if not 1 / PLAUSIBLE_FACTOR <= ratio <= PLAUSIBLE_FACTOR:
-            bad.append((name, x0, x, ratio))
-    if bad:
-        quality.check("plausible", False, "plausible: " + ", ".join(
-            f"{n} went from {a:.4g} to {b:.4g} ({r:.3g} times)" for n, a, b, r in bad)
-            + f"; gear ratios and lengths move by less than a factor {PLAUSIBLE_FACTOR:g} on a "
-            "real robot: a reading's sign, unit or word order is likely wrong",
-            parameters=[{"name": n, "start": a, "calibrated": b} for n, a, b, _ in bad])
-    else:
-        quality.check("plausible", True, "plausible: gear ratios and lengths within a factor "
-                      f"{PLAUSIBLE_FACTOR:g} of the start")
-
-
-# A robot file's or URDF robot's calibration, against its start values: a joint's
-# correction beyond these is a wrong unit, sign, zero or robot file, not a robot.
-SERIAL_SHIFT = 0.05     # share of the robot's length a URDF joint origin may move
-SERIAL_TURN = 0.1       # rad a URDF joint origin or the instrument frame may turn
-SERIAL_ANGLE = 0.35     # rad a robot file's alpha, beta, theta may move
-SERIAL_ZERO = 0.5       # rad (m: SERIAL_SHIFT) a URDF joint's zero may move
-# The calibrated model must explain the readings: the residual RMS of a length
-# channel at most this share of the robot's size, of an angle channel this many rad.
-EXPLAIN_LENGTH = 0.05
-EXPLAIN_ANGLE = 0.02
-LENGTH_CHANNELS = ("x", "y", "z", "marker", "distance")
-ANGLE_CHANNELS = ("roll", "pitch", "yaw", "phi")
-
-
-def robot_size(model) -> float:
-    """How far the tool moves over the fit's poses at the start values (RMS distance
-    of its origin from their mean, at least 0.1 m): the scale a calibration's lengths
-    and residuals are judged against."""
-    robot = model.robot
-    try:
-        T = robot.frames(model.qm, np.asarray(model.x0, dtype=float)[:robot.n_params])
-    except Exception:  # noqa: BLE001 - a model without frames has no size to judge by
-        return 1.0
-    p = T[:, :3, 3]
-    return max(float(np.sqrt(np.mean(np.sum((p - p.mean(axis=0)) ** 2, axis=1)))), 0.1)
-
-
-def robot_reach(model) -> float:
-    """The robot's own length at its start values: the sum of its chain's translations
-    (joint origins, links, the tool), the instrument frame left out (at least 0.1 m)."""
-    robot = model.robot
-    chain = getattr(robot, "chain", None)
-    if chain is None:
-        return 1.0
-    xi = np.asarray(model.x0, dtype=float)[:robot.n_params]
-    names = robot.param_names
-    total = 0.0
-    for f in chain.factors:
-        if f.kind[0] != "t" or f.joint is not None:
-            continue
-        if any(names[i].startswith("base_") for i, _c in f.terms):
-            continue
-        total += abs(f.const + sum(c * xi[i] for i, c in f.terms))
-    return max(total, 0.1)
-
-
-def _plausible_serial(quality, model, result) -> None:
-    """A robot file's or URDF robot's calibration within what a real robot departs from
-    its description: ratios within a factor :data:`PLAUSIBLE_FACTOR` and of the same
-    sign, a robot file's lengths too (or, from 0, within :data:`SERIAL_SHIFT` of the
-    robot's length, :func:`robot_reach`), its angles within :data:`SERIAL_ANGLE`; a URDF
-    robot's joint origins within :data:`SERIAL_SHIFT` of its length and
-    :data:`SERIAL_TURN`, its zeros within
-    :data:`SERIAL_ZERO`, the instrument frame's correction within :data:`SERIAL_TURN`."""
-    robot = model.robot
-    size = robot_reach(model)
-    urdf = hasattr(robot, "calibrated_origins")
-    bad = []
-    for j, (name, st) in enumerate(zip(result.names, result.status)):
-        if not st.identifiable or name not in robot.param_names:
-            continue
-        x0, x = float(model.x0[j]), float(result.x[j])
-        if not math.isfinite(x):
-            bad.append((name, x0, x, "is not finite"))
-            continue
-        d = x - x0
-        if name.startswith("k"):
-            if x0 and not 1 / PLAUSIBLE_FACTOR <= x / x0 <= PLAUSIBLE_FACTOR:
-                bad.append((name, x0, x, f"{x / x0:.3g} times the start"))
-        elif urdf and name.startswith("j") and name.endswith(("_x", "_y", "_z")):
-            if abs(d) > SERIAL_SHIFT * size:
-                bad.append((name, x0, x, f"{d * 1e3:.4g} mm, beyond {SERIAL_SHIFT:.0%} of the "
-                                         f"robot's length {size:.3g} m"))
-        elif urdf and (name.startswith("j") or name.startswith("base_r")):
-            if abs(d) > SERIAL_TURN:
-                bad.append((name, x0, x, f"turned {math.degrees(d):.3g} deg"))
-        elif name.endswith("_off"):
-            i = int(name[1:-4])
-            kind = robot.spec.joints[i - 1].kind
-            # a robot file's prismatic zero is wherever its rail's encoder counts from
-            lim = (SERIAL_ZERO if kind == "R" else SERIAL_SHIFT * size if urdf else math.inf)
-            if abs(d) > lim:
-                bad.append((name, x0, x, "a zero far from the URDF's (a joint map's offset or "
-                                         "sign?)" if urdf else "a zero far from the robot "
-                                         "file's (a joint column's offset or sign?)"))
-        elif not urdf and name[0] in "da" and name[1:].isdigit():
-            if (abs(x0) > 1e-3 and not 1 / PLAUSIBLE_FACTOR <= x / x0 <= PLAUSIBLE_FACTOR) \
-                    or (abs(x0) <= 1e-3 and abs(d) > SERIAL_SHIFT * size):
-                bad.append((name, x0, x, f"{d * 1e3:.4g} mm from the robot file's"))
-        elif not urdf and name.startswith(("alpha", "beta", "theta")):
-            if abs(d) > SERIAL_ANGLE:
-                bad.append((name, x0, x, f"turned {math.degrees(d):.3g} deg"))
-    if bad:
-        quality.check("plausible", False, "plausible: " + ", ".join(
-            f"{n} went from {a:.4g} to {b:.4g} ({why})" for n, a, b, why in bad)
-            + "; a real robot departs from its description by less: a reading's unit, sign or "
-            "frame, the joint values' units, zeros or order, or the robot file or URDF itself "
-            "is likely wrong", parameters=[{"name": n, "start": a, "calibrated": b}
-                                        for n, a, b, _ in bad])
-    else:
-        quality.check("plausible", True, "plausible: every correction within what a real "
-                      "robot departs from its description")
-
-
-def _explains(quality, model, result) -> None:
-    """The calibrated model explains the readings: a length channel's residual RMS at
-    most :data:`EXPLAIN_LENGTH` of the robot's size, an angle channel's at most
-    :data:`EXPLAIN_ANGLE` rad. Without a stated noise the rest of the gate cannot tell
-    a model that fits from one that does not (a unit, a mirrored axis, a wrong joint)."""
-    size = robot_size(model)
-    bad = []
-    for ch, rms in (result.residual_rms or {}).items():
-        if not math.isfinite(rms):
-            bad.append(f"{ch} not finite")
-        elif ch in LENGTH_CHANNELS and rms > EXPLAIN_LENGTH * size:
-            bad.append(f"{ch} {rms * 1e3:.4g} mm ({rms / size:.0%} of the robot's size "
-                       f"{size:.3g} m)")
-        elif ch in ANGLE_CHANNELS and rms > EXPLAIN_ANGLE:
-            bad.append(f"{ch} {math.degrees(rms):.3g} deg")
-    if bad:
-        quality.check("explains", False, "explains: the calibrated model leaves residual RMS "
-                      + ", ".join(bad) + ": it does not explain the readings (a unit, e.g. "
-                      "degrees read as radians or mm as m, a mirrored or swapped axis, a wrong "
-                      "joint column or robot file)")

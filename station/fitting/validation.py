@@ -14,7 +14,7 @@ import numpy as np
 from calibration import quality as q
 from calibration.errors import CalibrationError
 from calibration.methods import build
-from station.fitting.batch import BatchOutcome
+from station.fitting.outcome import BatchOutcome
 
 
 def validation_errors(outcome: BatchOutcome) -> list[dict]:

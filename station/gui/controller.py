@@ -233,7 +233,7 @@ class Controller(QObject):
         station = None
         if self.simulate:       # as app.py run --simulate (station.headless)
             from drivers.sim.server import SimulatorProcess
-            from station.headless import simulated_station
+            from station.simulation.simulated_station import simulated_station
 
             truth, seed, station = simulated_station(robot, self.truth_path, self.sim_seed)
             if self.sim is not None and not self.sim.alive:     # its process ended

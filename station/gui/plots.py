@@ -199,7 +199,7 @@ class WorkspacePlot(Canvas):
     def show_arm_plan(self, poses, robot, xi, reference_qm=None, measured=()) -> None:
         """A robot file's plan: the tool origins of the poses (model ``xi``, base frame),
         the reference point with the arm there (grey) and the floor ``z = 0``."""
-        from station.gui.arm3d import draw_arm, draw_floor, setup_axes, stick, view_box
+        from station.gui.arm_drawing import draw_arm, draw_floor, setup_axes, stick, view_box
         from station.gui.widgets import display_units
 
         fig = self.figure

@@ -11,10 +11,11 @@ from PySide6.QtGui import QColor, QFont
 from PySide6.QtWidgets import (QHeaderView, QTableWidget, QTableWidgetItem, QVBoxLayout,
                                QWidget)
 
-from station.fitting.batch import describe_not_identified, not_identified
+from station.outputs.fit_summary import describe_not_identified, not_identified
 from station.gui.plots import ConvergencePlots
 from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, heading, note
-from station.outputs.report import IDENT_GROUPS, IDENT_SYMBOL, group_of, param_units
+from station.outputs.report_context import IDENT_GROUPS, IDENT_SYMBOL, group_of
+from station.outputs.units import param_units
 from station.outputs.units import MM_DEG, channel_si
 
 GROUP_COLOR = {"identifiable": OK_COLOR, "no-influence": "#555555", "influence": BAD_COLOR,

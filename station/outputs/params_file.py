@@ -272,6 +272,10 @@ def _check_values(doc: dict, path: str) -> None:
         fail(f"covariance.matrix must be {n} x {n} (one row and column per name)")
 
 
+# Calibrated gear ratios and lengths must stay within this factor of their start
+# values (a sign flip or a halving is a mis-wired reading, not a robot): the gate's
+# rule (station/fitting/gate.py), which a parameter file is checked against again
+PLAUSIBLE_FACTOR = 2.0
 #: the most a calibrated value may move from its start value, in units of the larger
 #: of 1 and the start value's size (angles in rad, lengths in m: 1000 is no robot)
 MAX_MOVE = 1e3
@@ -284,12 +288,11 @@ def check_usable(doc: dict, path: str) -> None:
     on purpose (``fit.quality.accepted``); a parameter the fit did not calibrate at
     its start value; none moved by more than :data:`MAX_MOVE` times its size; every
     calibrated gear ratio and length of the robot with its start value's sign and
-    within the gate's factor of it (:data:`station.fitting.gate.PLAUSIBLE_FACTOR`, the same
-    rule as the gate's). A :class:`TraceFormatError` naming the file and the
+    within the gate's factor of it (:data:`PLAUSIBLE_FACTOR`, the same rule as the
+    gate's). A :class:`TraceFormatError` naming the file and the
     parameter otherwise."""
     from calibration.robots import get_robot
     from drivers.robot_file import spec_from_source
-    from station.fitting.gate import PLAUSIBLE_FACTOR
 
     def fail(msg):
         raise TraceFormatError(msg, file=path)

@@ -80,7 +80,7 @@ def _legend_columns(n: int) -> int:
 
 
 def figures(ctx) -> list[dict]:
-    """The section 7 figures of a report context (:class:`station.outputs.report._Context`):
+    """The section 7 figures of a report context (:class:`station.outputs.report_context.ReportContext`):
     parameters, deviation, variance and condition number per iteration (when the
     solver recorded its history), then the residuals per channel."""
     hist = list(ctx.res.history)

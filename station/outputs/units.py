@@ -114,6 +114,36 @@ MM_DEG = Units()
 SI = Units("m", "rad")
 
 
+# units of the parameters (SI, as in the parameter file)
+PARAM_UNITS = {
+    "agebot-sm": {"q1_off": "m", "q2_off": "rad", "q3_off": "rad", "q4_off": "rad",
+                  "k1": "m/u", "k2": "rad/u", "k3": "rad/u", "k4": "rad/u",
+                  "L2": "m", "L3": "m", "L4": "m", "theta0": "rad", "a0": "m",
+                  "plane_a": "1/m", "plane_b": "1/m", "plane_c": "1/m", "distance_off": "m"},
+    "agebot-pm": {"a1": "m", "a2": "m", "l": "m", "v": "m",
+                  "q1_off": "m", "q2_off": "m", "q3_off": "m",
+                  "k1": "m/u", "k2": "m/u", "k3": "m/u", "mount_x": "rad", "mount_y": "rad"},
+}
+
+
+def param_units(trace) -> dict:
+    """Units of a trace's parameters: the built-ins' table, or a robot file's by
+    the spec's naming (lengths m, angles rad, a joint's offset and ratio by its type)."""
+    model = trace.robot_model() if hasattr(trace, "robot_model") else None
+    spec = getattr(model, "spec", None)
+    if spec is None:
+        return PARAM_UNITS.get(str(trace.header.get("robot", "")), {})
+    out = {"mount_x": "rad", "mount_y": "rad", "distance_off": "m",
+           "plane_a": "1/m", "plane_b": "1/m", "plane_c": "1/m"}
+    for name in model.param_names:
+        key = name.split("_")[-1].rstrip("0123456789")
+        out[name] = "rad" if key in ("theta", "alpha", "beta", "gamma") else "m"
+    for i, jt in enumerate(spec.joints, start=1):
+        q = "rad" if jt.kind == "R" else "m"
+        out[f"q{i}_off"], out[f"k{i}"] = q, f"{q}/u"
+    return out
+
+
 def from_config(config) -> Units:
     """The units of a station config's ``[display]`` table (mm and degrees without one)."""
     display = getattr(config, "display", None)

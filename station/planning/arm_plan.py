@@ -1,4 +1,4 @@
-"""What a session measures: the reference pose and the IK-planned poses of a method.
+"""The built-in robots' plans: the reference pose, and the IK-planned poses of the arm.
 
 Pure planning (no devices): the session asks for the reference pose an operator
 should capture, then for the poses to drive to, planned with the IK of the best
@@ -21,135 +21,23 @@ the poses recorded so far has earned.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from calibration import planning
 from calibration.errors import CalibrationError, UnreachablePose
-from calibration.identifiability import minimum_poses
 from calibration.methods import METHODS
-from calibration.methods.sm_distance import zero_names
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import BUILTIN, get_robot
+from station.fitting.pose_count import minimum_count
+from station.recording.planned_pose import PlannedPose
+from station.planning.request import PlanRequest
 
 # where the operator puts the end effector for the reference (report 7.2 and 7.5)
 SM_REFERENCE_POINT = np.array([1.0, 1.0, 0.0, 0.2])   # relative to the base offset
 SM_BASE_ORIGIN = np.array([0.5, 1.0, 0.8, 0.0])       # absolute, elbow -1
-# N_R and p of each method (brief section 3) for the pose count of eq. 60; for
-# sm-self-redundancy a "pose" of eq. 60 is a pair (its p = 2 rows dx, dy). The
-# brief's N_R counts the robot's parameters only: :func:`parameter_count` adds the
-# draw-wire's zero offset where the method calibrates it.
-NR_P = {"sm-distance": (9, 1), "sm-distance-tilt": (13, 2), "pm-ik": (8, 3), "pm-fk": (8, 3),
-        "pm-tilt": (10, 2), "sm-self-redundancy": (7, 2), "sm-plane": (10, 1),
-        "sm-full-pose": (13, 4), "sm-position": (13, 3)}
-# methods a session measures unattended (the wizard offers these) and those that
-# need guided touching (a session with a ``touch`` callback)
-SESSION_METHODS = ("sm-distance", "sm-distance-tilt", "pm-ik", "pm-fk", "pm-tilt")
-TOUCH_METHODS = ("sm-self-redundancy", "sm-plane")
-# not identifiable, influencing the model: the session's start values must be right
-MUST_KNOW = {"sm-plane": ("L4", "theta0", "a0", "plane_a", "plane_b", "plane_c"),
-             "sm-self-redundancy": ("L4",)}
-PLANE = ("plane_a", "plane_b", "plane_c")
 TOUCH_STANDOFF = 0.02         # m: sm-plane approach poses this far from the rough plane
 PAIR_PHI_DEG = (8.0, 16.0)    # sm-self-redundancy: |phi| of a pair's two poses, degrees
-PM_SCOUT_COUNT = 12
-# a session's draw-wire zero is one reading (station.session.session.capture_reference):
-# the distance methods calibrate ``distance_off`` there
-SESSION_ZERO = "reading"
 
-
-@dataclass(frozen=True)
-class PlannedPose:
-    """One pose to measure: ``qm`` actuator targets, ``target`` the generalized
-    coordinates planned, ``use`` ``"fit"`` or ``"validation"``, ``round`` (0; PM scout 0,
-    main 1) and ``index`` its place in the session's whole plan. Guided touching:
-    ``qm`` is the approach pose, ``target`` the planned contact (sm-plane: on the rough
-    plane; pairs: the mark's x, y at this pose's phi) and ``group`` the pair."""
-
-    index: int
-    qm: tuple[float, ...]
-    target: tuple[float, ...]
-    use: str = "fit"
-    round: int = 0
-    group: int | None = None
-
-    def record(self) -> dict:
-        rec = {"index": self.index, "qm": list(self.qm), "target": list(self.target),
-               "use": self.use, "round": self.round}
-        if self.group is not None:
-            rec["group"] = self.group
-        return rec
-
-    @classmethod
-    def from_record(cls, r: dict) -> "PlannedPose":
-        g = r.get("group")
-        return cls(int(r["index"]), tuple(r["qm"]), tuple(r["target"]), r.get("use", "fit"),
-                   int(r.get("round", 0)), None if g is None else int(g))
-
-
-@dataclass
-class PlanRequest:
-    """How many poses (None: eq. 60 times ``margin``) and held-out poses, and the seed.
-
-    design: ``"optimal"`` (each round's fit poses the D-optimal choice from a pool the
-    planner draws, given the poses already measured; :mod:`station.planning.pose_design`) or
-    ``"random"``. target: None or ``(name, std)``: poses are added until the predicted
-    std of parameter ``name`` (``"heldout"``: the tool's held-out error) meets it."""
-
-    count: int | None = None
-    validation: int | None = None
-    seed: int = 0
-    margin: float = 2.0
-    components: tuple[str, ...] = ("alpha", "beta", "gamma")
-    # the arm's distance methods in rounds, live-watched (station/planning/arm_rounds.py): what
-    # app.py run (unless --one-shot) and the wizard ask for
-    grow: bool = False
-    notes: list[str] = field(default_factory=list)
-    design: str = "optimal"
-    target: tuple[str, float] | None = None
-
-
-def check_method(method: str) -> None:
-    if method not in METHODS:
-        raise CalibrationError(f"unknown method {method!r} (known: {', '.join(METHODS)})")
-    if method not in SESSION_METHODS + TOUCH_METHODS:
-        raise CalibrationError(
-            f"method {method} needs a pose tracker, which this station does not have; record "
-            f"its trace elsewhere and calibrate it with app.py batch. Station sessions "
-            f"support: {', '.join(SESSION_METHODS + TOUCH_METHODS)}")
-
-
-def touch_instructions(method: str) -> str:
-    """What the operator does at each pose of a guided-touching method."""
-    if method == "sm-plane":
-        return ("The arm stops about 2 cm from the plane. Jog the tool tip towards the plane "
-                "until it just touches it (feeler gauge), then confirm: the actuator values are "
-                "recorded. Touch at every planned point, spread over the plane.")
-    if method == "sm-self-redundancy":
-        return ("Poses come in pairs. At the first pose of a pair touch the mark (the pin) with "
-                "the tool tip and confirm; at the second the last link is turned the other way: "
-                "bring the tip onto the same mark again and confirm. Only x and y must match.")
-    return ""
-
-
-def parameter_count(method: str, distance_zero: str = SESSION_ZERO) -> int:
-    """N_R of eq. 60 for ``method`` on AGEBOT: the parameters a well-spread set of
-    poses identifies, the brief's (:data:`NR_P`) plus the method's draw-wire zero
-    offset where the zero is a reading (:func:`calibration.methods.sm_distance.zero_names`)."""
-    nr = NR_P[method][0]
-    if "distance" in METHODS[method].channels:
-        nr += len(zero_names(distance_zero))
-    return nr
-
-
-def minimum_count(method: str, components=None, distance_zero: str = SESSION_ZERO) -> int:
-    """Eq. 60's minimum pose count of ``method`` (a session's by default; a trace
-    passes its reference's ``zero``)."""
-    p = NR_P[method][1]
-    if method == "pm-fk" and components:
-        p = len(components)
-    return minimum_poses(parameter_count(method, distance_zero), p)
 
 
 #: share of an actuator's range kept clear where a suggested reference is brought

@@ -36,16 +36,16 @@ import numpy as np
 
 from calibration.errors import CalibrationError, StationError
 from calibration.methods import MethodData, build
-from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots.agebot_sm import wrap
 from calibration.solver import SolverOptions, solve
-from station.planning import arm_plan as planner
-from station.recording import resume
+from station.fitting.pose_count import minimum_count
+from station.fitting.start_values import fixed_for_rows, staged_start, told_start
+from station.planning.arm_plan import SM_SCOUT_STEP, plan_sm, plan_sm_scout
 from station.planning.envelope import ANGLE_CHANNELS, sm_predictor, within_limits
+from station.recording import resume
 
 log = logging.getLogger("station.session")
 
-ROUND_METHODS = ("sm-distance", "sm-distance-tilt")
 SCALES = (0.1, 0.3, 1.0)  # each round's box, as a fraction of the method's box
 SCOUT_SCALE = SCALES[0]
 MIN_SCALE = 0.02         # below this the envelope gives up: the start model is too wrong
@@ -60,22 +60,6 @@ EXPLAIN = 0.2
 #: frame, and q2_off, which distances do not see (it turns the reference and the tool
 #: alike) and which the canonical form turns by pi with L4's sign
 PHYSICAL = ("q2_off", "q3_off", "q4_off", "k1", "k2", "k3", "k4", "L2", "L3", "L4")
-#: what a refit on fewer poses than parameters learns, in this order
-LEARN_FIRST = ("k1", "k2", "k3", "k4", "q4_off", "q3_off", "q2_off", "q1_off", "L4", "L3", "L2")
-
-
-def fixed_for_rows(model) -> tuple[str, ...]:
-    """With fewer rows than parameters, what the first poses can teach first: the
-    gear ratios, then the joints' offsets; the rest stays at its start value. A robot
-    file's ``fixed`` parameters are always held (freed by a partial fit, they moved the
-    final fit of a UR5-like arm grown from it by up to 3.5 std)."""
-    held = tuple(n for n in (getattr(model.robot, "fixed", ()) or ()) if n in model.names)
-    free = len(model.row_channel) - 2
-    if free >= len(model.names) - len(held):
-        return held
-    learn = LEARN_FIRST[:max(free, 0)]
-    return tuple(n for n in model.names if n not in learn or n in held)
-
 
 #: iterations of a planning refit and of each of its stages: a fit of a few poses
 #: reaches its least squares within ten or twenty and may then crawl for hundreds as
@@ -83,50 +67,6 @@ def fixed_for_rows(model) -> tuple[str, ...]:
 #: took 1000 iterations and 2.5 s, a stage 300, while the arm waited); it is judged
 #: by what it explains (:meth:`ArmRounds.refit`), not by its step tolerance
 PLAN_MAX_ITER = 50
-
-
-def staged_start(method: str, robot, data: MethodData, x, options: dict | None = None,
-                 max_iter: int = 300):
-    """Start values grown with the data: fits on the first quarter, half and three
-    quarters of the poses in their recorded order (a session records from the
-    reference outwards), each from the last, each of at most ``max_iter`` iterations.
-    For a robot so far from its start values that the fit of every pose at once does
-    not converge. None if no stage gave finite values."""
-    m = len(data.qm)
-    x = np.array(x, dtype=float)
-    got = False
-    for frac in (0.25, 0.5, 0.75):
-        k = max(int(m * frac), 2)
-        sub = dataclasses.replace(data, qm=data.qm[:k],
-                                  channels={c: v[:k] for c, v in data.channels.items()})
-        try:
-            model = build(method, robot, sub, x, **(options or {}))
-            res = solve(model, SolverOptions(max_iter=max_iter, fixed=fixed_for_rows(model)))
-        except (CalibrationError, np.linalg.LinAlgError, ValueError):
-            continue
-        if np.all(np.isfinite(res.x)):
-            x, got = np.array(res.x), True
-    return x if got else None
-
-
-def told_start(method: str, robot, nominal, reference_qm=None, tilt=None) -> np.ndarray:
-    """The robot's start values told what the reference showed: the last link's offset
-    turned so that the model's tilt there is the ``tilt`` read (the nominal offsets may
-    be 0.3 rad off: every planned phi would be), and for sm-distance-tilt the base
-    frame moved to the reference (eqs. 76-77). The nominal as it is without a
-    reference. The session's rounds start here, and so does the final fit's grown
-    start (:func:`station.fitting.batch.calibrate`): from the bare nominal, a drawn arm's fit
-    of every pose, and the grown one, end in a local minimum 3 times in 10."""
-    xi = np.array(nominal, dtype=float)
-    if reference_qm is None:
-        return xi
-    ref = np.asarray(reference_qm, dtype=float)
-    if tilt is not None:
-        phi = robot.fk(np.atleast_2d(ref), xi)[0, 3]
-        xi[robot.index("q4_off")] += float(wrap(tilt - phi))
-    if method == "sm-distance-tilt":
-        xi = reframe_nominal(robot, xi, ref)
-    return xi
 
 
 class EnvelopeExhausted(StationError):
@@ -307,7 +247,7 @@ class ArmRounds:
 
     def _requested(self) -> tuple[int, int]:
         req = self.s.request
-        count = req.count or int(np.ceil(req.margin * planner.minimum_count(self.s.method)))
+        count = req.count or int(np.ceil(req.margin * minimum_count(self.s.method)))
         n_val = req.validation if req.validation is not None else max(3, count // 5)
         return count, n_val
 
@@ -346,16 +286,15 @@ class ArmRounds:
                                   target=s.request.target if rnd == len(SCALES) - 1 else None)
         first = max((p.index for p in s.plan_poses), default=-1) + 1
         if rnd == 0:
-            return planner.plan_sm_scout(self.xi, s.reference_qm, fit, req.seed,
-                                         accept=within_limits(s.config.envelope),
-                                         first_index=first, step=np.multiply(
-                                             planner.SM_SCOUT_STEP, scale / SCOUT_SCALE))
+            return plan_sm_scout(self.xi, s.reference_qm, fit, req.seed,
+                                 accept=within_limits(s.config.envelope), first_index=first,
+                                 step=np.multiply(SM_SCOUT_STEP, scale / SCOUT_SCALE))
         measured = [r["qm"] for r in s.measured.values() if r.get("use", "fit") == "fit"]
         designs: list = []
-        poses = planner.plan_sm(s.method, self.xi, s.reference_qm, req, box_scale=scale,
-                                accept=within_limits(s.config.envelope), first_index=first,
-                                rnd=rnd, start_qm=start_qm, box_centre=self.box_centre(scale),
-                                measured_qm=measured, design_out=designs)
+        poses = plan_sm(s.method, self.xi, s.reference_qm, req, box_scale=scale,
+                        accept=within_limits(s.config.envelope), first_index=first,
+                        rnd=rnd, start_qm=start_qm, box_centre=self.box_centre(scale),
+                        measured_qm=measured, design_out=designs)
         self.design = designs[0] if designs else None
         if fit <= 0:        # only held-out poses left
             poses = [p for p in poses if p.use == "validation"] or poses[:0]

@@ -20,6 +20,8 @@ from calibration import design as dz
 from calibration import simulate
 from calibration.errors import CalibrationError
 from calibration.methods import METHODS, MethodData, build
+from calibration.robots.agebot_pm import gravity_tilt
+from station.recording.channels import VECTOR_CHANNELS
 
 DESIGNS = ("optimal", "random")
 
@@ -71,8 +73,6 @@ def _finite(v) -> float | None:
 def row_noise(method: str, noise: dict | None) -> dict:
     """Solver row channel -> std of one reading, from a trace-style ``noise``
     (channel -> std or list) over :data:`DEFAULT_NOISE`."""
-    from station.fitting.batch import VECTOR_CHANNELS
-
     out = dict(DEFAULT_NOISE)
     for ch, v in (noise or {}).items():
         if ch in VECTOR_CHANNELS:
@@ -92,8 +92,6 @@ def pool_model(method: str, robot, x_plan, qm, *, reference_qm=None, group=None,
     x_plan = np.asarray(x_plan, dtype=float)[:robot.n_params]
     qm = np.atleast_2d(np.asarray(qm, dtype=float))
     if getattr(robot, "spec", None) is not None:     # a robot file's serial arm
-        from station.simulation.tracegen_serial import readings
-
         channels = readings(robot, method, x_plan, qm, reference_qm=reference_qm, mount=mount)
     else:
         channels = simulate.measure(method, robot, x_plan, qm, reference_qm=reference_qm,
@@ -116,6 +114,26 @@ def pool_model(method: str, robot, x_plan, qm, *, reference_qm=None, group=None,
     if mi.kind == "parallel-wrist":
         options["start"] = "nominal"
     return build(method, robot, data, np.r_[x_plan, extras], **options)
+
+
+def readings(robot, method: str, xi, qm, *, reference_qm=None, mount=(0.0, 0.0)) -> dict:
+    """The noise-free readings of ``method``'s channels of the robot file's ``robot``
+    with parameters ``xi`` at actuator values ``qm (m, n)`` (none for the touching
+    methods: their constraint is the measurement)."""
+    qm = np.atleast_2d(np.asarray(qm, dtype=float))
+    if method in ("sm-full-pose", "sm-position"):
+        X = robot.fk(qm, xi)
+        return {"position": X[:, :3]} if method == "sm-position" else {"pose": X}
+    if method in ("sm-distance", "sm-distance-tilt"):
+        if reference_qm is None:
+            raise CalibrationError(f"{method} needs the reference actuator values")
+        T = robot.frames(qm, xi)
+        p_ref = robot.frames(np.atleast_2d(reference_qm), xi)[0, :3, 3]
+        out = {"distance": np.linalg.norm(T[:, :3, 3] - p_ref, axis=1)}
+        if method == "sm-distance-tilt":
+            out["tilt"] = np.column_stack(gravity_tilt(T[:, :3, :3], mount))
+        return out
+    return {}
 
 
 def heldout_map(robot, model, info: dz.PoseInformation, qm_out):

@@ -47,8 +47,12 @@ from calibration.pm_start import feasible_start, robust_start_detail
 from calibration.robots import get_robot
 from calibration.robots.agebot_pm import envelope_violation, gravity_tilt, rot_xyz
 from station.planning.pose_design import POOL_FACTOR, choose
-from station.planning.arm_plan import PM_SCOUT_COUNT, PlannedPose, PlanRequest, _finish, minimum_count
+from station.planning.arm_plan import _finish
+from station.fitting.pose_count import minimum_count
+from station.planning.request import PlanRequest
+from station.recording.planned_pose import PlannedPose
 
+PM_SCOUT_COUNT = 12
 SCOUT_COUNT = PM_SCOUT_COUNT
 SCOUT_DEG = 4.0          # scout box half-width around home, deg
 GROW = 1.6               # next box = GROW x the region measured so far

@@ -42,7 +42,7 @@ from calibration.methods.sm_markers import marker_names, register, scale_and_mir
 from calibration.robots import get_robot
 from calibration.robots.serial import rpy_of
 from drivers.urdf_file import load_urdf
-from station.recording.trace_import import ANGLE, LENGTH, open_csv
+from station.recording.csv_columns import ANGLE, LENGTH, open_csv
 
 USES = ("fit", "validation")
 _POINT = (re.compile(r"^m(\d+)_([xyz])$"), re.compile(r"^([xyz])(\d+)$"))
@@ -342,8 +342,8 @@ def import_markers_command(args) -> str:
     prints the warnings to stderr."""
     import sys
 
-    from station.recording.trace import write_trace
-    from station.recording.trace_import import parse_sigma
+    from station.recording.trace_writer import write_trace
+    from station.recording.csv_columns import parse_sigma
 
     ignore = tuple(c.strip() for c in (args.ignore_columns or "").split(",") if c.strip())
     got = import_markers(args.csv, args.robot, base_link=args.base_link, tip_link=args.tip_link,

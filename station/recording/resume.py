@@ -38,7 +38,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from station.planning.arm_plan import PlannedPose
+from station.recording.planned_pose import PlannedPose
 
 # why a pose was skipped (the ``reason`` of a ``skip`` event); DROPPED: a wrist round
 # dropped and re-planned because the model missed the measured orientation (final)

@@ -21,9 +21,7 @@ error names the CSV file and line.
 """
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
 import math
 from pathlib import Path
 
@@ -31,10 +29,9 @@ from calibration.errors import ConfigError
 from calibration.methods import METHODS, check_kind
 from calibration.robots import get_robot
 from drivers.robot_file import load_robot_file
-from station.recording.trace import write_trace
+from station.recording.csv_columns import ANGLE, LENGTH, open_csv, parse_sigma
+from station.recording.trace_writer import write_trace
 
-LENGTH = {"m": 1.0, "mm": 1e-3}
-ANGLE = {"rad": 1.0, "deg": math.pi / 180}
 # columns each method reads (besides qm and use), and the trace channel they form
 COLUMNS = {"sm-position": {"position": ("x", "y", "z")},
            "sm-full-pose": {"pose": ("x", "y", "z", "roll", "pitch", "yaw")},
@@ -43,25 +40,6 @@ COLUMNS = {"sm-position": {"position": ("x", "y", "z")},
            "sm-plane": {}, "sm-self-redundancy": {}}
 ANGLES = {"roll", "pitch", "yaw", "tilt_roll", "tilt_pitch"}
 USES = ("fit", "validation", "reference")
-
-
-def open_csv(src: str):
-    """``(raw bytes, header cells, row reader)`` of a CSV file; its errors name the file."""
-    try:
-        raw = Path(src).read_bytes()
-        text = raw.decode("utf-8-sig")
-    except OSError as e:
-        raise ConfigError(f"cannot read: {e.strerror or e}", source=src) from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"not UTF-8 text: {e}", source=src) from None
-    rows = csv.reader(io.StringIO(text))
-    try:
-        head = [c.strip() for c in next(rows)]
-    except StopIteration:
-        raise ConfigError("empty file: the first line must name the columns", source=src) from None
-    except csv.Error as e:
-        raise ConfigError(f"not a CSV file: {e}", source=f"{src}:1") from None
-    return raw, head, rows
 
 
 def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit="rad",
@@ -187,27 +165,6 @@ def _sensor_range(col: str, v: float, where: str, length_unit: str, angle_unit: 
     if col in ("roll", "pitch", "yaw") and abs(v) > ANGLE_READS:
         raise ConfigError(f"column {col}: {v:.6g} rad is not an angle of -pi..pi{deg}",
                           source=where)
-
-
-def parse_sigma(items, channels) -> dict | None:
-    """``--sigma CHANNEL=STD`` items as ``{channel: std}`` (SI); the channel must be one
-    of ``channels`` and the std a positive finite number."""
-    sigma = {}
-    for item in items or ():
-        k, sep, v = item.partition("=")
-        k = k.strip()
-        if not sep or k not in channels:
-            raise ConfigError(f"--sigma {item}: give CHANNEL=STD with CHANNEL one of "
-                              f"{', '.join(channels)}")
-        try:
-            x = float(v)
-        except ValueError:
-            raise ConfigError(f"--sigma {item}: {v!r} is not a number (CHANNEL=STD, SI units)") \
-                from None
-        if not (math.isfinite(x) and x > 0):
-            raise ConfigError(f"--sigma {item}: the std must be a positive number")
-        sigma[k] = x
-    return sigma or None
 
 
 # --sigma channels of each method: the solver's row channels and the trace's vector ones

@@ -58,15 +58,20 @@ from drivers.check import hint_for
 from station.planning import arm_plan as planner, serial_plan
 from station.recording import resume
 from station.session import device_loss, plausibility
-from station.planning.arm_rounds import ROUND_METHODS, SCOUT_SCALE, ArmRounds
+from station.planning.arm_rounds import SCOUT_SCALE, ArmRounds
+from station.fitting.start_values import ROUND_METHODS
 from station.planning.envelope import EnvelopeStop, limit_violation, watched_move, within_limits
-from station.fitting.batch import BatchOutcome, calibrate, outcome_document
-from station.fitting.gate import FitQualityError
+from station.fitting.batch import calibrate
+from station.fitting.outcome import BatchOutcome
+from station.outputs.fit_summary import outcome_document
+from station.fitting.verdict import FitQualityError
 from station.recording.lock import FolderLock
 from station.outputs.params_file import read_params, write_params
-from station.planning.arm_plan import PlannedPose, PlanRequest
+from station.planning.request import PlanRequest
+from station.recording.planned_pose import PlannedPose
 from station.planning.pose_design import design_text
-from station.recording.trace import TraceWriter, read_trace, utc_now
+from station.recording.trace import read_trace, utc_now
+from station.recording.trace_writer import TraceWriter
 from station.outputs.units import describe_error, from_config as units_from_config
 from station.fitting.validation import validation_errors
 from station.planning.wrist_plan import WristPlanner
@@ -147,10 +152,10 @@ class Session:
     """One calibration session of one robot with one method, recorded in ``out_dir``.
 
     config:   the station config (endpoints resolved). method: a session method
-              (:data:`station.planning.arm_plan.SESSION_METHODS`).
+              (:data:`station.planning.request.SESSION_METHODS`).
     out_dir:  folder of ``trace.jsonl``, ``params.json``, ``report.html``; an existing
               trace there is resumed (its robot and method must match).
-    request:  pose count, held-out count, seed (:class:`~station.planning.arm_plan.PlanRequest`).
+    request:  pose count, held-out count, seed (:class:`~station.planning.request.PlanRequest`).
     observer: ``observer(kind, payload)`` for progress, events and state changes.
     fault_policy: what to do when a pose fails (default: retry twice, then skip).
     rig:      devices to use (default: built from ``config`` at :meth:`connect`).
@@ -1104,7 +1109,7 @@ class Session:
         self.validation = (self.outcome.validation if self.outcome.validation is not None
                            else validation_errors(self.outcome))
         if self.validation:
-            from station.outputs.report import validation_headline
+            from station.outputs.report_sections import validation_headline
 
             self._event("validated", validation_headline(self.validation, self.units))
         return self.validation

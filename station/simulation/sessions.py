@@ -218,7 +218,7 @@ def run_session(truth: SimTruth, folder: Path, *, method: str | None = None, see
     """Run one unattended session on the simulated ``truth`` in ``folder`` and score it
     (``grow``: the arm in rounds, live-watched, as ``app.py run`` by default; False:
     ``--one-shot``)."""
-    from station.planning.arm_plan import PlanRequest
+    from station.planning.request import PlanRequest
 
     robot = truth.robot
     method = method or DEFAULT_METHOD.get(robot, "sm-distance-tilt")

@@ -18,8 +18,9 @@ from calibration.methods import METHODS
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import BUILTIN, get_robot
 from station.planning import pose_design
-from station.planning.arm_plan import SM_BASE_ORIGIN, SM_REFERENCE_POINT, minimum_count
-from station.recording.trace import write_trace
+from station.planning.arm_plan import SM_BASE_ORIGIN, SM_REFERENCE_POINT
+from station.fitting.pose_count import minimum_count
+from station.recording.trace_writer import write_trace
 
 DEFAULT_PLANE_NORMAL = np.array([1.0, 0.3, 0.2])
 

@@ -16,8 +16,8 @@ from calibration.identifiability import minimum_poses
 from calibration.methods import METHODS, check_kind, extra_params
 from calibration.methods.sm_plane import PLANE
 from calibration.robots import get_robot
-from calibration.robots.agebot_pm import gravity_tilt
-from station.recording.trace import write_trace
+from station.planning.pose_design import readings
+from station.recording.trace_writer import write_trace
 from station.simulation.tracegen import attempts, pose_records
 
 # rows per pose of each method on a robot file (eq. 60's p)
@@ -138,26 +138,6 @@ def _contacts(robot, xi, plane, count, rng):
         except UnreachablePose:
             continue
     return a, np.array(qm)
-
-
-def readings(robot, method: str, xi, qm, *, reference_qm=None, mount=(0.0, 0.0)) -> dict:
-    """The noise-free readings of ``method``'s channels of the robot file's ``robot``
-    with parameters ``xi`` at actuator values ``qm (m, n)`` (none for the touching
-    methods: their constraint is the measurement)."""
-    qm = np.atleast_2d(np.asarray(qm, dtype=float))
-    if method in ("sm-full-pose", "sm-position"):
-        X = robot.fk(qm, xi)
-        return {"position": X[:, :3]} if method == "sm-position" else {"pose": X}
-    if method in ("sm-distance", "sm-distance-tilt"):
-        if reference_qm is None:
-            raise CalibrationError(f"{method} needs the reference actuator values")
-        T = robot.frames(qm, xi)
-        p_ref = robot.frames(np.atleast_2d(reference_qm), xi)[0, :3, 3]
-        out = {"distance": np.linalg.norm(T[:, :3, 3] - p_ref, axis=1)}
-        if method == "sm-distance-tilt":
-            out["tilt"] = np.column_stack(gravity_tilt(T[:, :3, :3], mount))
-        return out
-    return {}
 
 
 def generate_trace(path, robot, method: str, truth_xi, **kw) -> None:

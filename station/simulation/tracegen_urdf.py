@@ -175,7 +175,7 @@ def generate_command(args) -> str:
     from calibration.robots import get_robot
     from drivers.urdf_file import load_urdf
     from station.recording.import_markers import start_values
-    from station.recording.trace import write_trace
+    from station.recording.trace_writer import write_trace
 
     if args.method != "sm-markers":
         raise ConfigError(f"a URDF robot is simulated with sm-markers (points on the tool), "

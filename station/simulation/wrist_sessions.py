@@ -107,7 +107,7 @@ def fast_config(folder: Path, speed: float = 4.0) -> Path:
 def run_wrist_session(truth: SimTruth, folder, *, method: str = "pm-fk", seed: int = 0,
                       request=None, speed: float = 4.0) -> WristScore:
     """One unattended wrist session on the simulated ``truth`` in ``folder``, scored."""
-    from station.planning.arm_plan import PlanRequest
+    from station.planning.request import PlanRequest
     from station.recording.trace import read_trace
 
     folder = Path(folder)

@@ -8,7 +8,7 @@ import pytest
 
 from station.gui.controller import Controller
 from station.recording.lock import FolderLock, FolderLocked, holder
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from tests.gui.helpers import wait_idle
 
 

@@ -10,7 +10,7 @@ from PySide6.QtCore import Qt
 
 from station.gui.pages import PageId
 from station.outputs.params_file import read_params
-from station.planning.arm_plan import PM_SCOUT_COUNT
+from station.planning.wrist_plan import PM_SCOUT_COUNT
 from tests.gui.helpers import screenshot, wait_idle
 from tests.gui.test_wizard_sm import TIMEOUT, connect
 from tests.simconfig import quick_config

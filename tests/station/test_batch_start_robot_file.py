@@ -9,7 +9,7 @@ parameters absorbed it: 0.8-3.5 std off the minimum of the same readings (5 of 6
 drawn arms), 0.3-0.5 std over the pooled sessions. Only the pooled session test
 (``test_session_pooled.py``, slow) saw that as a bias; here one generated trace shows it
 directly, against the fit of the same readings started at the truth. The cause is
-fixed too (``station.planning.arm_rounds.fixed_for_rows`` holds a robot file's ``fixed``
+fixed too (``station.fitting.start_values.fixed_for_rows`` holds a robot file's ``fixed``
 parameters in every partial fit): ``test_the_grown_start_holds_the_files_fixed_parameters``.
 """
 from __future__ import annotations
@@ -25,9 +25,10 @@ from calibration.solver import SolverOptions, solve
 from calibration.methods import build
 from station.fitting import batch
 from station.simulation import tracegen_serial
-from station.planning.arm_rounds import staged_start
+from station.fitting.start_values import staged_start
 from station.simulation.serial_sessions import SERIAL_NOISE, equivalent_truth, serial_truth, serial_truth_vector
-from station.recording.trace import read_trace, write_trace
+from station.recording.trace import read_trace
+from station.recording.trace_writer import write_trace
 
 ROOT = Path(__file__).resolve().parents[2]
 UR5 = ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml"

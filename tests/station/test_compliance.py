@@ -13,7 +13,7 @@ from drivers.urdf_file import parse_urdf
 from station.simulation import tracegen_urdf as tg
 from station.fitting.batch import calibrate_trace
 from station.recording.import_markers import import_markers
-from station.recording.trace import write_trace
+from station.recording.trace_writer import write_trace
 from tests.station.urdf_helpers import URDF, arm
 
 

@@ -158,7 +158,8 @@ def test_a_parameter_identifiable_only_in_combination_says_so(name):
     truth with a plain std (it absorbs the held tool_d and tool_b). Now every
     parameter that absorbs a held one is named a combination (``absorbs``), and every
     other identifiable parameter is within its std of the truth."""
-    from station.fitting.batch import BatchOutcome, absorbed_names
+    from station.fitting.outcome import BatchOutcome
+    from station.outputs.fit_summary import absorbed_names
     from station.recording.trace import Trace
     from tests.calibration.serial_helpers import data_of, fit, model_of, perturbed, robot
 

@@ -13,7 +13,7 @@ import pytest
 
 from drivers.sim.server import SimulatorProcess
 from station.session.device_loss import DeviceLost
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from station.session.session import Session
 from station.recording.trace import read_trace
 from tests.station.test_session import _session_config, fast_config

@@ -19,7 +19,8 @@ import pytest
 from calibration.errors import TraceFormatError
 from station.outputs import params_file
 from station.outputs.params_file import read_params, write_params
-from station.recording.trace import TraceWriter, read_trace
+from station.recording.trace import read_trace
+from station.recording.trace_writer import TraceWriter
 
 READER = r"""
 import sys

@@ -16,9 +16,10 @@ from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import get_robot
 from drivers.sim.truth import draw_truth
 from station.fitting.batch import calibrate
-from station.fitting.gate import FitQualityError
+from station.fitting.verdict import FitQualityError
 from station.outputs.params_file import read_params
-from station.recording.trace import read_trace, write_trace
+from station.recording.trace import read_trace
+from station.recording.trace_writer import write_trace
 from station.simulation.tracegen import generate
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -245,7 +246,7 @@ def test_the_plans_eq60_minimum_is_the_gates(tmp_path, method, n_r, minimum):
     sm-distance-tilt where the gate asked for 35); a trace with an exact zero keeps
     the brief's N_R."""
     from calibration.identifiability import minimum_poses
-    from station.planning.arm_plan import minimum_count, parameter_count
+    from station.fitting.pose_count import minimum_count, parameter_count
 
     def zero_is_a_reading(path):
         lines = open(path).read().splitlines()

@@ -14,7 +14,7 @@ from calibration import quality as q
 from calibration.errors import CalibrationError
 from station.fitting import gate
 from station.fitting.batch import calibrate
-from station.fitting.gate import FitQualityError
+from station.fitting.verdict import FitQualityError
 from station.recording.trace import read_trace
 from tests.station.test_gate import NOISE, app, make_trace
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import re
 
-from station.outputs.report import _plan_view
+from station.outputs.report_sections import plan_view
 from tests.station.test_cli import TRACES, app
 
 DRAWN = os.path.join(TRACES, "sm-distance-tilt-drawn-9300.jsonl")
@@ -40,14 +40,14 @@ def test_console_table_speaks_mm_and_degrees(tmp_path):
 
 
 def test_plan_rounds_are_labelled_as_they_were_planned():
-    arm = _plan_view(1, {"kind": "plan", "box_scale": 0.3, "message": "m"},
+    arm = plan_view(1, {"kind": "plan", "box_scale": 0.3, "message": "m"},
                      [{"index": i, "qm": [0], "target": [0], "round": r}
                       for i, r in enumerate((0, 1, 2))])
     assert [p["round"] for p in arm["poses"]] == ["scout", "round 1", "round 2"]
     assert arm["rounds"] and "wrist" not in arm["rounds_text"]
-    wrist = _plan_view(2, {"kind": "plan", "wrist": {"round": 1}, "message": "m"},
+    wrist = plan_view(2, {"kind": "plan", "wrist": {"round": 1}, "message": "m"},
                        [{"index": 0, "qm": [0], "target": [0], "round": 1}])
     assert wrist["poses"][0]["round"] == "round 1" and "wrist" in wrist["rounds_text"]
-    one = _plan_view(3, {"kind": "plan", "message": "m"},
+    one = plan_view(3, {"kind": "plan", "message": "m"},
                      [{"index": 0, "qm": [0], "target": [0], "round": 0}])
     assert not one["rounds"]

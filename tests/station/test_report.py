@@ -248,7 +248,7 @@ class Cells(HTMLParser):
 def test_no_table_cell_is_long_and_the_plan_is_its_own_table(sm_report):
     """The 79-pose plan is a table of its own (index, qm, target, held out), not raw
     JSON in the events table; no cell anywhere exceeds CELL_MAX characters."""
-    from station.outputs.report import CELL_MAX
+    from station.outputs.report_context import CELL_MAX
 
     _, _, text = sm_report
     p = Cells()

@@ -23,7 +23,7 @@ from calibration.robots import get_robot
 from drivers.rig import Rig
 from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import load_truth, save_truth
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from station.session.session import Session
 from station.recording.trace import read_trace
 from tests.simconfig import quick_config

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from station.recording import resume
-from station.planning.arm_plan import PlannedPose
+from station.recording.planned_pose import PlannedPose
 from station.recording.resume import DROPPED, FAULT, NO_CONTACT, Redo, redo, remeasurable, skip_reason
 
 

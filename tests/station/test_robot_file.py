@@ -13,7 +13,8 @@ import pytest
 from calibration.errors import ConfigError, TraceFormatError
 from drivers.robot_file import load_robot_file, parse_robot_file
 from station.fitting.batch import calibrate, calibrate_trace
-from station.recording.trace import read_trace, write_trace
+from station.recording.trace import read_trace
+from station.recording.trace_writer import write_trace
 from tests.station.test_cli import ROOT, TRACES, app
 
 ROBOTS = os.path.join(ROOT, "fixtures", "robots")
@@ -107,7 +108,7 @@ def test_generate_and_batch_need_nothing_but_the_trace(tmp_path):
     p, html = tmp_path / "p.json", tmp_path / "r.html"
     r = app("batch", str(t), "--out", str(p), "--report", str(html), cwd=str(tmp_path))
     assert r.returncode == 0, r.stderr
-    from station.outputs.report import param_units
+    from station.outputs.units import param_units
 
     units = param_units(read_trace(t))
     assert units["beta2"] == "rad" and units["d4"] == "m" and units["k1"] == "rad/u"

@@ -14,7 +14,7 @@ from calibration.errors import ConfigError
 from drivers.config import load_station_config
 from drivers.endpoints import with_endpoints
 from drivers.sim.server import SimulatorProcess
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from station.session.session import Session
 from station.recording.trace import read_trace
 from tests.station.test_cli import app

@@ -18,7 +18,7 @@ from drivers.sim.truth import save_truth
 from station.planning import serial_plan
 from station.outputs.export import calibrated_model
 from station.outputs.params_file import read_params
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from station.session.session import Session
 from station.simulation.serial_sessions import equivalent_truth, serial_config, serial_truth_vector
 from station.recording.trace import read_trace

@@ -32,7 +32,7 @@ from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import draw_truth, load_truth, save_truth
 from station.fitting.batch import calibrate
 from station.outputs.params_file import read_params
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from station.session.session import Session
 from station.recording.trace import read_trace
 from tests.simconfig import quick_config
@@ -298,7 +298,7 @@ def test_device_faults_mid_session_are_survived_and_recorded(tmp_path, quick_ret
 def referenced_folder(tmp_path: Path):
     """Offline (no devices): the simulated SM station's config and a session folder
     whose sm-distance-tilt trace holds its header and a reference, nothing more."""
-    from station.recording.trace import TraceWriter
+    from station.recording.trace_writer import TraceWriter
 
     robot = get_robot("agebot-sm")
     config = load_station_config(FIX / "stations" / "sim-sm.toml")

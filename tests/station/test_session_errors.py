@@ -11,7 +11,7 @@ import pytest
 from calibration.errors import ConfigError, StationError
 from drivers.config import load_station_config
 from drivers.sim.server import SimulatorProcess
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from station.session.session import Session
 from station.recording.trace import read_trace
 from tests.station.test_session import FIX, ROOT, _session_config, fast_config

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from calibration.robots import get_robot
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from station.simulation.sessions import d2_interval, run_session, station_truth, summary
 from station.recording.trace import read_trace
 

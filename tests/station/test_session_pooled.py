@@ -46,7 +46,7 @@ from scipy.stats import t as student_t
 
 from calibration.solver.weighting import t_inflation
 
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from station.simulation.sessions import d2_interval, run_session, station_truth, summary
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -22,9 +22,10 @@ from calibration.robots import get_robot
 from drivers.config import load_station_config
 from drivers.sim.server import SimulatorProcess
 from drivers.sim.truth import load_truth
-from station.planning import arm_plan as planner
+from station.planning import arm_plan
 from station.outputs.params_file import read_params
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import MUST_KNOW, PlanRequest
+from station.recording.planned_pose import PlannedPose
 from station.session.session import Session
 from station.simulation.touch_operator import SimulatedOperator
 from station.recording.trace import read_trace
@@ -48,7 +49,7 @@ def _known(truth, names):
 def test_sm_plane_session_touches_the_plane_and_recovers_the_unseen_truth(tmp_path):
     cfg = fast_config(tmp_path, "agebot-sm")
     truth = load_truth(UNSEEN)
-    known = _known(truth, planner.MUST_KNOW["sm-plane"])
+    known = _known(truth, MUST_KNOW["sm-plane"])
     with SimulatorProcess("agebot-sm", truth=str(UNSEEN), config=str(cfg), seed=3) as sim:
         with sim.control() as ctl, sim.control() as faults:
             injected = []
@@ -98,7 +99,7 @@ def _drop_last_pose_line(path: Path) -> dict:
 def test_sm_self_redundancy_pairs_resume_and_skip_whole(tmp_path):
     cfg = fast_config(tmp_path, "agebot-sm")
     truth = load_truth(UNSEEN)
-    known = _known(truth, planner.MUST_KNOW["sm-self-redundancy"])
+    known = _known(truth, MUST_KNOW["sm-self-redundancy"])
     out = tmp_path / "run"
     req = PlanRequest(count=12, validation=2, seed=2)
     with SimulatorProcess("agebot-sm", truth=str(UNSEEN), config=str(cfg), seed=5) as sim:
@@ -195,16 +196,16 @@ def test_touch_plans_and_refusals(tmp_path):
     session refuses sm-plane without the plane and a touching session without an
     operator; sm-full-pose is still refused."""
     nom = SM.params({"L4": 0.86})
-    poses = planner.plan_sm("sm-self-redundancy", nom, None,
+    poses = arm_plan.plan_sm("sm-self-redundancy", nom, None,
                             PlanRequest(count=6, validation=2, seed=4))
     assert len(poses) == 16 and [p.index for p in poses] == list(range(16))
     for a, b in zip(poses[::2], poses[1::2]):
         assert a.group == b.group and a.use == b.use
         assert a.target[:3] == b.target[:3] and a.target[3] < 0 < b.target[3]
     assert sum(p.use == "validation" for p in poses) == 4
-    assert planner.PlannedPose.from_record(poses[3].record()) == poses[3]
+    assert PlannedPose.from_record(poses[3].record()) == poses[3]
     plane = np.array([-0.2, -0.61, 0.05])
-    contacts = planner.plan_sm("sm-plane", nom, None, PlanRequest(count=8, validation=2),
+    contacts = arm_plan.plan_sm("sm-plane", nom, None, PlanRequest(count=8, validation=2),
                                plane=plane)
     assert len(contacts) == 10 and all(p.group is None for p in contacts)
     X = np.array([p.target for p in contacts])

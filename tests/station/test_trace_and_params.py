@@ -9,7 +9,8 @@ import pytest
 from calibration.errors import CalibrationError, TraceFormatError
 from station.fitting.batch import calibrate_trace
 from station.outputs.params_file import checksum, read_params, write_params
-from station.recording.trace import TraceWriter, TruncatedLineWarning, read_trace
+from station.recording.trace import TruncatedLineWarning, read_trace
+from station.recording.trace_writer import TraceWriter
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 FIXTURE = os.path.join(ROOT, "fixtures", "traces", "sm-distance-tilt.jsonl")
@@ -163,7 +164,8 @@ def test_pm_tilt_parameter_file_names_the_heading_as_not_identified(tmp_path):
     """pm-tilt identifies every parameter but not the heading about the vertical: the
     file states it with its std (read back through the schema), the table says it;
     pm-fk, which reads the heading, states nothing."""
-    from station.fitting.batch import format_table, write_outputs
+    from station.outputs.fit_summary import format_table
+    from station.outputs.report import write_outputs
 
     out = tmp_path / "tilt.json"
     outcome = calibrate_trace(os.path.join(ROOT, "fixtures", "traces", "pm-tilt.jsonl"),

@@ -4,7 +4,7 @@ import pytest
 
 from calibration.errors import ConfigError
 from calibration.methods import METHODS
-from station.planning.arm_plan import MUST_KNOW
+from station.planning.request import MUST_KNOW
 from station.recording.trace import read_trace
 from station.simulation.tracegen import generate_from_truth, parse_noise, reading_noise
 

@@ -235,7 +235,7 @@ def test_drawn_arms_seen_by_a_tracker_are_calibrated_within_their_std(tmp_path):
     the errors against the truth's equivalent over the reported std have an RMS in
     0.8-1.3 and 90 % of them lie within 2 std."""
     from station.recording.import_markers import import_markers
-    from station.recording.trace import write_trace
+    from station.recording.trace_writer import write_trace
 
     rob, zs, passed = arm(), [], 0
     for seed in range(7100, 7120):

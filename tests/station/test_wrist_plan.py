@@ -11,7 +11,7 @@ from calibration.errors import CalibrationError
 from calibration.robots import get_robot
 from calibration.robots.agebot_pm import envelope_violation, gravity_tilt, rot_xyz
 from drivers.sim.truth import draw_truth
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from station.planning.wrist_plan import (ADVICE, BOX_DEG, TOLERANCE_DEG, WristPlanner,
                                 WristStopped)
 
@@ -145,7 +145,7 @@ def test_watch_names_the_deviation():
     planner.xi = xi
     X = np.radians([5.0, -3.0, 2.0])
     qm = ROBOT.ik(X, xi)
-    from station.planning.arm_plan import PlannedPose
+    from station.recording.planned_pose import PlannedPose
     pose = PlannedPose(3, tuple(qm), tuple(X), "fit", 1)
     assert planner.watch(pose, {"qm": list(qm), "orientation": list(X)}) is None
     off = X + [0.0, math.radians(TOLERANCE_DEG + 1), 0.0]

@@ -56,7 +56,7 @@ def test_a_wrist_with_its_sensor_mapped_wrong_stops_after_the_scout(tmp_path, mo
     near home, with the trace kept and a one-line message naming what to do."""
     import station.session.plausibility
 
-    from station.planning.arm_plan import PlanRequest
+    from station.planning.request import PlanRequest
     from station.session.session import Session
     from tests.station.test_session import _session_config
 

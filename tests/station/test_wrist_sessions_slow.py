@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from station.planning.arm_plan import PlanRequest
+from station.planning.request import PlanRequest
 from station.simulation.wrist_sessions import run_wrist_session, wrist_truth
 
 SEEDS = {"pm-fk": range(9350, 9357), "pm-tilt": range(9360, 9366)}  # used by no other test or bench

@@ -143,7 +143,7 @@ class OfflinePage(Page):
             self.save_report(path)
 
     def save_params(self, path) -> dict | None:
-        from station.fitting.batch import outcome_document
+        from station.outputs.fit_summary import outcome_document
         from station.outputs.params_file import write_params
 
         try:

@@ -16,7 +16,7 @@ from station.gui.pages.base import Page
 from station.planning.pose_design import design_text
 from station.gui.plots import WorkspacePlot
 from station.gui.widgets import BAD_COLOR, OK_COLOR, fixed, note, target_coords
-from station.planning.arm_plan import PM_SCOUT_COUNT
+from station.planning.wrist_plan import PM_SCOUT_COUNT
 
 
 class PlanPage(Page):

@@ -14,9 +14,9 @@ from calibration.robots import get_robot
 from drivers.sim.serial_robot import is_robot_file
 from station.gui.controller import ROBOTS, summarize_folder
 from station.gui.pages.base import Page, error_text
-from station.planning.arm_rounds import ROUND_METHODS
+from station.fitting.start_values import ROUND_METHODS
 from station.gui.widgets import BAD_COLOR, OK_COLOR, DeviceTable, note
-from station.planning.arm_plan import SESSION_METHODS, PlanRequest
+from station.planning.request import SESSION_METHODS, PlanRequest
 
 # the method a new session starts with (the README's): distance + tilt leaves none of
 # the arm's parameters uncalibrated; the wrist's full orientation

@@ -1,0 +1,87 @@
+"""The fit-quality gate's verdict (:mod:`station.fitting.gate`): :class:`Quality`, the
+parameter file's ``fit.quality`` (outliers left out, each check with its figures, whether
+the operator accepted a failed fit), and the errors a calibration raises when a fit does
+not converge or fails the gate."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from calibration.errors import CalibrationError
+
+
+class FitQualityError(CalibrationError):
+    """The fit failed the quality gate; ``outcome`` holds it (not written)."""
+
+    def __init__(self, message: str, outcome=None):
+        super().__init__(message)
+        self.outcome = outcome
+
+
+class NotConverged(CalibrationError):
+    """The calibration did not converge; ``model`` is the measurement model tried."""
+
+    def __init__(self, message: str, model=None):
+        super().__init__(message)
+        self.model = model
+
+
+@dataclass
+class Quality:
+    """The gate's result (``fit.quality`` of the parameter file)."""
+
+    outliers: list[dict] = field(default_factory=list)
+    checks: list[dict] = field(default_factory=list)
+    accepted: bool = False
+    excluded: list[dict] = field(default_factory=list)   # by the operator: pose, reason
+
+    @property
+    def passed(self) -> bool:
+        return all(c["ok"] for c in self.checks)
+
+    @property
+    def failures(self) -> list[str]:
+        return [c["message"] for c in self.checks if not c["ok"]]
+
+    def check(self, name: str, ok: bool, message: str, **figures) -> None:
+        self.checks.append({"check": name, "ok": bool(ok), "message": message, **figures})
+
+    def as_dict(self) -> dict:
+        out = {"passed": self.passed, "accepted": self.accepted,
+               "outliers": [dict(o) for o in self.outliers],
+               "checks": [dict(c) for c in self.checks]}
+        if self.excluded:
+            out["excluded"] = [dict(e) for e in self.excluded]
+        return out
+
+    def lines(self) -> list[str]:
+        """Human-readable lines (CLI table, GUI)."""
+        out = [f"excluded by the operator: pose {e['pose']} ({e['reason']})"
+               for e in self.excluded]
+        for o in self.outliers:
+            res = (f"{o['residual'] * 1e3:.4g} mm from its prediction" if "point" in o
+                   else f"residual {o['residual']:.4g}")
+            out.append(f"outlier excluded: {describe(o)} ({res}, studentized {o['t']:.3g} > "
+                       f"{o['threshold']:.3g})")
+        for c in self.checks:
+            out.append(("ok: " if c["ok"] else "FAILED: ") + c["message"])
+        if not self.passed:
+            out.append("fit quality: FAILED" + (", accepted by the operator (--accept-poor-fit)"
+                                                 if self.accepted else ""))
+        else:
+            out.append("fit quality: passed")
+        return out
+
+    def summary(self) -> str:
+        """One line: what failed, with its figures."""
+        return "; ".join(self.failures) if self.failures else "passed"
+
+
+def max_outliers(n_poses: int) -> int:
+    """At most one pose in ten (at least one) may be excluded as an outlier."""
+    return max(1, n_poses // 10)
+
+
+def describe(o: dict) -> str:
+    """``pose 5 marker`` (sm-markers: ``pose 5 point 2``) for an outlier entry."""
+    return f"pose {o['pose']} point {o['point']}" if "point" in o else \
+        f"pose {o['pose']} {o['channel']}"
