@@ -35,8 +35,8 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from station.planning.request import PlanRequest  # noqa: E402
-from station.simulation.sessions import (DEFAULT_METHOD, d2_interval, run_session,  # noqa: E402
-                                  station_truth, summary)
+from station.simulation.sessions import DEFAULT_METHOD, run_session, station_truth
+from station.simulation.session_scores import d2_interval, summary
 
 FIRST_SEED = {"agebot-sm": 9100, "agebot-pm": 9200}   # seeds not used by any other test
 

@@ -12,7 +12,7 @@ The station process opens the real drivers (``CanopenActuators``,
   1. commands a small move and waits for target reached (not timed);
   2. ``snapshot_with(devices, SnapshotConfig(samples, period, settle))`` (timed:
      ``snapshot``);
-  3. builds the pose record and appends it with ``station.recording.trace.TraceWriter``
+  3. builds the pose record and appends it with ``station.recording.trace_writer.TraceWriter``
      (flush + fsync; timed: ``store``).
 
 The rows (cases) are interleaved: each round measures one pose of every case in turn

@@ -459,3 +459,32 @@ def _snapshot(r: KeyReader) -> SnapshotConfig:
         noise_floor=_limits(r, "noise_floor"))
     r.finish()
     return cfg
+
+
+def robot_of_config(path) -> str:
+    """The robot of the station config ``path``: a built-in name, or the path of the robot
+    file it names (``robot_file``, relative to the config's folder)."""
+    import tomllib
+
+    config = load_station_config(path)
+    if config.spec is not None:      # read already: the path as the config gives it
+        with open(path, "rb") as f:
+            return str(Path(path).parent / tomllib.load(f)["robot_file"])
+    return config.robot
+
+
+def check_config_robot(config: StationConfig, robot: str) -> None:
+    """Refuse a station config that is not for ``robot`` (a built-in name, or the path of a
+    robot file: the config's robot file must be that file, by its checksum)."""
+    from calibration.robots import ROBOTS
+
+    if robot not in ROBOTS:       # a robot file
+        from drivers.robot_file import load_robot_file
+
+        spec = load_robot_file(robot)
+        if config.spec is None or config.spec.source["sha256"] != spec.source["sha256"]:
+            raise ConfigError(f"the station config is for {config.robot}, not the robot "
+                              f"file {robot}", source=config.source, key="robot_file")
+    elif config.robot != robot:
+        raise ConfigError(f"the station config is for {config.robot}, not {robot}",
+                          source=config.source, key="robot")

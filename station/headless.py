@@ -27,7 +27,8 @@ from calibration.errors import ConfigError
 from drivers.config import load_station_config
 from drivers.endpoints import load_endpoints, with_endpoints
 from station.planning.request import TOUCH_METHODS, PlanRequest
-from station.session.session import Progress, Session
+from station.session.session import Session
+from station.session.execution import Progress
 from station.outputs.units import MM_DEG
 
 
@@ -74,7 +75,7 @@ class TerminalProgress:
 def main(args: argparse.Namespace) -> int:
     from drivers.atomic import check_output_folder
     from drivers.sim.serial_robot import is_robot_file
-    from station.session.session import PARAMS, REPORT, TRACE, URDF
+    from station.session.folder import PARAMS, REPORT, TRACE, URDF
 
     check_output_folder(args.out, "the session folder (--out)", (TRACE, PARAMS, REPORT, URDF),
                         inputs=tuple(p for p in (args.robot if is_robot_file(args.robot)
@@ -216,7 +217,7 @@ def _session(config, method, out, request, nominal, touch, measured, station, pr
             print("guided touching by the simulated operator (it watches the contact through "
                   "the simulator's control port)", flush=True)
         with warnings.catch_warnings():
-            # said once, as the table's note (station.fitting.batch.format_table)
+            # said once, as the table's note (station.outputs.fit_summary.format_table)
             warnings.simplefilter("ignore", ConditioningWarning)
             files = s.run()
         print()

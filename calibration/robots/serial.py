@@ -69,7 +69,7 @@ class JointSpec:
 
 @dataclass(frozen=True)
 class SerialSpec:
-    """A parsed robot file (pure data; station.robot_file reads the TOML)."""
+    """A parsed robot file (pure data; drivers.robot_file reads the TOML)."""
 
     name: str
     joints: tuple[JointSpec, ...]

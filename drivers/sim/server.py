@@ -100,7 +100,7 @@ class SimStation:
         cc = config.canopen
         if truth.spec is not None and (config.spec is None or
                                        config.spec.source["sha256"] != truth.spec.source["sha256"]):
-            raise ConfigError(f"the truth file's robot file is not the station config's",
+            raise ConfigError("the truth file's robot file is not the station config's",
                               source=config.source, key="robot_file")
         sim = SimulatedSerial if truth.spec is not None else SimulatedAgebot
         self.robot = sim(truth, faults=self.plan, seed=seed,

@@ -2,7 +2,7 @@
 and the wizard.
 
 Trace -> measurement model -> Algorithm 2 -> the fit-quality gate -> outcome (and, with
-``out``, the parameter file: :func:`station.outputs.fit_summary.write_outputs`). No
+``out``, the parameter file: :func:`station.outputs.report.write_outputs`). No
 parameter file is written unless the fit converged and passed the gate.
 """
 from __future__ import annotations

@@ -233,7 +233,7 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
 def _lower(a, b) -> bool:
     """Does the fit ``a = (model, result)`` end lower than ``b`` on the same trace
     (both residuals weighted with ``b``'s sigma)?"""
-    (ma, ra), (mb, rb) = a, b
+    (_, ra), (mb, rb) = a, b
     w = q.row_weights(mb.row_channel, mb.channels, rb.sigma)
     return float(np.sum(w * ra.residual ** 2)) < float(np.sum(w * rb.residual ** 2))
 

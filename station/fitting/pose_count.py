@@ -14,7 +14,7 @@ from calibration.methods.sm_distance import zero_names
 NR_P = {"sm-distance": (9, 1), "sm-distance-tilt": (13, 2), "pm-ik": (8, 3), "pm-fk": (8, 3),
         "pm-tilt": (10, 2), "sm-self-redundancy": (7, 2), "sm-plane": (10, 1),
         "sm-full-pose": (13, 4), "sm-position": (13, 3)}
-# a session's draw-wire zero is one reading (station.session.session.capture_reference):
+# a session's draw-wire zero is one reading (station.session.reference.ReferenceStep.capture_reference):
 # the distance methods calibrate ``distance_off`` there
 SESSION_ZERO = "reading"
 

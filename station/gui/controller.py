@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import logging
 import threading
-from dataclasses import dataclass
 from collections.abc import Callable
 from pathlib import Path
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
+from station.session.folder import TraceSummary, summarize_folder  # noqa: F401 (the pages')
 from station.gui.worker import FaultQuestion, JobRunner, LockedRig, limited_jog, poll_devices
 from station.gui.widgets import set_units
 
@@ -24,59 +24,6 @@ log = logging.getLogger("station.gui")
 
 ROBOTS = {"agebot-sm": "AGEBOT serial arm (SM)", "agebot-pm": "AGEBOT wrist (PM)"}
 POLL_MS = 400
-
-
-@dataclass(frozen=True)
-class TraceSummary:
-    """What a session folder holds (for the resume question)."""
-
-    folder: Path
-    robot: str
-    method: str
-    measured: int
-    skipped: int
-    pending: int
-    planned: int
-    exported: bool
-    error: str | None = None
-    robot_file: dict | None = None   # a robot file's session: the header's robot_file
-    truth: str | None = None         # a simulated session: its simulator's truth file
-
-    @property
-    def unfinished(self) -> bool:
-        return self.error is None and not self.exported
-
-    def sentence(self) -> str:
-        if self.error:
-            return f"{self.folder} holds a trace that cannot be read: {self.error}"
-        return (f"{self.folder} holds a {self.robot} {self.method} session: {self.measured} "
-                f"poses recorded, {self.skipped} skipped, {self.pending} of {self.planned} "
-                f"planned still to measure"
-                + ("; its parameter file was written" if self.exported else ""))
-
-
-def summarize_folder(folder) -> TraceSummary | None:
-    """The session in ``folder`` (None if it holds no trace)."""
-    from station.recording.resume import recorded_plan
-    from station.session.session import TRACE
-    from station.recording.trace import read_trace
-
-    folder = Path(folder)
-    path = folder / TRACE
-    if not path.exists():
-        return None
-    try:
-        tr = read_trace(path)
-    except Exception as e:  # noqa: BLE001 - said to the operator
-        return TraceSummary(folder, "", "", 0, 0, 0, 0, False, str(e))
-    plan, skipped, measured = recorded_plan(tr)
-    planned = {p.index for p in plan}
-    exported = any(ev.get("kind") == "export" for ev in tr.events)
-    pending = len(planned - set(measured) - skipped)
-    sim = (tr.header.get("station") or {}).get("simulator") or {}
-    return TraceSummary(folder, tr.robot, tr.method, len(measured), len(skipped), pending,
-                        len(planned), exported, robot_file=tr.header.get("robot_file"),
-                        truth=sim.get("truth"))
 
 
 def iteration_sink(signal):
@@ -98,7 +45,7 @@ class Controller(QObject):
     A robot is a built-in name (:data:`ROBOTS`) or the path of a robot file.
     """
 
-    progressed = Signal(object)        # station.session.session.Progress
+    progressed = Signal(object)        # station.session.execution.Progress
     eventLogged = Signal(dict)         # a trace event {t, kind, message, ...}
     stateChanged = Signal(str)         # "connected", "planned", "measuring", ...
     polled = Signal(object)            # list[DeviceReading] of one polling round
@@ -157,17 +104,10 @@ class Controller(QObject):
                     and all(d.is_open for d in s.rig.devices))
 
     def robot_of_config(self, path) -> str:
-        """The robot of the station config ``path``: a built-in name, or the path of the
-        robot file it names (``robot_file``)."""
-        import tomllib
+        """The robot of the station config ``path`` (:func:`drivers.config.robot_of_config`)."""
+        from drivers.config import robot_of_config
 
-        from drivers.config import load_station_config
-
-        config = load_station_config(path)
-        if config.spec is not None:      # read already: the path as the config gives it
-            with open(path, "rb") as f:
-                return str(Path(path).parent / tomllib.load(f)["robot_file"])
-        return config.robot
+        return robot_of_config(path)
 
     def open_session(self, *, robot: str, method: str, out_dir, request,
                      on_done: Callable | None = None, on_error: Callable | None = None,
@@ -223,12 +163,10 @@ class Controller(QObject):
         self.open_session(**self._last_open, on_done=on_done, on_error=on_error)
 
     def _open(self, robot, method, out: Path, request, nominal):
-        from drivers.config import load_station_config
+        from drivers.config import check_config_robot, load_station_config
         from drivers.endpoints import load_endpoints, with_endpoints
         from drivers.rig import Rig
         from station.session.session import Session
-
-        from drivers.sim.serial_robot import is_robot_file
 
         station = None
         if self.simulate:       # as app.py run --simulate (station.headless)
@@ -259,20 +197,7 @@ class Controller(QObject):
             if self.endpoints_path:
                 config = with_endpoints(config, load_endpoints(self.endpoints_path),
                                         source=self.endpoints_path)
-        if is_robot_file(robot):
-            from drivers.robot_file import load_robot_file
-
-            spec = load_robot_file(robot)
-            if config.spec is None or config.spec.source["sha256"] != spec.source["sha256"]:
-                from calibration.errors import ConfigError
-
-                raise ConfigError(f"the station config is for {config.robot}, not the robot "
-                                  f"file {robot}", source=config.source, key="robot_file")
-        elif config.robot != robot:
-            from calibration.errors import ConfigError
-
-            raise ConfigError(f"the station config is for {config.robot}, not {robot}",
-                              source=config.source, key="robot")
+        check_config_robot(config, robot)
         self.config = config
         set_units(self.units)
         rig = LockedRig(Rig(config))

@@ -26,6 +26,8 @@ import math
 import numpy as np
 
 from calibration.errors import CalibrationError, ConfigError
+from station.session.joint_directions import (MOVE_M, SLACK_M, check_directions,
+                                               position_jacobian, read_at_rest)
 
 # inclinometer channels each session method reads (station config [inclinometer.axes])
 INCLINOMETER_AXES = {"sm-distance-tilt": ("tilt",), "pm-tilt": ("roll", "pitch"),
@@ -33,8 +35,8 @@ INCLINOMETER_AXES = {"sm-distance-tilt": ("tilt",), "pm-tilt": ("roll", "pitch")
 ZERO_TOL_M = 1e-3           # |reading| right after zeroing
 RATIO = (0.4, 2.5)          # measured / nominal change of a test move
 WRIST_RATIO = (0.1, 10.0)   # the wrist's nominal can be far off (its sign is the check)
-MOVE_M, TURN_RAD = 0.03, math.radians(3.0)
-SLACK_M, SLACK_RAD = 2e-3, math.radians(0.3)
+TURN_RAD = math.radians(3.0)
+SLACK_RAD = math.radians(0.3)
 
 
 def check_config(config, method: str) -> None:
@@ -82,15 +84,10 @@ def _test_move(robot, xi, q0, distance: bool, tilt: bool) -> np.ndarray:
     return dq
 
 
-def _read(rig) -> dict:
-    """Averaged readings without the std/drift limits: a mis-configured draw-wire
-    reads wildly, and that is what the checks below are to say in words."""
-    return rig.snapshot(std_limits={}, drift_limits={}).mean
-
-
 def check_reference(session) -> str | None:
     """At the reference, before its record: zero the draw-wire, read, make a small
-    test move, read, move back; then the joints' directions (:func:`check_directions`).
+    test move, read, move back; then the joints' directions
+    (:func:`station.session.joint_directions.check_directions`).
     Raises ConfigError naming what to check; returns the findings in words (None when
     the method reads neither distance nor tilt)."""
     rig, robot, cfg = session.rig, session.robot, session.config
@@ -105,7 +102,7 @@ def check_reference(session) -> str | None:
     q0 = np.array(rig.qm(), dtype=float)
     if distance:
         rig.zero_drawwire()
-    r0 = _read(rig)
+    r0 = read_at_rest(rig)
     problems = []
     if distance and abs(r0["distance"]) > ZERO_TOL_M:
         problems.append(f"the draw-wire reads {r0['distance']:.6g} m right after it was zeroed "
@@ -115,7 +112,7 @@ def check_reference(session) -> str | None:
     dq = _test_move(robot, session.nominal, q0, distance, tilt)
     rig.move_to(q0 + dq)
     try:
-        r1 = _read(rig)
+        r1 = read_at_rest(rig)
     finally:
         rig.move_to(q0)
     X0, X1 = robot.fk(np.vstack([q0, q0 + dq]), session.nominal)
@@ -150,98 +147,11 @@ def check_reference(session) -> str | None:
     return "plausible at the reference: a test move read " + ", ".join(said)
 
 
-def _position_jacobian(robot, xi, q0) -> np.ndarray:
-    """``(n, 3)``: row i the tool origin's velocity per unit of actuator i (FK steps)."""
-    n = robot.n_actuators
-    h = 1e-4
-    p0 = robot.fk(np.atleast_2d(q0), xi)[0, :3]
-    return np.array([(robot.fk(np.atleast_2d(q0 + h * np.eye(n)[i]), xi)[0, :3] - p0) / h
-                     for i in range(n)])
-
-
-def _direction_pairs(J) -> list[tuple[int, int]]:
-    """Pairs ``(r, i)`` of actuators whose tool velocities are far from perpendicular
-    (|cos| >= 0.3) and not small, each actuator once as ``i``: moving ``r`` with
-    ``+i`` and with ``-i`` then gives two distances that differ by its direction."""
-    speed = np.linalg.norm(J, axis=1)
-    moving = [int(i) for i in np.argsort(-speed) if speed[i] > 0.05 * speed.max() > 0]
-    cos = np.abs(J @ J.T) / np.maximum(np.outer(speed, speed), 1e-300)
-    pairs: list[tuple[int, int]] = []
-    known: list[int] = []
-    while len(known) < len(moving):
-        links = [(cos[r, i], r, i) for r in known for i in moving if i not in known]
-        best = max(links, default=(0.0, -1, -1))
-        if best[0] >= 0.3:            # the most telling pair from the joints linked so far
-            pairs.append((best[1], best[2]))
-            known.append(best[2])
-        else:                         # none: the fastest joint left starts a new group
-            known.append(next(i for i in moving if i not in known))
-    return pairs
-
-
-def direction_moves(robot, xi, q0) -> list[tuple[int, int, tuple, tuple]]:
-    """The moves of :func:`check_directions` at ``q0`` (model ``xi``): ``(r, i, (dq+,
-    dq-), (distance+, distance-))`` for each pair of :func:`_direction_pairs` whose two
-    predicted distances differ enough to be told apart (each move reads the draw-wire
-    once)."""
-    q0 = np.asarray(q0, dtype=float)
-    J = _position_jacobian(robot, xi, q0)
-    speed = np.linalg.norm(J, axis=1)
-    p0 = robot.fk(np.atleast_2d(q0), xi)[0, :3]
-    out = []
-    for r, i in _direction_pairs(J):
-        steps, want = [], []
-        for sign in (1.0, -1.0):
-            dq = np.zeros(robot.n_actuators)
-            dq[r] = MOVE_M / 2 / speed[r]
-            dq[i] = sign * MOVE_M / 2 / speed[i]
-            steps.append(dq)
-            want.append(float(np.linalg.norm(robot.fk(np.atleast_2d(q0 + dq), xi)[0, :3] - p0)))
-        if abs(want[0] - want[1]) >= 2 * SLACK_M:
-            out.append((r, i, tuple(steps), tuple(want)))
-    return out
-
-
-def check_directions(session, q0) -> str:
-    """The draw-wire is zeroed at ``q0`` (the reference). A distance alone cannot tell
-    which way one joint turned, but two joints moved together can: for each pair of
-    :func:`_direction_pairs`, a move of ``+r +i`` and one of ``+r -i`` (about
-    MOVE_M/2 of the tool each, nominal model) read two distances whose order is the
-    sign of the two tool velocities' dot product, whatever the gear ratios' sizes. A
-    joint that turns the other way than its start value says (a ratio ``k`` of the
-    wrong sign, a drive's polarity) reverses the order: refused, naming it."""
-    rig, cfg = session.rig, session.config
-    checked, problems = [], []
-    for r, i, steps, want in direction_moves(session.robot, session.nominal, q0):
-        got = []
-        for dq in steps:
-            rig.move_to(q0 + dq)
-            try:
-                got.append(float(_read(rig)["distance"]))
-            finally:
-                rig.move_to(q0)
-        checked.append(i)
-        if (got[0] - got[1]) * (want[0] - want[1]) < 0 and abs(got[0] - got[1]) > SLACK_M:
-            units = session.units
-            problems.append(
-                f"qm{r + 1} and qm{i + 1} do not turn as the start values say (one of them "
-                f"the other way): moved together one way and the other, the draw-wire read "
-                f"{units.text(got[0], 'm', '.3g')} and {units.text(got[1], 'm', '.3g')} where "
-                f"the nominal model predicts {units.text(want[0], 'm', '.3g')} and "
-                f"{units.text(want[1], 'm', '.3g')}: check the signs of k{r + 1} and "
-                f"k{i + 1} in the start values (--nominal, the robot file) and the drives' "
-                "polarity")
-    if problems:
-        more = (f"; {len(problems) - 1} more pairs disagree" if len(problems) > 1 else "")
-        raise ConfigError(problems[0] + more + " (nothing was recorded)", source=cfg.source)
-    return ("joints' directions as the model's (" + ", ".join(f"qm{i + 1}" for i in checked)
-            + " against another joint)" if checked else "no joint direction testable here")
-
-
 def check_serial_reference(session, distance: bool, tilt: bool) -> str:
     """A robot file's arm at its reference: the draw-wire zeroed reads about zero, a
     test move of the fastest joint changes it by about the distance moved, the
-    joints' directions (:func:`check_directions`) and, with the tool inclinometer
+    joints' directions (:func:`station.session.joint_directions.check_directions`) and,
+    with the tool inclinometer
     (sm-distance-tilt), a turn of the joint that tilts the tool most changes roll and
     pitch each the way the nominal model says (a flipped axis sign, swapped axes),
     and the readings are within the sensor's range (``range_rad``)."""
@@ -251,7 +161,7 @@ def check_serial_reference(session, distance: bool, tilt: bool) -> str:
     q0 = np.array(rig.qm(), dtype=float)
     if distance:
         rig.zero_drawwire()
-    r0 = _read(rig)
+    r0 = read_at_rest(rig)
     problems, said = [], []
     if distance and abs(r0["distance"]) > ZERO_TOL_M:
         problems.append(f"the draw-wire reads {r0['distance']:.6g} m right after it was zeroed "
@@ -264,7 +174,7 @@ def check_serial_reference(session, distance: bool, tilt: bool) -> str:
     if problems:
         raise ConfigError("; ".join(problems) + " (nothing was recorded)", source=cfg.source)
     if distance:
-        J = _position_jacobian(robot, xi, q0)
+        J = position_jacobian(robot, xi, q0)
         speed = np.linalg.norm(J, axis=1)
         i = int(np.argmax(speed))
         dq = np.zeros(robot.n_actuators)
@@ -273,7 +183,7 @@ def check_serial_reference(session, distance: bool, tilt: bool) -> str:
                                     - robot.fk(np.atleast_2d(q0), xi)[0, :3]))
         rig.move_to(q0 + dq)
         try:
-            got = _read(rig)["distance"] - r0["distance"]
+            got = read_at_rest(rig)["distance"] - r0["distance"]
         finally:
             rig.move_to(q0)
         said.append(f"draw-wire {got * 100:.2f} cm for {want * 100:.2f} cm")
@@ -300,7 +210,7 @@ def check_serial_reference(session, distance: bool, tilt: bool) -> str:
         want = _wrap(reading(q0 + dq) - base)
         rig.move_to(q0 + dq)
         try:
-            r1 = _read(rig)
+            r1 = read_at_rest(rig)
         finally:
             rig.move_to(q0)
         for a, axis in enumerate(("roll", "pitch")):
@@ -374,7 +284,7 @@ def check_wrist(session) -> str | None:
     from calibration.pm_start import feasible_start
 
     q0 = np.array(rig.qm(), dtype=float)
-    X_now = session._orientation_now()
+    X_now = session.kind.orientation_now()
     try:
         # the nominal corrected to reach this pose, as the scout round's planning model
         xi = feasible_start(robot, np.atleast_2d(q0), np.atleast_2d(X_now),
@@ -391,13 +301,13 @@ def check_wrist(session) -> str | None:
         # model cannot explain (station/planning/wrist_plan.py), before driving any further.
         return (f"no test move at the wrist's start: the nominal model cannot predict one "
                 f"there ({e}); the scout round's fit checks the inclinometer's axes instead")
-    r0 = _read(rig)
+    r0 = read_at_rest(rig)
     rig.move_to(q0 + dq)
     try:
-        r1 = _read(rig)
+        r1 = read_at_rest(rig)
     finally:
         rig.move_to(q0)
-    back = _read(rig)             # settled: the next reading is of the start pose at rest
+    back = read_at_rest(rig)             # settled: the next reading is of the start pose at rest
     if np.max(np.abs(np.array([back["roll"], back["pitch"]]) - [r0["roll"], r0["pitch"]])) \
             > SLACK_RAD:
         raise ConfigError(f"the inclinometer did not read the start pose again after the test "

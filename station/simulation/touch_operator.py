@@ -25,7 +25,7 @@ jog panel knows, and iterates on what it sees:
   found again by going back to the pair's recorded first pose.
 
 Where it cannot make the contact (no convergence) it raises
-:class:`~station.session.session.TouchFailed`: the session skips the pose (with its pair).
+:class:`~station.session.execution.TouchFailed`: the session skips the pose (with its pair).
 Nothing here is used at a real station.
 """
 from __future__ import annotations
@@ -36,7 +36,7 @@ import numpy as np
 
 from calibration.errors import StationError
 from calibration.robots import get_robot
-from station.session.session import TouchFailed
+from station.session.execution import TouchFailed
 
 log = logging.getLogger("station.simulation.touch_operator")
 

@@ -61,7 +61,7 @@ def generate(method: str, truth_xi, *, nominal=None, plane=None, noise=None, see
     group = None
     header = {"robot": robot.name, "method": method,
               "nominal": robot.as_dict(nom),
-              "station": {"generator": "station.tracegen", "seed": seed}}
+              "station": {"generator": "station.simulation.tracegen", "seed": seed}}
     meas_noise = {k: v for k, v in noise.items()
                   if k in ("pose", "position", "distance", "tilt", "orientation")}
     if meas_noise:

@@ -59,7 +59,7 @@ def generate(robot, method: str, truth_xi, *, nominal=None, noise=None, seed=0, 
     mi = METHODS[method]
     header = {"robot": robot.name, "robot_file": dict(robot.spec.source), "method": method,
               "nominal": robot.as_dict(nom),
-              "station": {"generator": "station.tracegen_serial", "seed": seed}}
+              "station": {"generator": "station.simulation.tracegen_serial", "seed": seed}}
     sig = {k: (list(v) if isinstance(v, (list, tuple)) else v) for k, v in noise.items()
            if k in mi.channels}
     if sig:

@@ -22,7 +22,7 @@ import numpy as np
 from calibration.methods.pm_tilt import heading_grid, ik_modulo_heading
 from calibration.robots import get_robot
 from drivers.sim.truth import SimTruth, draw_truth, save_truth
-from station.simulation import sessions as sim_sessions
+from station.simulation import sessions
 
 #: std of one reading of the wrist's orientation sensor (0.01 deg)
 WRIST_NOISE = {"roll": 1.7e-4, "pitch": 1.7e-4, "yaw": 1.7e-4}
@@ -101,7 +101,7 @@ def fast_config(folder: Path, speed: float = 4.0) -> Path:
     """sim-pm.toml with moves ``speed`` times faster (velocity x speed, acceleration
     x speed^2): :func:`station.simulation.sessions.fast_config`."""
     Path(folder).mkdir(parents=True, exist_ok=True)
-    return sim_sessions.fast_config("agebot-pm", folder, speed)
+    return sessions.fast_config("agebot-pm", folder, speed)
 
 
 def run_wrist_session(truth: SimTruth, folder, *, method: str = "pm-fk", seed: int = 0,
@@ -113,12 +113,12 @@ def run_wrist_session(truth: SimTruth, folder, *, method: str = "pm-fk", seed: i
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     save_truth(truth, folder / "truth.json")
-    run = sim_sessions.simulated_session(truth, folder, method, request or PlanRequest(seed=seed),
+    run = sessions.simulated_session(truth, folder, method, request or PlanRequest(seed=seed),
                                          fast_config(folder, speed), seed)
     s = run.session
     score = WristScore(seed=seed, method=method, completed=run.completed, error=run.error,
                        seconds=run.seconds)
-    score.events = sim_sessions.event_counts(s)
+    score.events = sessions.event_counts(s)
     score.rounds = score.events.get("plan", 0)
     score.dropped = score.events.get("envelope", 0)
     if s.trace_path.exists():

@@ -601,14 +601,14 @@ def test_the_retry_window_is_a_station_config_setting(tmp_path):
 
 
 def test_the_headless_policy_retries_within_the_window(monkeypatch):
-    from station.session import session as session_module
+    from station.session import retries
 
     now = [100.0]
-    monkeypatch.setattr(session_module.time, "monotonic", lambda: now[0])
+    monkeypatch.setattr(retries.time, "monotonic", lambda: now[0])
     pose = SimpleNamespace(index=4)
-    plain = session_module.retry_then_skip()
+    plain = retries.retry_then_skip()
     assert [plain(pose, None, a) for a in range(5)] == ["retry"] * 3 + ["skip"] * 2
-    windowed = session_module.retry_then_skip(window=10.0)
+    windowed = retries.retry_then_skip(window=10.0)
     assert windowed(pose, None, 0) == "retry"
     now[0] += 9.0
     assert windowed(pose, None, 7) == "retry"          # 9 s into the window

@@ -157,7 +157,7 @@ def test_a_lost_answer_in_the_reference_tare_redoes_the_whole_capture(tmp_path, 
         # per move of the joints' direction test, then the capture's zero and the tare
         # snapshot: the tare's third reading gets no answer
         from calibration.robots import get_robot
-        from station.session.plausibility import direction_moves
+        from station.session.joint_directions import direction_moves
         from station.planning.arm_plan import reference_pose
 
         robot = get_robot("agebot-sm")

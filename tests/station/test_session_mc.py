@@ -14,7 +14,8 @@ import pytest
 
 from calibration.robots import get_robot
 from station.planning.request import PlanRequest
-from station.simulation.sessions import d2_interval, run_session, station_truth, summary
+from station.simulation.sessions import run_session, station_truth
+from station.simulation.session_scores import d2_interval, summary
 from station.recording.trace import read_trace
 
 FAR_SEED = 9422          # k1, k2, k4 32-38 % below the nominal, k3 16 % above

@@ -47,7 +47,8 @@ from scipy.stats import t as student_t
 from calibration.solver.weighting import t_inflation
 
 from station.planning.request import PlanRequest
-from station.simulation.sessions import d2_interval, run_session, station_truth, summary
+from station.simulation.sessions import run_session, station_truth
+from station.simulation.session_scores import d2_interval, summary
 
 ROOT = Path(__file__).resolve().parents[2]
 UR5 = str(ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml")

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.solver.weighting import t_inflation
-from station.simulation.sessions import SessionScore, d2_interval, summary
+from station.simulation.session_scores import SessionScore, d2_interval, summary
 
 K, SESSIONS, POOLS = 14, 8, 200
 

@@ -90,6 +90,7 @@ def test_conditioning_warning_said_once_without_a_source_line(monkeypatch, capsy
     again (with the file and line that raised it) on stderr."""
     from station import headless
     from station.fitting import batch
+    from station.outputs import fit_summary
 
     note = "joints 2 and 3 of x have (nearly) parallel axes: d2 is ill-conditioned there"
 
@@ -111,7 +112,7 @@ def test_conditioning_warning_said_once_without_a_source_line(monkeypatch, capsy
             return {"trace": "t", "params": "p", "checksum": "c", "report": "r"}
 
     monkeypatch.setattr(headless, "Session", FakeSession)
-    monkeypatch.setattr(batch, "format_table", lambda outcome: f"note: {note}")
+    monkeypatch.setattr(fit_summary, "format_table", lambda outcome: f"note: {note}")
     with warnings.catch_warnings():
         warnings.simplefilter("default")
         # as outside pytest (which records warnings): a shown warning goes to stderr

@@ -226,7 +226,7 @@ class ExecutePage(Page):
         self._buttons()
 
     def _failed(self, e) -> None:
-        from station.session.session import SessionAborted
+        from station.session.execution import SessionAborted
 
         if self._restart:          # Retry after the devices were lost: connect, go on
             self._restart = False
