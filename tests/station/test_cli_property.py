@@ -292,12 +292,13 @@ TOML_VALUES = st.sampled_from([
 
 def _mutations(text: str):
     lines = text.splitlines()
-    keyed = [i for i, ln in enumerate(lines) if "=" in ln and not ln.lstrip().startswith("#")]
 
     @st.composite
     def mutate(draw):
         out = list(lines)
         for _ in range(draw(st.integers(1, 3))):
+            # the keyed lines of the text as mutated so far (a drop shifts them)
+            keyed = [i for i, ln in enumerate(out) if "=" in ln and not ln.lstrip().startswith("#")]
             op = draw(st.sampled_from(["value", "drop", "dup", "bytes", "bom", "junk"]))
             if op == "value" and keyed:
                 i = draw(st.sampled_from(keyed))
@@ -307,7 +308,7 @@ def _mutations(text: str):
                 del out[draw(st.integers(0, len(out) - 1))]
             elif op == "dup" and keyed:
                 out.append(out[draw(st.sampled_from(keyed))])
-            elif op == "bom":
+            elif op == "bom" and out:
                 out[0] = "\ufeff" + out[0]
             elif op == "junk":
                 out.insert(draw(st.integers(0, len(out))), draw(st.text(max_size=12)))
