@@ -219,18 +219,7 @@ def check_serial_reference(session, distance: bool, tilt: bool) -> str:
                         "deg")
             if abs(want[a]) < TURN_RAD / 4:
                 continue          # this move barely turns this axis: its sign is not seen
-            if got * want[a] < 0 and abs(got) > SLACK_RAD:
-                problems.append(f"a test move of qm{k + 1} turning the tool's {axis} by "
-                                f"{math.degrees(want[a]):+.2f} deg (nominal model) changed the "
-                                f"inclinometer's {axis} by {math.degrees(got):+.2f} deg, the "
-                                f"opposite sign: check inclinometer.axes.{axis} (sign, raw "
-                                "axis)")
-            elif not (WRIST_RATIO[0] * abs(want[a]) - SLACK_RAD <= abs(got)
-                      <= WRIST_RATIO[1] * abs(want[a]) + SLACK_RAD):
-                problems.append(f"a test move of qm{k + 1} turning the tool's {axis} by "
-                                f"{math.degrees(want[a]):+.2f} deg (nominal model) changed the "
-                                f"inclinometer's {axis} by {math.degrees(got):+.2f} deg: check "
-                                f"inclinometer.axes.{axis} (raw axis, sign)")
+            problems += _tilt_problem(f"of qm{k + 1} turning the tool's", axis, want[a], got)
         if problems:
             raise ConfigError("; ".join(problems) + " (nothing was recorded)",
                               source=cfg.source)
@@ -320,17 +309,21 @@ def check_wrist(session) -> str | None:
     for k, axis in enumerate(("roll", "pitch")):
         got = r1[axis] - r0[axis]
         said.append(f"{axis} {math.degrees(got):+.2f} deg for {math.degrees(want[k]):+.2f} deg")
-        if got * want[k] < 0 and abs(got) > SLACK_RAD:
-            problems.append(f"a test move turning the platform's {axis} by "
-                            f"{math.degrees(want[k]):+.2f} deg (nominal model) changed the "
-                            f"inclinometer's {axis} by {math.degrees(got):+.2f} deg, the "
-                            f"opposite sign: check inclinometer.axes.{axis} (sign, raw axis)")
-        elif not (WRIST_RATIO[0] * abs(want[k]) - SLACK_RAD <= abs(got)
-                  <= WRIST_RATIO[1] * abs(want[k]) + SLACK_RAD):
-            problems.append(f"a test move turning the platform's {axis} by "
-                            f"{math.degrees(want[k]):+.2f} deg (nominal model) changed the "
-                            f"inclinometer's {axis} by {math.degrees(got):+.2f} deg: check "
-                            f"inclinometer.axes.{axis} (raw axis, sign)")
+        problems += _tilt_problem("turning the platform's", axis, want[k], got)
     if problems:
         raise ConfigError("; ".join(problems) + " (nothing was recorded)", source=cfg.source)
     return "plausible at the wrist's start: a test move read " + ", ".join(said)
+
+
+def _tilt_problem(move: str, axis: str, want: float, got: float) -> list[str]:
+    """What is wrong (nothing, or one sentence) where a test move ``move`` (e.g. "turning
+    the platform's") should turn the inclinometer's ``axis`` by ``want`` and turned it by
+    ``got`` (rad): the opposite sign, or far from the nominal model's ratio."""
+    said = (f"a test move {move} {axis} by {math.degrees(want):+.2f} deg (nominal model) "
+            f"changed the inclinometer's {axis} by {math.degrees(got):+.2f} deg")
+    if got * want < 0 and abs(got) > SLACK_RAD:
+        return [f"{said}, the opposite sign: check inclinometer.axes.{axis} (sign, raw axis)"]
+    if not (WRIST_RATIO[0] * abs(want) - SLACK_RAD <= abs(got)
+            <= WRIST_RATIO[1] * abs(want) + SLACK_RAD):
+        return [f"{said}: check inclinometer.axes.{axis} (raw axis, sign)"]
+    return []
