@@ -149,9 +149,11 @@ class CanopenNodes(Device):
         except DeviceError:
             raise
         except (can.CanError, OSError, ValueError, ImportError) as e:
-            raise DeviceError(f"cannot open the CAN bus {_bus_text(self.bus_config)}: {e}",
+            raise DeviceError(f"cannot open the CAN bus {_bus_text(self.bus_config)}: "
+                              f"{bus_error_text(e)}",
                               device=self.name) from e
         self.network = network
+        network.notifier.add_listener(BusLoss(network))
         try:
             for nid in self.nodes:
                 node = canopen.RemoteNode(nid, standard_od())
@@ -263,6 +265,8 @@ class CanopenNodes(Device):
         network, self.network = self.network, None
         self.remote = {}
         if network is not None:
+            if network.notifier is not None:
+                network.notifier.exception = None   # said already; canopen would log it again
             with contextlib.suppress(Exception):
                 network.disconnect()
 
@@ -293,10 +297,11 @@ class CanopenNodes(Device):
         """Raise if the receive thread died, a heartbeat is lost or a node left OPERATIONAL."""
         if self.network is None:
             raise DeviceError("device is not open", device=self.name)
-        try:
-            self.network.check()
-        except Exception as e:
-            raise DeviceError(f"CAN receive thread stopped: {e!r}", device=self.name) from e
+        notifier = self.network.notifier
+        lost = notifier.exception if notifier is not None else None
+        if lost is not None:
+            raise DeviceError(f"CAN receive thread stopped: {bus_error_text(lost)}",
+                              device=self.name) from lost
         for nid in self.nodes:
             self._check_heartbeat(nid)
 
@@ -325,7 +330,8 @@ class CanopenNodes(Device):
         except SdoCommunicationError as e:
             raise DeviceTimeout(f"no SDO answer while {what} ({e})", device=self.node_name(nid)) from e
         except (can.CanError, OSError) as e:
-            raise DeviceError(f"CAN bus error while {what}: {e}", device=self.node_name(nid)) from e
+            raise DeviceError(f"CAN bus error while {what}: {bus_error_text(e)}",
+                              device=self.node_name(nid)) from e
 
     # -- reading --------------------------------------------------------------------
     def sdo_read(self, nid: int, index: int, subindex: int = 0):
@@ -373,7 +379,7 @@ class CanopenNodes(Device):
         except (can.CanError, OSError) as e:
             with self._cv:
                 self._pending = set()
-            raise DeviceError(f"cannot send SYNC: {e}", device=self.name) from e
+            raise DeviceError(f"cannot send SYNC: {bus_error_text(e)}", device=self.name) from e
         close = end if window is None else min(end, self._sync_t + max(0.0, float(window)))
         answered: set[int] = set()
         in_time = True
@@ -425,7 +431,7 @@ class CanopenNodes(Device):
                 except SdoCommunicationError:
                     self._check_heartbeat(nid)    # dead: heartbeat lost; else ask again
                 except (can.CanError, OSError) as e:
-                    raise DeviceError(f"CAN bus error while asking after a TPDO: {e}",
+                    raise DeviceError(f"CAN bus error while asking after a TPDO: {bus_error_text(e)}",
                                       device=self.node_name(nid)) from e
         finally:
             sdo.RESPONSE_TIMEOUT = self.timeout
@@ -480,6 +486,39 @@ class CanopenNodes(Device):
         # "since": the SYNC's time; the values were latched between it and the sample's t
         return {"source": source, "sync": self._sync_no, "since": self._sync_t,
                 "increments": {n: v[pos] for n, v in fresh.items()}}
+
+
+class BusLoss(can.Listener):
+    """Hears the end of python-can's receive thread: a bus that fails under it (the
+    socketcand server or its cable gone, a connection reset) is handed to ``on_error``.
+    Handled here, the thread ends without an unhandled exception (whose traceback would
+    land on the operator's terminal); its ``notifier.exception`` stays, and
+    :meth:`CanopenNodes.check_health` names it at the device's next call."""
+
+    def __init__(self, network):
+        self.network = network
+
+    def on_message_received(self, msg) -> None:
+        pass
+
+    def on_error(self, exc: Exception) -> None:
+        notifier = self.network.notifier
+        if notifier is not None:
+            notifier.stop(timeout=-1)     # ends the receive loop; never joins this thread
+
+
+def bus_error_text(e: BaseException) -> str:
+    """A CAN error in one line: python-can folds the failing call's traceback into the
+    message of the error its receive thread ends with; the root cause is said instead
+    (``connection reset by peer``)."""
+    root = e
+    while root.__cause__ is not None or root.__context__ is not None:
+        root = root.__cause__ or root.__context__
+    text = str(root).split("Traceback (most recent call last)")[0].strip()
+    if isinstance(root, OSError) and root.strerror:
+        text = root.strerror
+    first = text.splitlines()[0].strip() if text else type(root).__name__
+    return first[:1].lower() + first[1:]
 
 
 def _bus_text(bus: dict) -> str:

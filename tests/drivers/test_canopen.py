@@ -343,3 +343,46 @@ def test_config_wiring_and_robot_increments_hook():
             assert isinstance(drv, CanopenActuators)
             assert drv.read().values == {"qm1": 10.01, "qm2": 20.01}
             assert drv.sdo_read(8, 0x6081) == 100 and drv.sdo_read(8, 0x6083) == 400
+
+
+def test_a_lost_bus_is_a_device_error_not_a_thread_traceback(caplog):
+    """The socketcand server goes away under an open bus with frames it never read (the
+    simulator's process ends, a real server dies): the connection is reset and
+    python-can's receive thread fails on the socket. The station hears it as the
+    device's one-line error at its next call; nothing escapes the thread as an unhandled
+    exception (its traceback would land on the operator's terminal) and canopen logs no
+    error of its own."""
+    import os
+    import signal
+    import threading
+
+    escaped = []
+    hook = threading.excepthook
+    threading.excepthook = lambda args: escaped.append(args.exc_value)
+    proc = SimProcess(nodes=[1], positions=[0.0], resolution=RES)
+    try:
+        drv = CanopenActuators.from_endpoint(proc.endpoint, RES, timeout=1.0)
+        drv.open()
+        try:
+            os.kill(proc.proc.pid, signal.SIGSTOP)      # reads nothing from now on
+            for _ in range(200):
+                drv.network.send_message(0x80, b"")
+            time.sleep(0.2)
+            proc.proc.kill()                             # unread frames: a reset
+            proc.proc.join(10)
+            with pytest.raises(DeviceError) as err:
+                end = time.monotonic() + 10
+                while time.monotonic() < end:
+                    drv.read()
+                    time.sleep(0.05)
+            assert "\n" not in str(err.value) and "Traceback" not in str(err.value)
+            time.sleep(0.3)
+        finally:
+            drv.close()
+    finally:
+        threading.excepthook = hook
+        proc.conn.close()
+    assert not escaped, escaped
+    assert not [r for r in caplog.records if r.name.startswith("canopen")
+                and r.levelname == "ERROR"], caplog.text
+    print(err.value)
