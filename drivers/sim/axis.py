@@ -9,6 +9,10 @@ import math
 import threading
 import time
 
+#: s of superseded moves an axis remembers (a lagging sensor's frames show where it was
+#: then; faults.MAX_DELAY_S bounds the lag)
+HISTORY_S = 60.0
+
 
 class AxisLimit(ValueError):
     """A commanded target outside the axis's physical travel range."""
@@ -39,6 +43,7 @@ class SimAxis:
         self.acceleration = float(acceleration)
         self._v = self.velocity
         self._a = self.acceleration
+        self._past: list[tuple] = []     # superseded moves (t0, start, target, v, a), oldest first
 
     def command(self, target: float, velocity: float | None = None,
                 acceleration: float | None = None) -> None:
@@ -49,7 +54,9 @@ class SimAxis:
                             f"[{self.limits[0]:.6g}, {self.limits[1]:.6g}]")
         with self._lock:
             now = self._clock()
-            self._start = self._position_at(now)
+            start = self._position_at(now)
+            self._supersede(now)
+            self._start = start
             self._target = float(target)
             self._t0 = now
             self._v = abs(float(velocity)) if velocity else self.velocity
@@ -58,8 +65,10 @@ class SimAxis:
     def stop_at(self, t: float) -> None:
         """Stop where the axis was at time ``t`` (a limit hit then): it stays there."""
         with self._lock:
-            self._start = self._target = self._position_at(t)
-            self._t0 = self._clock()
+            here, now = self._position_at(t), self._clock()
+            self._supersede(now)
+            self._start = self._target = here
+            self._t0 = now
 
     def position_at(self, t: float) -> float:
         """Position at time ``t`` (the clock's time) of the move under way."""
@@ -78,8 +87,17 @@ class SimAxis:
         """Stop where the axis is now (quick stop)."""
         with self._lock:
             now = self._clock()
-            self._start = self._target = self._position_at(now)
+            here = self._position_at(now)
+            self._supersede(now)
+            self._start = self._target = here
             self._t0 = now
+
+    def _supersede(self, now: float) -> None:
+        """Remember the move under way (a new one starts ``now``); forget those that
+        ended more than :data:`HISTORY_S` ago."""
+        self._past.append((self._t0, self._start, self._target, self._v, self._a))
+        while len(self._past) > 1 and self._past[1][0] < now - HISTORY_S:
+            self._past.pop(0)
 
     def _duration(self) -> float:
         d = abs(self._target - self._start)
@@ -91,33 +109,12 @@ class SimAxis:
         return d / v + v / a
 
     def _position_at(self, now: float) -> float:
-        d = self._target - self._start
-        dist = abs(d)
-        if dist == 0:
-            return self._target
-        t = now - self._t0
-        if t <= 0.0:          # before this move was commanded: where it started
-            return self._start
-        v, a = self._v, self._a
-        if dist < v * v / a:
-            t_acc = math.sqrt(dist / a)
-            v_peak = a * t_acc
-            t_flat = 0.0
-        else:
-            t_acc = v / a
-            v_peak = v
-            t_flat = (dist - v * t_acc) / v
-        total = 2 * t_acc + t_flat
-        if t >= total:
-            s = dist
-        elif t < t_acc:
-            s = 0.5 * a * t * t
-        elif t < t_acc + t_flat:
-            s = 0.5 * a * t_acc * t_acc + v_peak * (t - t_acc)
-        else:
-            td = total - t
-            s = dist - 0.5 * a * td * td
-        return self._start + math.copysign(s, d)
+        if now < self._t0:    # before this move was commanded: on the moves before it
+            for t0, start, target, v, a in reversed(self._past):
+                if now >= t0:
+                    return _profile(start, target, v, a, now - t0)
+            return self._past[0][1] if self._past else self._start
+        return _profile(self._start, self._target, self._v, self._a, now - self._t0)
 
     def position(self) -> float:
         with self._lock:
@@ -130,3 +127,33 @@ class SimAxis:
     def target_reached(self) -> bool:
         with self._lock:
             return self._clock() - self._t0 >= self._duration()
+
+
+def _profile(start: float, target: float, v: float, a: float, t: float) -> float:
+    """Position ``t`` s into a trapezoidal move from ``start`` to ``target`` (velocity
+    ``v``, acceleration ``a``): ``start`` before it, ``target`` after it."""
+    d = target - start
+    dist = abs(d)
+    if dist == 0:
+        return target
+    if t <= 0.0:
+        return start
+    if dist < v * v / a:
+        t_acc = math.sqrt(dist / a)
+        v_peak = a * t_acc
+        t_flat = 0.0
+    else:
+        t_acc = v / a
+        v_peak = v
+        t_flat = (dist - v * t_acc) / v
+    total = 2 * t_acc + t_flat
+    if t >= total:
+        s = dist
+    elif t < t_acc:
+        s = 0.5 * a * t * t
+    elif t < t_acc + t_flat:
+        s = 0.5 * a * t_acc * t_acc + v_peak * (t - t_acc)
+    else:
+        td = total - t
+        s = dist - 0.5 * a * td * td
+    return start + math.copysign(s, d)

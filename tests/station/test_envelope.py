@@ -194,6 +194,31 @@ def test_move_duration_is_the_simulated_axes_profile():
         pytest.approx(40 / 50 + 50 / 400)
 
 
+def test_a_simulated_axis_remembers_where_it_was_before_a_new_set_point():
+    """A lagging sensor shows where the axis was some time ago, also across a stop or a
+    new set-point: the positions before a command are the move it superseded, not the
+    point it was commanded from (a stop made the late inclinometer show the stop point
+    at once, so a reading at rest 'confirmed' a departure that was only the lag)."""
+    from drivers.sim.axis import SimAxis
+
+    now = [0.0]
+    axis = SimAxis(0.0, 10.0, 100.0, clock=lambda: now[0])
+    axis.command(100.0)
+    now[0] = 1.0
+    moving = axis.position()
+    axis.stop()                                  # at 1.0 s, 10 units/s
+    now[0] = 1.2
+    assert axis.position() == pytest.approx(moving)
+    assert axis.position_at(0.9) == pytest.approx(moving - 1.0)   # still moving then
+    assert axis.position_at(0.05) == pytest.approx(0.5 * 100.0 * 0.05 ** 2)
+    assert axis.position_at(-1.0) == 0.0
+    axis.command(0.0)                            # back, from 1.2 s
+    now[0] = 1.5
+    assert axis.position_at(1.1) == pytest.approx(moving)     # stopped then
+    assert axis.position_at(0.9) == pytest.approx(moving - 1.0)
+    assert axis.position_at(1.3) < moving
+
+
 def test_a_late_sensor_does_not_stop_a_move_the_model_explains(sim_rig):
     """The inclinometer's frames show the arm as it was 0.4 s before (a filter's delay),
     more than the config's latency (0.15 s). A long fast move with the true model
