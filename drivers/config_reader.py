@@ -148,6 +148,17 @@ def decode_text(raw: bytes, source: str) -> str:
                           "save the file as UTF-8", source=source) from None
 
 
+def read_text_file(path, what: str) -> str:
+    """The text of the file ``path`` (UTF-8, with or without a BOM; :func:`decode_text`),
+    else a one-line ConfigError naming the file and ``what`` it is ("the URDF")."""
+    path = str(path)
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as e:
+        raise ConfigError(f"cannot read {what}: {e.strerror or e}", source=path) from None
+    return decode_text(raw, path)
+
+
 def parse_toml(text: str, source: str | None) -> dict:
     """A TOML document (a leading BOM is taken as the UTF-8 mark it is); a one-line
     ConfigError naming ``source`` for invalid TOML or nesting too deep to read."""

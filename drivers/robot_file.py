@@ -16,7 +16,7 @@ from pathlib import Path
 
 from calibration.errors import ConfigError
 from calibration.robots.serial import FRAME_KEYS, JointSpec, SerialSpec, param_layout
-from drivers.config_reader import KeyReader, decode_text, parse_toml
+from drivers.config_reader import KeyReader, parse_toml, read_text_file
 
 FORMAT = "calstation-robot"
 VERSION = 1
@@ -139,11 +139,7 @@ def load_robot_file(path) -> SerialSpec:
                           "--robot FILE.urdf --base-link B --tip-link T --method sm-markers, then "
                           "batch (docs/urdf-robots.md); sessions, the simulator and studies take "
                           "AGEBOT and robot files (TOML)", source=path)
-    try:
-        raw = Path(path).read_bytes()
-    except OSError as e:
-        raise ConfigError(f"cannot read the robot file: {e.strerror or e}", source=path) from None
-    return parse_robot_file(decode_text(raw, path), path)
+    return parse_robot_file(read_text_file(path, "the robot file"), path)
 
 
 def spec_from_source(src, where: str = "robot_file"):

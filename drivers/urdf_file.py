@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration.errors import ConfigError
+from drivers.config_reader import read_text_file
 
 MOVABLE = {"revolute": "R", "continuous": "R", "prismatic": "P"}
 
@@ -195,13 +196,7 @@ def _payload(p, source):
 def load_urdf(path, base_link: str | None, tip_link: str | None):
     """Read and parse a URDF file; errors name the file."""
     path = str(path)
-    try:
-        text = Path(path).read_bytes().decode("utf-8-sig")
-    except OSError as e:
-        raise ConfigError(f"cannot read the URDF: {e.strerror or e}", source=path) from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"not UTF-8 text: {e}", source=path) from None
-    return parse_urdf(text, path, base_link, tip_link)
+    return parse_urdf(read_text_file(path, "the URDF"), path, base_link, tip_link)
 
 
 def urdf_from_source(src: dict, where: str):

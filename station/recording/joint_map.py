@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from calibration.errors import ConfigError
-from drivers.config_reader import KeyReader
+from drivers.config_reader import KeyReader, read_text_file
 
 FORMAT = "calstation-joint-map"
 VERSION = 1
@@ -120,10 +120,4 @@ def parse_joint_map(text: str, source: str, joints: tuple[str, ...]) -> JointMap
 
 def load_joint_map(path, joints: tuple[str, ...]) -> JointMap:
     path = str(path)
-    try:
-        text = Path(path).read_bytes().decode("utf-8-sig")
-    except OSError as e:
-        raise ConfigError(f"cannot read the joint map: {e.strerror or e}", source=path) from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"not UTF-8 text: {e}", source=path) from None
-    return parse_joint_map(text, path, joints)
+    return parse_joint_map(read_text_file(path, "the joint map"), path, joints)
