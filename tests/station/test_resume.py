@@ -26,7 +26,7 @@ from drivers.sim.truth import load_truth, save_truth
 from station.planning.request import PlanRequest
 from station.session.session import Session
 from station.recording.trace import read_trace
-from tests.simconfig import quick_config
+from tests.simconfig import quick_config, set_keys
 from tests.station.test_session import FIX, _session_config, referenced_folder
 
 @pytest.fixture(autouse=True)
@@ -66,8 +66,12 @@ def _truth(tmp_path: Path, robot: str) -> str:
 
 
 def _config(tmp_path: Path, robot: str) -> Path:
-    """:func:`fast_config` with two samples a pose (shorter tests)."""
-    return quick_config(tmp_path, robot, samples=2)
+    """:func:`fast_config` with two samples a pose (shorter tests) and an SDO timeout of
+    2 s: what is tested is the exact resume, and a simulator process starved on a loaded
+    machine once missed the 0.5 s of the fixture while the drives were configured."""
+    path = quick_config(tmp_path, robot, samples=2)
+    path.write_text(set_keys(path.read_text(), "canopen", sdo_timeout=2.0))
+    return path
 
 
 def _uninterrupted(tmp_path, sim, cfg, method, request, nominal) -> Case:
