@@ -37,7 +37,6 @@ import stat
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -58,26 +57,6 @@ class Case:
     timeout: float = HANG_S                       # per command
     then: list = field(default_factory=list)      # further commands, each run if the last exits 0
     check: object = None    # accepted: check(stdout) -> (why the answer is wrong or '', figures)
-
-
-class HungServer:
-    """A TCP server that accepts connections and never says a word (a hung socketcand)."""
-
-    def __init__(self):
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(64)
-        self.port = self.sock.getsockname()[1]
-        self.conns = []
-        threading.Thread(target=self._serve, daemon=True).start()
-
-    def _serve(self):
-        while True:
-            try:
-                c, _ = self.sock.accept()
-            except OSError:
-                return
-            self.conns.append(c)
 
 
 def sha(path):
@@ -1218,6 +1197,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     root = os.path.abspath(a.root)
     d = tempfile.mkdtemp(prefix="sweep-edges-")
+    _here_on_path()
+    from drivers.sim.hung_server import HungServer
+
     hung = HungServer()
     dead = socket.socket()
     dead.bind(("127.0.0.1", 0))

@@ -18,6 +18,7 @@ from types import SimpleNamespace
 import pytest
 
 import app as app_module
+from drivers.sim.hung_server import HungServer
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 FX = os.path.join(ROOT, "fixtures")
@@ -245,29 +246,6 @@ def test_study_output_folder_files_are_checked(tmp_path, capsys):
 
 
 # -- 2. hangs -----------------------------------------------------------------------------
-class HungServer:
-    """Accepts TCP connections and never says a word (a hung socketcand)."""
-
-    def __init__(self):
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(16)
-        self.port = self.sock.getsockname()[1]
-        self.conns = []
-        threading.Thread(target=self._serve, daemon=True).start()
-
-    def _serve(self):
-        while True:
-            try:
-                self.conns.append(self.sock.accept()[0])
-            except OSError:
-                return
-
-    def close(self):
-        for c in self.conns + [self.sock]:
-            c.close()
-
-
 @pytest.fixture
 def hung_config(tmp_path):
     """The simulated SM station with its CAN bus on a hung socketcand server and the
