@@ -55,7 +55,7 @@ def fit(rob, qm, P, x0=None):
 
 
 def test_forward_kinematics_equal_a_standard_parser():
-    yourdfpy = pytest.importorskip("yourdfpy")
+    import yourdfpy
     rob = arm()
     u = yourdfpy.URDF.load(str(URDF), load_meshes=False)
     qm = tg.draw_poses(rob, 30, np.random.default_rng(0), margin=0.0)

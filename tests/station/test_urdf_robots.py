@@ -61,7 +61,7 @@ def test_a_tracker_s_export_as_it_comes_calibrates_within_its_std(tmp_path, caps
 
 
 def test_the_exported_urdf_keeps_every_name_and_its_fk_is_the_parameter_file_s(tmp_path, capsys):
-    yourdfpy = pytest.importorskip("yourdfpy")
+    import yourdfpy
     tracker_case(tmp_path, seed=2, held=0)
     assert run(capsys, *import_args(tmp_path))[0] == 0
     assert run(capsys, "batch", tmp_path / "t.jsonl", "--out", tmp_path / "p.json")[0] == 0
