@@ -1,6 +1,7 @@
 """The HTML report's cost (issue 24: the report <= 0.5 s of CPU): the station's report of
 an AGEBOT sm-distance-tilt session, written by the package as it is ("now") and by the
-previous implementation ("before": the figures of bench/report_figures_before.py, the
+previous implementation ("before": the figures module as of commit c327d63, read from
+the repository's history with ``git show``, the
 Jinja2 environment built per report, the garbage collector left on), same outcome,
 same validation, same events.
 
@@ -20,13 +21,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import re
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+import types
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,15 +35,23 @@ sys.path.insert(0, str(ROOT))
 
 from station.outputs import report, report_sections  # noqa: E402
 
-BEFORE_FILE = Path(__file__).with_name("report_figures_before.py")
+#: the last commit before the report's rework (issue 24): its figures module is "before"
+BEFORE_COMMIT = "c327d63"
 IMG = re.compile(r'data:image/png;base64,[A-Za-z0-9+/=]+')
 STAMP = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(?:\.\d+)?Z")
 
 
 def _before_module():
-    spec = importlib.util.spec_from_file_location("report_figures_before", BEFORE_FILE)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    """``station/outputs/report_figures.py`` as of :data:`BEFORE_COMMIT` (git history)."""
+    src = subprocess.run(["git", "-C", str(ROOT), "show",
+                          f"{BEFORE_COMMIT}:station/outputs/report_figures.py"],
+                         capture_output=True, text=True)
+    if src.returncode != 0:
+        sys.exit(f"error: cannot read the previous report figures from git ({BEFORE_COMMIT}): "
+                 f"{src.stderr.strip() or 'git failed'}; run from a clone with its history")
+    mod = types.ModuleType("report_figures_before")
+    exec(compile(src.stdout, f"{BEFORE_COMMIT}:station/outputs/report_figures.py", "exec"),
+         mod.__dict__)
     return mod
 
 
