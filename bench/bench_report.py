@@ -1,0 +1,169 @@
+"""The HTML report's cost (issue 24: the report <= 0.5 s of CPU): the station's report of
+an AGEBOT sm-distance-tilt session, written by the package as it is ("now") and by the
+previous implementation ("before": the figures module as of commit c327d63, read from
+the repository's history with ``git show``, the
+Jinja2 environment built per report, the garbage collector left on), same outcome,
+same validation, same events.
+
+    python bench/bench_report.py [--trace T] [--rounds 7] [--cold 3]
+
+Without ``--trace`` a simulated session is run first (``app.py run --simulate --robot
+agebot-sm --method sm-distance-tilt``, about a minute) and its trace used. The trace is
+calibrated once in-process (as ``app.py batch`` does); then per round, interleaved
+after a warm-up round, each variant writes the report (``write_report``: context,
+sections, figures, template, atomic write); CPU seconds (process time) and wall time.
+Both reports must say the same (the HTML without its images and time stamps equal)
+and carry the same number of figures before a time is printed. ``--cold N``: also N
+fresh processes per variant, each timing its first report (imports of matplotlib and
+Jinja2 included), interleaved.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import types
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from station.outputs import report, report_sections  # noqa: E402
+
+#: the last commit before the report's rework (issue 24): its figures module is "before"
+BEFORE_COMMIT = "c327d63"
+IMG = re.compile(r'data:image/png;base64,[A-Za-z0-9+/=]+')
+STAMP = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(?:\.\d+)?Z")
+
+
+def _before_module():
+    """``station/outputs/report_figures.py`` as of :data:`BEFORE_COMMIT` (git history)."""
+    src = subprocess.run(["git", "-C", str(ROOT), "show",
+                          f"{BEFORE_COMMIT}:station/outputs/report_figures.py"],
+                         capture_output=True, text=True)
+    if src.returncode != 0:
+        sys.exit(f"error: cannot read the previous report figures from git ({BEFORE_COMMIT}): "
+                 f"{src.stderr.strip() or 'git failed'}; run from a clone with its history")
+    mod = types.ModuleType("report_figures_before")
+    exec(compile(src.stdout, f"{BEFORE_COMMIT}:station/outputs/report_figures.py", "exec"),
+         mod.__dict__)
+    return mod
+
+
+@contextlib.contextmanager
+def variant(name: str):
+    """The package as it is ("now") or with the previous implementation ("before")."""
+    if name == "now":
+        yield
+        return
+    saved = (report.figs, report_sections.figs, report.template_environment,
+             report.collector_paused)
+    before = _before_module()
+    report.figs = report_sections.figs = before
+    report.template_environment = report.template_environment.__wrapped__
+    report.collector_paused = contextlib.nullcontext
+    try:
+        yield
+    finally:
+        (report.figs, report_sections.figs, report.template_environment,
+         report.collector_paused) = saved
+
+
+def load(trace: str):
+    """The outcome and what the station hands the report (validation, session)."""
+    from station.fitting.batch import calibrate_trace
+
+    outcome = calibrate_trace(trace)
+    return outcome, {"validation": outcome.validation,
+                     "session": {"robot": "agebot-sm", "method": "sm-distance-tilt"}}
+
+
+def session_trace(tmp: Path) -> str:
+    out = tmp / "run"
+    subprocess.run([sys.executable, str(ROOT / "app.py"), "run", "--simulate", "--robot",
+                    "agebot-sm", "--method", "sm-distance-tilt", "--out", str(out)],
+                   check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+    return str(out / "trace.jsonl")
+
+
+def said(html: str) -> str:
+    return STAMP.sub("T", IMG.sub("IMG", html))
+
+
+def cold(trace: str, name: str) -> float:
+    """CPU seconds of the first report in a fresh process (imports included)."""
+    code = (f"import sys, time; sys.path.insert(0, {str(ROOT / 'bench')!r}); "
+            "import bench_report as b; o, kw = b.load(sys.argv[1]); "
+            "from station.outputs import report; "
+            "t = time.process_time(); "
+            f"cm = b.variant({name!r}); cm.__enter__(); "
+            "report.write_report(sys.argv[2], o, **kw); "
+            "print(time.process_time() - t)")
+    with tempfile.TemporaryDirectory() as tmp:
+        r = subprocess.run([sys.executable, "-c", code, trace, str(Path(tmp) / "r.html")],
+                           check=True, cwd=ROOT, capture_output=True, text=True)
+    return float(r.stdout.split()[-1])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trace", help="a session's trace (default: run a simulated session)")
+    ap.add_argument("--rounds", type=int, default=7, help="timed rounds after the warm-up")
+    ap.add_argument("--cold", type=int, default=3, help="fresh processes per variant")
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        trace = args.trace or session_trace(tmp)
+        outcome, kw = load(trace)
+        names = ("before", "now")
+        cpu = {n: [] for n in names}
+        wall = {n: [] for n in names}
+        text = {}
+        for rnd in range(args.rounds + 1):                 # round 0: warm-up
+            for name in (names if rnd % 2 else names[::-1]):
+                path = tmp / f"{name}.html"
+                with variant(name):
+                    c, w = time.process_time(), time.perf_counter()
+                    report.write_report(path, outcome, **kw)
+                    c, w = time.process_time() - c, time.perf_counter() - w
+                text[name] = path.read_text(encoding="utf-8")
+                if rnd:
+                    cpu[name].append(c)
+                    wall[name].append(w)
+        if said(text["before"]) != said(text["now"]):
+            raise SystemExit("the two reports do not say the same")
+        n_img = {n: len(IMG.findall(t)) for n, t in text.items()}
+        if len(set(n_img.values())) != 1:
+            raise SystemExit(f"figures differ: {n_img}")
+        colds = {n: [] for n in names}
+        for i in range(args.cold):
+            for name in (names if i % 2 else names[::-1]):
+                colds[name].append(cold(trace, name))
+    res = outcome.result
+    print(f"trace {Path(trace).name}: {outcome.model.n_poses} poses, {len(res.history)} "
+          f"iterations, {res.n_identifiable} identifiable, {n_img['now']} figures; "
+          f"{args.rounds} rounds")
+    print(f"{'variant':8s} {'CPU s min':>10s} {'median':>8s} {'wall s median':>14s} "
+          f"{'first in a process':>19s} {'HTML kB':>8s}")
+    for name in names:
+        first = f"{statistics.median(colds[name]):.3f}" if colds[name] else "-"
+        print(f"{name:8s} {min(cpu[name]):10.3f} {statistics.median(cpu[name]):8.3f} "
+              f"{statistics.median(wall[name]):14.3f} {first:>19s} "
+              f"{len(text[name].encode()) / 1024:8.0f}")
+    ratio = [n / b for n, b in zip(cpu["now"], cpu["before"])]
+    line = (f"now/before CPU per round: median {statistics.median(ratio):.2f} "
+            f"(min {min(ratio):.2f}, max {max(ratio):.2f})")
+    if args.cold:
+        first = statistics.median(colds["now"]) / statistics.median(colds["before"])
+        line += f"; first in a process {first:.2f}"
+    print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
