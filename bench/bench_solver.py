@@ -43,6 +43,7 @@ Columns: see bench/README.md. Run from the repository root::
     python bench/bench_solver.py            # full bench (~10 s)
     python bench/bench_solver.py --quick    # fewer repeats
     python bench/bench_solver.py --profile all
+    python bench/bench_solver.py --poses 30 300 3000 --no-fd    # other sizes
 """
 from __future__ import annotations
 
@@ -323,7 +324,7 @@ def best_times(fns, repeats: int, warmup: int = 1):
     return [(min(t), statistics.median(t)) for t in interleaved_times(fns, repeats, warmup)]
 
 
-def bench_problem(prob, repeats, x_scale):
+def bench_problem(prob, repeats, x_scale, fd=True):
     model = prob.model
     res = solve(model)
     active = np.array([s.identifiable for s in res.status])
@@ -347,7 +348,7 @@ def bench_problem(prob, repeats, x_scale):
                  dx=0.0, dxs=0.0, same=True, scipy=False, target=True, info=False)]
     timed = [lambda: solve(model)]
     runs = [(f"{m}-{'jac' if a else '2pt'}", m, a, None) for m in ("lm", "trf")
-            for a in (True, False)]
+            for a in ((True, False) if fd else (True,))]
     weighted = prob.noisy and len(model.channels) > 1
     if weighted:
         # the station's mode: scipy estimates the per-channel sigma too, by the
@@ -403,6 +404,10 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="5 repeats")
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--x-scale", default="jac", help="least_squares x_scale: 'jac' or 1")
+    ap.add_argument("--poses", type=int, nargs="+",
+                    help="pose counts to run every problem at (default: the report's 17, 45, 33)")
+    ap.add_argument("--no-fd", action="store_true",
+                    help="skip the finite-difference runs (slow at thousands of poses)")
     ap.add_argument("--blas-threads", default="1",
                     help="BLAS threads (exported before numpy loads; default 1)")
     ap.add_argument("--profile", choices=("auto", "all", "none"), default="auto",
@@ -421,12 +426,13 @@ def main(argv=None):
           f"scipy xtol = ftol = gtol = {TOL:g} (relative), x_scale={args.x_scale!r}; "
           f"'*-dtol': scipy's default tolerances (1e-8), information only\n"
           f"ours: default SolverOptions() = {SolverOptions()}")
-    problems = make_problems(args.seed, tuple(args.methods))
+    problems = [p for n in (args.poses or [None])
+                for p in make_problems(args.seed, tuple(args.methods), poses=n)]
     summary = []
     to_profile = []
     failures = []
     for prob in problems:
-        res, rows, (t_model, t_fk) = bench_problem(prob, repeats, x_scale)
+        res, rows, (t_model, t_fk) = bench_problem(prob, repeats, x_scale, fd=not args.no_fd)
         t_ours = rows[0]["t"]
         st = [s for s in res.status if not s.identifiable]
         print(f"\n=== {prob.name}: {res.n_identifiable} identifiable"

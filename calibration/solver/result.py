@@ -75,15 +75,19 @@ def make_result(run, converged: bool, message: str, t_start: float) -> Calibrati
     w_cov = run.row_weights(sigma)
     status = _final_status(run, sigma if opt.weight_errors else None,
                            w_cov if opt.weight_errors else np.ones(rows))
-    cov, cond = _covariance(run, sigma, w_cov)
     dof = {} if run.all_known else dict(run.sigma_dof)
+    f = None  # channel -> factor of the sigma the covariance is made with
     if opt.weight_errors and dof:
         cov_sigma = run.covariance_sigma(sigma)
         f = {ch: cov_sigma[ch] / sigma[ch] for ch in dof}
-        if len(f) == len(run.channels) and len(set(f.values())) == 1:   # one factor: a scale
-            cov = cov * next(iter(f.values())) ** 2
-        else:
-            cov = _covariance(run, cov_sigma, run.row_weights(cov_sigma), need_cond=False)[0]
+    # one factor for every channel: a scale of the covariance at sigma; else the
+    # covariance at the inflated sigma, and only the condition number at sigma
+    scale = f is not None and len(f) == len(run.channels) and len(set(f.values())) == 1
+    cov, cond = _covariance(run, sigma, w_cov, need_cov=f is None or scale)
+    if scale:
+        cov = cov * next(iter(f.values())) ** 2
+    elif f is not None:
+        cov = _covariance(run, cov_sigma, run.row_weights(cov_sigma), need_cond=False)[0]
     std = np.full(len(names), np.nan)
     std[active] = np.sqrt(np.clip(np.diag(cov), 0, None))
     rss = np.bincount(run.row_channel, weights=r * r, minlength=len(run.channels)).tolist()
@@ -107,7 +111,7 @@ def make_result(run, converged: bool, message: str, t_start: float) -> Calibrati
 _PINV_SAFE = 1e13
 
 
-def _covariance(run, sigma, w, need_cond=True):
+def _covariance(run, sigma, w, need_cond=True, need_cov=True):
     """Covariance ``(W_R^T L W_R)^-1`` (eq. 52) and the condition number of the
     scaled, weighted ``G W_R H`` at the solution, ``L = diag(w)`` (``w`` from
     ``sigma``), from a QR already made there where possible: the last
@@ -118,7 +122,8 @@ def _covariance(run, sigma, w, need_cond=True):
     ill-conditioned that a pseudo-inverse would cut singular values it is that
     pseudo-inverse, as eq. 52 reads. ``need_cond`` False: the condition number
     is not asked for (the second value is then NaN where it was not needed to
-    choose between the two)."""
+    choose between the two); ``need_cov`` False: only the condition number is
+    asked for (the covariance returned may then be None)."""
     scale = run.opt.scale_columns
     WA = run.W if run.all_active else run.W.take(run.active_idx, axis=1)
     rows, n = WA.shape
@@ -167,6 +172,8 @@ def _covariance(run, sigma, w, need_cond=True):
                 cond = svl[0] / svl[-1]
                 spread = float(norms.max() / norms.min()) if scale else 1.0
                 if (cond * spread) ** 2 < _PINV_SAFE:
+                    if not need_cov:
+                        return None, cond
                     Rinv, info = trtri(R)
                     if info == 0:
                         Rh = Rinv * h[:, None]
