@@ -152,7 +152,8 @@ def _covariance(run, sigma, w, need_cond=True, need_cov=True):
             # with S = diag(||G W_R[:, j]|| h_j), so R S is the triangle of G W_R H
             R = chk.R * (chk.cls[3][run.active_idx] * h)
         else:
-            qr, _tau, _work, info = geqrf(np.asfortranarray(WA * h * np.sqrt(w)[:, None]))
+            Ag = np.multiply(WA * h, np.sqrt(w)[:, None], out=np.empty(WA.shape, order="F"))
+            qr, _tau, _work, info = geqrf(Ag)
             R = qr[:n, :n] * masks(n)[0][:, :n] if info == 0 else None
         if R is not None and not need_cond:
             # ||R||_F ||R^-1||_F >= cond(R): where that bound (with a factor 2 to

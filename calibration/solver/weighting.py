@@ -97,7 +97,7 @@ class Weighting:
         norms = np.sqrt(np.einsum("ij,ij->j", A, A))
         if not np.all(norms > 0):
             return [None] * nch
-        qr, tau, _work, info = geqrf(A / norms)
+        qr, tau, _work, info = geqrf(np.divide(A, norms, out=np.empty(A.shape, order="F")))
         # Q in C order, as np.linalg.qr gives it (the row sums below then add
         # up in the same order)
         Q = (np.ascontiguousarray(orgqr(qr[:, :n_active], tau)[0]) if info == 0
