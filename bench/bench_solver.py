@@ -78,11 +78,11 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
+from _common import METHODS, interleaved_times, make_problems, table  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
-from _common import METHODS, interleaved_times, make_problems, table  # noqa: E402
-from calibration.solver import step as _step  # noqa: E402
 from calibration.solver import SIGMA_CHANGE, SIGMA_FLOOR, SolverOptions, solve  # noqa: E402
+from calibration.solver import step as _step  # noqa: E402
 from calibration.solver.weighting import _homogeneous  # noqa: E402
 
 SCALED_LINE = _step.Scaled.__init__.__code__.co_firstlineno

@@ -10,11 +10,11 @@ run's state, see there).
 from __future__ import annotations
 
 import math
+
 import numpy as np
 from scipy.linalg import lapack
 
 from calibration.errors import CalibrationError
-
 
 # Early switch to per-channel weights (see :func:`calibration.solver.rounds.solve`). The pooled round of a
 # multi-channel problem stops before its step once the residual it predicts at
