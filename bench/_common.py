@@ -79,11 +79,14 @@ def _fk_residual(method, robot, model):
     return res
 
 
-def make_problems(seed: int = 1, methods=METHODS, variants=("noise-free", "noisy")):
+def make_problems(seed: int = 1, methods=METHODS, variants=("noise-free", "noisy"),
+                  poses: int | None = None):
     """The bench problems: per method the same poses (same seed), read without
     noise and with the reading noise of :data:`NOISE`. A method's poses and
     readings depend on the seed and the method only (its place in
-    :data:`METHODS`), not on which other methods are asked for or in what order."""
+    :data:`METHODS`), not on which other methods are asked for or in what order.
+    ``poses``: that many poses for every method instead of the report's
+    (17, 45, 33)."""
     sm = get_robot("agebot-sm")
     T, N = sm.true, sm.nominal
     off = np.r_[sm.base_offset(T), 0.0]
@@ -95,13 +98,13 @@ def make_problems(seed: int = 1, methods=METHODS, variants=("noise-free", "noisy
         rng = np.random.default_rng([seed, mi])
         if method == "sm-full-pose":  # report 7.1
             plan = planning.sample_poses(sm, N, planning.box_array(sm, planning.SM_BOX_7_1, off),
-                                         17, rng)
+                                         poses or 17, rng)
             ref, truth = None, T.copy()
             build = lambda meas: FullPose(sm, plan.qm, meas, N)  # noqa: E731
         elif method == "sm-distance":  # report 7.2, plain residual
             ref = sm.ik(np.array([1.0, 1.0, 0.0, 0.2]) + off, T)
             plan = planning.sample_poses(sm, N, planning.box_array(sm, planning.SM_BOX_7_1, off),
-                                         45, rng)
+                                         poses or 45, rng)
             truth = T.copy()
             build = lambda meas: Distance(sm, plan.qm, meas, N, reference_qm=ref)  # noqa: E731
         elif method == "sm-distance-tilt":  # report 7.5, re-framed nominal
@@ -109,7 +112,7 @@ def make_problems(seed: int = 1, methods=METHODS, variants=("noise-free", "noisy
             x0 = DistanceTilt(sm, np.zeros((1, 4)), {"distance": [1.0], "tilt": [0.0]}, N,
                               reference_qm=ref).x0
             plan = planning.sample_poses(sm, x0, planning.box_array(sm, planning.SM_BOX_7_5),
-                                         33, rng, ik_options={"elbow": -1})
+                                         poses or 33, rng, ik_options={"elbow": -1})
             truth = reframe_nominal(sm, T, ref)
             build = lambda meas: DistanceTilt(sm, plan.qm, meas, N, reference_qm=ref)  # noqa: E731
         else:

@@ -7,11 +7,18 @@ each noise-free and noisy, the same poses for both) it runs
 * ``lm-jac``     ``least_squares(method='lm')``, analytic Jacobian ``-W``;
 * ``lm-2pt``     ``least_squares(method='lm')``, finite differences ('2-point');
 * ``trf-jac``, ``trf-2pt``  the same with ``method='trf'``;
-* ``lm-jac-w``, ``trf-jac-w``  (noisy multi-channel problems only) the analytic
-  runs on the residual weighted per channel with the sigma *our* solver
-  used in its last round: the weighted least-squares problem our solver
-  ends on, so the optimum is the same one (the plain runs converge to the
-  unweighted optimum, which differs by O(std) when the channels' noise differs);
+* ``lm-jac-w``, ``trf-jac-w``  (noisy multi-channel problems only) the station's
+  own mode, sigma estimated: least_squares on the plain residual, then the
+  per-channel sigma estimated there as ours does (eq. 51, leverage degrees of
+  freedom, one sensor's channels pooled where their noise is equal) and the
+  residual weighted by ``1/sigma`` per channel solved again from that solution,
+  until no channel's sigma moves by more than 5 % (ours' rounds and stopping
+  rule, at most 6 rounds); the estimation is timed with the run. The plain
+  runs converge to the unweighted optimum, which differs by O(std) when the
+  channels' noise differs;
+* ``lm-jac-given-w`` (information only, not in the ratio): lm handed the
+  sigma *our* solver used in its last round, i.e. the last weighted problem
+  only, with no weight estimation;
 * ``*-dtol``     (information only, not in the ratio) the fastest analytic run
   again with scipy's *default* tolerances (1e-8), to show where they stop.
 
@@ -36,6 +43,7 @@ Columns: see bench/README.md. Run from the repository root::
     python bench/bench_solver.py            # full bench (~10 s)
     python bench/bench_solver.py --quick    # fewer repeats
     python bench/bench_solver.py --profile all
+    python bench/bench_solver.py --poses 30 300 3000 --no-fd    # other sizes
 """
 from __future__ import annotations
 
@@ -61,6 +69,7 @@ BLAS_THREADS = _blas_threads(sys.argv[1:]) if __name__ == "__main__" else None
 
 import argparse  # noqa: E402
 import cProfile  # noqa: E402
+import math  # noqa: E402
 import pstats  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
@@ -69,11 +78,12 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
+from _common import METHODS, interleaved_times, make_problems, table  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
-from _common import METHODS, interleaved_times, make_problems, table  # noqa: E402
+from calibration.solver import SIGMA_CHANGE, SIGMA_FLOOR, SolverOptions, solve  # noqa: E402
 from calibration.solver import step as _step  # noqa: E402
-from calibration.solver import SolverOptions, solve  # noqa: E402
+from calibration.solver.weighting import _homogeneous  # noqa: E402
 
 SCALED_LINE = _step.Scaled.__init__.__code__.co_firstlineno
 
@@ -146,6 +156,72 @@ def run_scipy(prob, active, g, method, analytic, x_scale, tol=TOL):
                                  **tols)
         return least_squares(c.fun_fk, z0, jac="2-point", method=method, x_scale=x_scale,
                              **tols)
+
+    return c, once
+
+
+def channel_sigma(c, z, g):
+    """Per-channel sigma at ``z`` (eq. 51), estimated as our solver does
+    (:meth:`calibration.solver.weighting.Weighting.channel_sigma`): each
+    channel's residual sum of squares over its degrees of freedom, its rows less
+    the sum of their leverages (diagonal of the hat matrix of ``G W_R``, ``g`` the
+    weights the round was solved with), the channels of one sensor pooled where
+    Bartlett's test finds their noise equal. What a scipy user needs to weight
+    the channels as the station does; timed as part of the run."""
+    model = c.prob.model
+    r, W = c._eval(z)
+    A = W[:, c.active] if g is None else W[:, c.active] * g[:, None]
+    Q = np.linalg.qr(A / np.sqrt(np.einsum("ij,ij->j", A, A)))[0]
+    rc = np.asarray(model.row_channel)
+    nch = len(model.channels)
+    rss = np.bincount(rc, weights=r * r, minlength=nch)
+    dof = np.bincount(rc, minlength=nch) - np.bincount(rc, weights=np.einsum("ij,ij->i", Q, Q),
+                                                       minlength=nch)
+    sig = {ch: max(math.sqrt(s / d), SIGMA_FLOOR) for ch, s, d in zip(model.channels, rss, dof)}
+    est = {ch: (s, d) for ch, s, d in zip(model.channels, rss, dof)}
+    for group in getattr(model, "noise_groups", ()):
+        sub = [est[ch] for ch in group if ch in est]
+        if len(sub) > 1 and _homogeneous(sub):
+            s = max(math.sqrt(sum(a for a, _ in sub) / sum(d for _, d in sub)), SIGMA_FLOOR)
+            sig.update(dict.fromkeys(group, s))
+    return sig
+
+
+def run_scipy_reweighted(prob, active, method, x_scale, tol=TOL):
+    """``(counter, once)`` for the station's own mode, sigma estimated: ``once()``
+    runs least_squares on the plain residual (one sigma for all rows: the same
+    optimum), estimates the per-channel sigma there (:func:`channel_sigma`),
+    and while a channel's sigma moves by more than ``SIGMA_CHANGE`` (5 %) from the
+    weights of the last round solves again on the residual weighted by
+    ``1 / sigma`` per channel, from the last solution: our solver's rounds and
+    stopping rule (at most 6 rounds). Returns the last OptimizeResult with
+    ``nfev``/``njev`` summed over the rounds and ``sigma``/``rounds`` set."""
+    c = Counted(prob, active, None)
+    z0 = c.x0[active]
+    model = prob.model
+    tols = {} if tol is None else {"xtol": tol, "ftol": tol, "gtol": tol}
+    rc = np.asarray(model.row_channel)
+
+    def once():
+        c.reset()
+        c.g = None
+        res = least_squares(c.fun_jac, z0, jac=c.jac, method=method, x_scale=x_scale, **tols)
+        nfev, njev = res.nfev, res.njev
+        r = c._eval(res.x)[0]
+        pooled = max(math.sqrt(float(r @ r) / (len(r) - c.n)), SIGMA_FLOOR)
+        old = dict.fromkeys(model.channels, pooled)
+        rounds = 1
+        while rounds < 6:
+            sig = channel_sigma(c, res.x, c.g)
+            floor = all(v <= 10 * SIGMA_FLOOR for v in sig.values())
+            if floor or not any(abs(sig[ch] / old[ch] - 1) > SIGMA_CHANGE for ch in sig):
+                break
+            c.g = 1.0 / np.array([sig[ch] for ch in model.channels])[rc]
+            res = least_squares(c.fun_jac, res.x, jac=c.jac, method=method, x_scale=x_scale,
+                                **tols)
+            nfev, njev, old, rounds = nfev + res.nfev, njev + res.njev, sig, rounds + 1
+        res.nfev, res.njev, res.sigma, res.rounds = nfev, njev, old, rounds
+        return res
 
     return c, once
 
@@ -248,7 +324,7 @@ def best_times(fns, repeats: int, warmup: int = 1):
     return [(min(t), statistics.median(t)) for t in interleaved_times(fns, repeats, warmup)]
 
 
-def bench_problem(prob, repeats, x_scale):
+def bench_problem(prob, repeats, x_scale, fd=True):
     model = prob.model
     res = solve(model)
     active = np.array([s.identifiable for s in res.status])
@@ -272,32 +348,42 @@ def bench_problem(prob, repeats, x_scale):
                  dx=0.0, dxs=0.0, same=True, scipy=False, target=True, info=False)]
     timed = [lambda: solve(model)]
     runs = [(f"{m}-{'jac' if a else '2pt'}", m, a, None) for m in ("lm", "trf")
-            for a in (True, False)]
+            for a in ((True, False) if fd else (True,))]
     weighted = prob.noisy and len(model.channels) > 1
     if weighted:
-        # the weights of ours' last round (history[-1].sigma); res.sigma is the
-        # estimate re-made at the final x, which differs by up to the 5 % that
-        # ends the reweighting loop
+        # the station's mode: scipy estimates the per-channel sigma too, by the
+        # same reweighting rounds around least_squares (run_scipy_reweighted)
+        runs += [(f"{m}-jac-w", m, True, "reweight") for m in ("lm", "trf")]
+        # information: lm handed the weights of ours' last round
+        # (history[-1].sigma), i.e. only the last weighted problem, not timed
+        # against ours
         last = res.history[-1].sigma
         sig = np.array([last[ch] for ch in model.channels])[model.row_channel]
-        runs += [(f"{m}-jac-w", m, True, 1.0 / sig) for m in ("lm", "trf")]
+        runs += [("lm-jac-given-w", "lm", True, 1.0 / sig)]
     # the default-tolerance runs (information): lm, analytic, on ours' problem
     runs += [(("lm-jac-w" if weighted else "lm-jac") + "-dtol", "lm", True,
-              runs[-2][3] if weighted else None)]
+              "reweight" if weighted else None)]
     for name, method, analytic, g in runs:
         dtol = name.endswith("-dtol")
-        c, once = run_scipy(prob, active, g, method, analytic, x_scale,
-                            tol=None if dtol else TOL)
+        if isinstance(g, str):
+            c, once = run_scipy_reweighted(prob, active, method, x_scale,
+                                           tol=None if dtol else TOL)
+        else:
+            c, once = run_scipy(prob, active, g, method, analytic, x_scale,
+                                tol=None if dtol else TOL)
         sres = once()
         iters, nfev, calls, x, ok, status = summarize_scipy(c, sres, analytic, method)
+        if isinstance(g, str):
+            status = f"{status}, {sres.rounds} rounds"
         dx, dxs, is_same = same(x)
         timed.append(once)
-        # the runs on the problem ours solves: the weighted ones where there are
-        # any, else the plain ones
-        target = analytic and not dtol and (name.endswith("-w") == weighted)
+        given = name.endswith("-given-w")
+        # the runs on the problem ours solves: the reweighted ones where ours
+        # estimates per-channel weights, else the plain ones
+        target = analytic and not dtol and not given and (name.endswith("-w") == weighted)
         rows.append(dict(runner=name, conv=f"{ok} ({status})", ok=ok, iters=iters, nfev=nfev,
                          calls=calls, analytic=analytic, cost=plain_cost(x), dx=dx, dxs=dxs,
-                         same=is_same, scipy=True, target=target, info=dtol))
+                         same=is_same, scipy=True, target=target, info=dtol or given))
     # cost of one call, model.evaluate (r and W) and r by fk only, timed in the
     # same interleaved rounds as the runners
     x0 = model.x0
@@ -318,6 +404,10 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="5 repeats")
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--x-scale", default="jac", help="least_squares x_scale: 'jac' or 1")
+    ap.add_argument("--poses", type=int, nargs="+",
+                    help="pose counts to run every problem at (default: the report's 17, 45, 33)")
+    ap.add_argument("--no-fd", action="store_true",
+                    help="skip the finite-difference runs (slow at thousands of poses)")
     ap.add_argument("--blas-threads", default="1",
                     help="BLAS threads (exported before numpy loads; default 1)")
     ap.add_argument("--profile", choices=("auto", "all", "none"), default="auto",
@@ -336,12 +426,13 @@ def main(argv=None):
           f"scipy xtol = ftol = gtol = {TOL:g} (relative), x_scale={args.x_scale!r}; "
           f"'*-dtol': scipy's default tolerances (1e-8), information only\n"
           f"ours: default SolverOptions() = {SolverOptions()}")
-    problems = make_problems(args.seed, tuple(args.methods))
+    problems = [p for n in (args.poses or [None])
+                for p in make_problems(args.seed, tuple(args.methods), poses=n)]
     summary = []
     to_profile = []
     failures = []
     for prob in problems:
-        res, rows, (t_model, t_fk) = bench_problem(prob, repeats, x_scale)
+        res, rows, (t_model, t_fk) = bench_problem(prob, repeats, x_scale, fd=not args.no_fd)
         t_ours = rows[0]["t"]
         st = [s for s in res.status if not s.identifiable]
         print(f"\n=== {prob.name}: {res.n_identifiable} identifiable"
@@ -381,6 +472,11 @@ def main(argv=None):
             print("--> no scipy run reached our optimum")
         info = [r for r in rows if r["info"]]
         for r in info:
+            if r["runner"].endswith("-given-w"):
+                print(f"    {r['runner']}: handed the weights ours ended on (no sigma "
+                      f"estimated), {r['nfev']} evaluations, {1e3 * r['t']:.3f} ms "
+                      f"({r['t'] / t_ours:.2f} x ours), information only")
+                continue
             print(f"    {r['runner']}: scipy's default tolerances stop after {r['nfev']} "
                   f"evaluations, {1e3 * r['t']:.3f} ms ({r['t'] / t_ours:.2f} x ours), "
                   + ("at the same optimum" if r["same"] else

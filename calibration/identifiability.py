@@ -131,12 +131,14 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
     rdiag = np.zeros(n)
     dep = np.zeros(n, bool)
     R = None
+    # T in Fortran order, as LAPACK takes it (the same values, no copy on the way)
     if use.all():
-        idx, nidx, T = np.arange(n), norms, Wg / norms
+        idx, nidx = np.arange(n), norms
+        T = np.divide(Wg, norms, out=np.empty(Wg.shape, order="F"))
     else:
         idx = np.flatnonzero(use)
         nidx = norms[idx]
-        T = Wg[:, idx] / nidx
+        T = np.divide(Wg[:, idx], nidx, out=np.empty((Wg.shape[0], idx.size), order="F"))
     if T.shape[0] > T.shape[1] > 0:
         # distances and projections do not change under an orthogonal map of
         # the rows: the triangle of one QR of T stands for T (no dependent
@@ -144,6 +146,8 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
         # on q rows, not on all of them)
         q = T.shape[1]
         T = lapack.dgeqrf(T)[0][:q] * _upper(q)
+    else:  # not tall (rare): restarts below on T as it always was, in C order
+        T = np.ascontiguousarray(T)
     basis = None  # orthonormal basis of the kept columns before idx[0], once one was dropped
     while idx.size:
         d, qr = _r_diagonal(T)

@@ -75,15 +75,19 @@ def make_result(run, converged: bool, message: str, t_start: float) -> Calibrati
     w_cov = run.row_weights(sigma)
     status = _final_status(run, sigma if opt.weight_errors else None,
                            w_cov if opt.weight_errors else np.ones(rows))
-    cov, cond = _covariance(run, sigma, w_cov)
     dof = {} if run.all_known else dict(run.sigma_dof)
+    f = None  # channel -> factor of the sigma the covariance is made with
     if opt.weight_errors and dof:
         cov_sigma = run.covariance_sigma(sigma)
         f = {ch: cov_sigma[ch] / sigma[ch] for ch in dof}
-        if len(f) == len(run.channels) and len(set(f.values())) == 1:   # one factor: a scale
-            cov = cov * next(iter(f.values())) ** 2
-        else:
-            cov = _covariance(run, cov_sigma, run.row_weights(cov_sigma))[0]
+    # one factor for every channel: a scale of the covariance at sigma; else the
+    # covariance at the inflated sigma, and only the condition number at sigma
+    scale = f is not None and len(f) == len(run.channels) and len(set(f.values())) == 1
+    cov, cond = _covariance(run, sigma, w_cov, need_cov=f is None or scale)
+    if scale:
+        cov = cov * next(iter(f.values())) ** 2
+    elif f is not None:
+        cov = _covariance(run, cov_sigma, run.row_weights(cov_sigma), need_cond=False)[0]
     std = np.full(len(names), np.nan)
     std[active] = np.sqrt(np.clip(np.diag(cov), 0, None))
     rss = np.bincount(run.row_channel, weights=r * r, minlength=len(run.channels)).tolist()
@@ -107,7 +111,7 @@ def make_result(run, converged: bool, message: str, t_start: float) -> Calibrati
 _PINV_SAFE = 1e13
 
 
-def _covariance(run, sigma, w):
+def _covariance(run, sigma, w, need_cond=True, need_cov=True):
     """Covariance ``(W_R^T L W_R)^-1`` (eq. 52) and the condition number of the
     scaled, weighted ``G W_R H`` at the solution, ``L = diag(w)`` (``w`` from
     ``sigma``), from a QR already made there where possible: the last
@@ -116,7 +120,10 @@ def _covariance(run, sigma, w):
     differ from ``G W_R H`` by a column scaling only); else a QR of ``G W_R H``.
     Either way ``H (R^T R)^-1 H``. Where the normal matrix is so
     ill-conditioned that a pseudo-inverse would cut singular values it is that
-    pseudo-inverse, as eq. 52 reads."""
+    pseudo-inverse, as eq. 52 reads. ``need_cond`` False: the condition number
+    is not asked for (the second value is then NaN where it was not needed to
+    choose between the two); ``need_cov`` False: only the condition number is
+    asked for (the covariance returned may then be None)."""
     scale = run.opt.scale_columns
     WA = run.W if run.all_active else run.W.take(run.active_idx, axis=1)
     rows, n = WA.shape
@@ -145,14 +152,29 @@ def _covariance(run, sigma, w):
             # with S = diag(||G W_R[:, j]|| h_j), so R S is the triangle of G W_R H
             R = chk.R * (chk.cls[3][run.active_idx] * h)
         else:
-            qr, _tau, _work, info = geqrf(np.asfortranarray(WA * h * np.sqrt(w)[:, None]))
+            Ag = np.multiply(WA * h, np.sqrt(w)[:, None], out=np.empty(WA.shape, order="F"))
+            qr, _tau, _work, info = geqrf(Ag)
             R = qr[:n, :n] * masks(n)[0][:, :n] if info == 0 else None
+        if R is not None and not need_cond:
+            # ||R||_F ||R^-1||_F >= cond(R): where that bound (with a factor 2 to
+            # spare) is below the limit so is the condition number, and the
+            # singular values are not needed to choose the QR
+            Rinv, info = trtri(R)
+            if info == 0:
+                spread = float(norms.max() / norms.min()) if scale else 1.0
+                rf, vf = R.ravel(order="K"), Rinv.ravel(order="K")
+                bound = math.sqrt(float(rf @ rf) * float(vf @ vf))
+                if (2 * bound * spread) ** 2 < _PINV_SAFE:
+                    Rh = Rinv * h[:, None]
+                    return Rh @ Rh.T, math.nan
         if R is not None:
             svl = gesvd(R, compute_uv=0)[1].tolist()
             if all(math.isfinite(v) for v in svl) and svl[-1] > 0:
                 cond = svl[0] / svl[-1]
                 spread = float(norms.max() / norms.min()) if scale else 1.0
                 if (cond * spread) ** 2 < _PINV_SAFE:
+                    if not need_cov:
+                        return None, cond
                     Rinv, info = trtri(R)
                     if info == 0:
                         Rh = Rinv * h[:, None]

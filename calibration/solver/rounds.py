@@ -84,7 +84,6 @@ class Algorithm2(Weighting, Stepping):
         self.history: list[Iteration] = []
         self.k = 0
         self.lam_eff = self.lam
-        self.cond = np.nan
         self.stopped_early = False
         self.r_pred = None  # residual predicted at the pooled solution (early stop)
         self.last_check = None  # the last recheck (Check)

@@ -10,13 +10,11 @@ run's state, see there).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import lapack
 
 from calibration.errors import CalibrationError
-
 
 # Early switch to per-channel weights (see :func:`calibration.solver.rounds.solve`). The pooled round of a
 # multi-channel problem stops before its step once the residual it predicts at
@@ -33,6 +31,12 @@ STALL_CHI2 = 1e-2
 
 geqrf, gesvd, trtrs, trtri = lapack.dgeqrf, lapack.dgesvd, lapack.dtrtrs, lapack.dtrtri
 _MASKS: dict[int, tuple] = {}
+
+
+def cond_of(sv) -> float:
+    """The condition number from singular values in decreasing order."""
+    s0, smin = float(sv[0]), float(sv[-1])
+    return s0 / smin if smin > 0 else math.inf
 
 
 def masks(n: int):
@@ -60,20 +64,19 @@ class Scaled:
     tall, the same quantities come from an SVD with the singular values below
     ``1e-15 s_max`` cut (a pseudo-inverse), as the normal equations would."""
 
-    __slots__ = ("R", "Rc", "Rinv", "W", "cost", "g", "h", "n", "s0", "sigma", "smin", "sv", "svd")
+    __slots__ = ("R", "Rc", "Rinv", "W", "_sv", "cost", "g", "h", "n", "sigma", "svd", "vs")
 
     def __init__(self, W, sigma, WA, h, g, r):
         rows, n = WA.shape
         self.W, self.sigma, self.h, self.g, self.n = W, sigma, h, g, n
         scalar = isinstance(g, float)
-        self.svd = self.Rinv = None
+        self.svd = self.Rinv = self.vs = self._sv = None
         if rows <= n:
             A = WA * (h * g) if scalar else (WA * h) * g[:, None]
             b = r * g
             self.cost = 0.5 * float(b @ b)
             U, sv, Vt = np.linalg.svd(A, full_matrices=False)
-            self.sv, self.svd = sv, (Vt, U.T @ b)
-            self.s0, self.smin = float(sv[0]), float(sv[-1])
+            self._sv, self.svd = sv, (Vt, U.T @ b)
             self.Rc = self.R = None
             return
         Ab = np.empty((rows, n + 1), order="F")
@@ -88,20 +91,46 @@ class Scaled:
         # [R c] with R upper triangular and c = Q^T b (Fortran order: R contiguous)
         Rc = self.Rc = qr[:n] * masks(n)[0]
         R = self.R = Rc[:, :n]
+        # Clearly regular R (the normal case): ||R||_F ||R^-1||_F bounds the
+        # condition number from above; below 1e12 the singular values (those
+        # that decide on the pseudo-inverse below, cut at 1e-15 s_max) are not
+        # needed now, and are computed only if asked for (condition number).
+        Rinv, info = trtri(R)
+        if info == 0:
+            vs = np.einsum("ij,ij->i", Rinv, Rinv)  # row norms of R^-1: variance
+            rf = R.ravel(order="K")
+            bound = float(rf @ rf) * float(vs.sum())
+            if bound < 1e24:  # also False for NaN
+                self.Rinv, self.vs = Rinv, vs
+                return
         sv, info = gesvd(R, compute_uv=0)[1::2]
         svl = sv.tolist()
-        s0 = self.s0 = svl[0]
-        self.smin = svl[-1]
+        s0, smin = svl[0], svl[-1]
         if info != 0 or not math.isfinite(s0):
             raise np.linalg.LinAlgError("SVD did not converge")
-        self.sv = sv
-        if not self.smin > s0 * 1e-15:  # singular: pseudo-inverse through the SVD of R
+        self._sv = sv
+        if not smin > s0 * 1e-15:  # singular: pseudo-inverse through the SVD of R
             U, _sv, Vt = np.linalg.svd(R)
             self.svd = (Vt, U.T @ Rc[:, n])
 
     @property
+    def sv(self):
+        """Singular values of ``A`` (those of ``R``), computed when first asked for."""
+        if self._sv is None:
+            self._sv = gesvd(self.R, compute_uv=0)[1]
+        return self._sv
+
+    @property
+    def s0(self) -> float:
+        return float(self.sv[0])
+
+    @property
+    def smin(self) -> float:
+        return float(self.sv[-1])
+
+    @property
     def cond(self) -> float:
-        return self.s0 / self.smin if self.smin > 0 else math.inf
+        return cond_of(self.sv)
 
     def step(self, lam2):
         """Scaled damped step ``z`` (``d_R = h z``) for ``lambda^2 = lam2``."""
@@ -133,21 +162,56 @@ class Scaled:
             sv = self.sv
             inv = np.divide(1.0, sv * sv, out=np.zeros_like(sv), where=sv > sv[0] * 1e-15)
             return (Vt * Vt).T @ inv
-        Rinv = self.Rinv = trtri(self.R)[0]
-        return np.einsum("ij,ij->i", Rinv, Rinv)
+        if self.vs is None:
+            Rinv = self.Rinv = trtri(self.R)[0]
+            self.vs = np.einsum("ij,ij->i", Rinv, Rinv)
+        return self.vs
 
 
 
-@dataclass(frozen=True)
 class Iteration:
-    """One iteration's record (the data behind the report's figures)."""
+    """One iteration's record (the data behind the report's figures); read-only.
 
-    x: np.ndarray  # (N,) parameters after the step
-    variance: np.ndarray  # (N,) variance of each parameter (NaN where not calibrated)
-    condition_number: float  # of the scaled, weighted observation matrix
-    step: float  # max |d xi_R|
-    cost: float  # 0.5 * r^T L r before the step
-    sigma: dict  # channel -> sigma estimate
+    x:                 ``(N,)`` parameters after the step
+    variance:          ``(N,)`` variance of each parameter (NaN where not calibrated)
+    condition_number:  of the scaled, weighted observation matrix (computed from
+                       the iteration's triangle when first read: the loop itself
+                       does not need it)
+    step:              max ``|d xi_R|``
+    cost:              ``0.5 r^T L r`` before the step
+    sigma:             channel -> sigma estimate
+    """
+
+    __slots__ = ("_cond", "cost", "sigma", "step", "variance", "x")
+
+    def __init__(self, x, variance, condition_number, step, cost, sigma):
+        # condition_number: a number, or the (n, n) triangle R whose it is
+        s = object.__setattr__
+        s(self, "x", x)
+        s(self, "variance", variance)
+        s(self, "_cond", condition_number)
+        s(self, "step", step)
+        s(self, "cost", cost)
+        s(self, "sigma", sigma)
+
+    @property
+    def condition_number(self) -> float:
+        c = self._cond
+        if isinstance(c, np.ndarray):
+            c = cond_of(gesvd(c, compute_uv=0)[1])
+            object.__setattr__(self, "_cond", c)
+        return c
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"cannot assign to field {name!r} (Iteration is read-only)")
+
+    def __reduce__(self):
+        return (Iteration, (self.x, self.variance, self.condition_number, self.step, self.cost,
+                            self.sigma))
+
+    def __repr__(self):
+        return (f"Iteration(step={self.step!r}, cost={self.cost!r}, "
+                f"condition_number={self.condition_number!r}, sigma={self.sigma!r})")
 
 
 
@@ -172,7 +236,6 @@ class Stepping:
     def _record(self, F, step, cost):
         """History entry: variance of the estimate at this iteration (eq. 52,
         from the factored scaled, weighted matrix) and its condition number."""
-        self.cond = F.cond
         if self.mode == "pooled" or not self.opt.weight_errors:
             g = F.g
             g0 = g if isinstance(g, float) else g[0]
@@ -185,7 +248,8 @@ class Stepping:
             var_all = self._nan.copy()
             var_all[self.active_idx] = var
             var = var_all
-        it = Iteration(self.x.copy(), var, self.cond, step, cost, dict(self.sigma))
+        it = Iteration(self.x.copy(), var, F.R if F._sv is None else F.cond, step, cost,
+                       dict(self.sigma))
         self.history.append(it)
         if self.callback is not None:
             self.callback(self.k, it)
@@ -266,11 +330,14 @@ class Stepping:
                     # at most lambda^2 / s_min^2 of the predicted change),
                     # against each channel's predicted residual
                     err = pred[2] * (zn / pred[1]) ** 2
-                    if lam2 > 0:
-                        err += lam2 / F.smin ** 2 * F.scaled_norm(z)
                     rss_ch = np.bincount(self.row_channel, weights=r_lin * r_lin,
                                          minlength=len(self.channels))
-                    if err <= EARLY_SWITCH * math.sqrt(float(rss_ch.min())):
+                    limit = EARLY_SWITCH * math.sqrt(float(rss_ch.min()))
+                    # the damping's part only where the linearization's leaves room
+                    # (it needs s_min, the singular values of R)
+                    if lam2 > 0 and err <= limit:
+                        err += lam2 / F.smin ** 2 * F.scaled_norm(z)
+                    if err <= limit:
                         self.stopped_early, self.r_pred = True, r_lin
                         return True, ""
             if self.all_active:

@@ -12,6 +12,9 @@ import math
 
 import numpy as np
 from scipy import special
+from scipy.linalg import lapack
+
+geqrf, orgqr = lapack.dgeqrf, lapack.dorgqr
 
 # Below this (in the residual's SI units) a sigma estimate is round-off, not noise.
 SIGMA_FLOOR = 1e-14
@@ -94,7 +97,11 @@ class Weighting:
         norms = np.sqrt(np.einsum("ij,ij->j", A, A))
         if not np.all(norms > 0):
             return [None] * nch
-        Q = np.linalg.qr(A / norms)[0]
+        qr, tau, _work, info = geqrf(np.divide(A, norms, out=np.empty(A.shape, order="F")))
+        # Q in C order, as np.linalg.qr gives it (the row sums below then add
+        # up in the same order)
+        Q = (np.ascontiguousarray(orgqr(qr[:, :n_active], tau)[0]) if info == 0
+             else np.linalg.qr(A / norms)[0])
         h = np.einsum("ij,ij->i", Q, Q)
         return np.bincount(self.row_channel, weights=h, minlength=nch).tolist()
 

@@ -128,6 +128,25 @@ def test_linear_history_records_each_iteration():
     # the first step starts from x0 = 0: cost 0.5 y^T y (L = I in the first iteration)
     assert res.history[0].cost == pytest.approx(0.5 * float(y @ y), rel=1e-12)
     assert res.history[0].step == pytest.approx(np.abs(x).max(), rel=1e-3)
+
+
+def test_history_condition_number_is_that_of_each_iteration_and_survives_pickling():
+    """Each iteration's condition number is read from its own triangle when
+    asked for: that of the scaled, weighted matrix at its x (the first at x0 = 0
+    with L = I), kept through a pickle round trip; the record is read-only."""
+    import pickle
+
+    A, y, _ = _linear()
+    res = solve(Linear(A, y))
+    H = 1 / np.linalg.norm(A, axis=0)
+    for it in res.history:  # linear: the scaled matrix is the same at every x
+        assert it.condition_number == pytest.approx(np.linalg.cond(A * H), rel=1e-9)
+    back = pickle.loads(pickle.dumps(res))
+    assert [h.condition_number for h in back.history] == [h.condition_number
+                                                          for h in res.history]
+    np.testing.assert_array_equal(back.history[-1].variance, res.history[-1].variance)
+    with pytest.raises(AttributeError):
+        res.history[0].step = 1.0
     assert res.iterations <= 4
 
 
