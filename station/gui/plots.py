@@ -102,7 +102,7 @@ class ConvergencePlots(Canvas):
             with np.errstate(invalid="ignore", divide="ignore"):
                 S = np.abs(X - prev) / np.sqrt(V)
             lines = []
-            from station.outputs.report_figures import line_style
+            from station.outputs.report_plotting import line_style
 
             for j in range(X.shape[1]):
                 st = line_style(j)          # every parameter its own colour or dash

@@ -11,7 +11,7 @@ import numpy as np
 
 from calibration import identifiability as ident
 from station.outputs.params_file import file_sha256
-from station.outputs.report_figures import finite as _finite
+from station.outputs.report_plotting import finite as _finite
 from station.outputs.units import MM_DEG, channel_si, param_units
 from station.recording.trace import utc_now
 
