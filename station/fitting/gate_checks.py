@@ -12,7 +12,7 @@ import numpy as np
 from calibration import identifiability as ident
 from calibration import quality as q
 from station.fitting.pose_count import NR_P, parameter_count
-from station.outputs.params_file import PLAUSIBLE_FACTOR
+from station.outputs.params_file import PLAUSIBLE_FACTOR, factor_judged
 from station.outputs.units import MM_DEG, channel_si
 
 # The calibrated fit may predict the held-out poses at most this much worse than
@@ -125,16 +125,12 @@ def check_plausible(quality, model, result, method) -> None:
     """The robot's gear ratios (``k*``) and lengths keep their sign and stay within
     :data:`PLAUSIBLE_FACTOR` of the start; offsets, a method's extra parameters
     (plane, inclinometer mount) and sm-distance-tilt's frame (``a0``) are free."""
-    frame = ("a0",) if method == "sm-distance-tilt" else ()
     robot = getattr(model, "robot", None)
-    own = set(robot.param_names) if robot is not None else set()
     bad = []
     for j, (name, st) in enumerate(zip(result.names, result.status)):
-        if (not st.identifiable or name.endswith("_off") or name.startswith(("theta", "plane_"))
-                or name in frame or name not in own):
-            continue
         x0, x = float(model.x0[j]), float(result.x[j])
-        if x0 == 0 or not math.isfinite(x):
+        if (not st.identifiable or robot is None or not math.isfinite(x)
+                or not factor_judged(name, x0, robot, serial=False, method=method)):
             continue
         ratio = x / x0
         if not 1 / PLAUSIBLE_FACTOR <= ratio <= PLAUSIBLE_FACTOR:
@@ -216,8 +212,10 @@ def check_plausible_serial(quality, model, result) -> None:
             bad.append((name, x0, x, "is not finite"))
             continue
         d = x - x0
+        ratio_ok = (not factor_judged(name, x0, robot, serial=True)
+                    or 1 / PLAUSIBLE_FACTOR <= x / x0 <= PLAUSIBLE_FACTOR)
         if name.startswith("k"):
-            if x0 and not 1 / PLAUSIBLE_FACTOR <= x / x0 <= PLAUSIBLE_FACTOR:
+            if not ratio_ok:
                 bad.append((name, x0, x, f"{x / x0:.3g} times the start"))
         elif urdf and name.startswith("j") and name.endswith(("_x", "_y", "_z")):
             if abs(d) > SERIAL_SHIFT * size:
@@ -236,8 +234,7 @@ def check_plausible_serial(quality, model, result) -> None:
                                          "sign?)" if urdf else "a zero far from the robot "
                                          "file's (a joint column's offset or sign?)"))
         elif not urdf and name[0] in "da" and name[1:].isdigit():
-            if (abs(x0) > 1e-3 and not 1 / PLAUSIBLE_FACTOR <= x / x0 <= PLAUSIBLE_FACTOR) \
-                    or (abs(x0) <= 1e-3 and abs(d) > SERIAL_SHIFT * size):
+            if not ratio_ok or (abs(x0) <= 1e-3 and abs(d) > SERIAL_SHIFT * size):
                 bad.append((name, x0, x, f"{d * 1e3:.4g} mm from the robot file's"))
         elif not urdf and name.startswith(("alpha", "beta", "theta")):
             if abs(d) > SERIAL_ANGLE:

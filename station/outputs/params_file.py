@@ -281,6 +281,27 @@ PLAUSIBLE_FACTOR = 2.0
 MAX_MOVE = 1e3
 
 
+def factor_judged(name: str, x0: float, robot, *, serial: bool, method: str | None = None) -> bool:
+    """Whether the calibrated ``name`` of ``robot`` (start value ``x0``) must keep its
+    sign and stay within :data:`PLAUSIBLE_FACTOR` of ``x0``: AGEBOT's gear ratios and
+    lengths (not its zeros ``*_off``, angles ``theta*``, a method's plane, nor
+    sm-distance-tilt's frame ``a0``); a robot file's (``serial``) gear ratios ``k*``
+    and its lengths ``d*``, ``a*`` not near 0; a URDF robot's gear ratios only (its
+    joint origins, zeros and the instrument frame are judged by their shift and turn,
+    :func:`station.fitting.gate_checks.check_plausible_serial`). The gate and the
+    parameter file's check (:func:`check_usable`) ask this one rule."""
+    if x0 == 0 or name not in robot.param_names:
+        return False
+    if not serial:
+        frame = ("a0",) if method == "sm-distance-tilt" else ()
+        return not (name.endswith("_off") or name.startswith(("theta", "plane_"))
+                    or name in frame)
+    if name.startswith("k"):
+        return True
+    urdf = hasattr(robot, "calibrated_origins")
+    return not urdf and name[0] in "da" and name[1:].isdigit() and abs(x0) > 1e-3
+
+
 def check_usable(doc: dict, path: str) -> None:
     """What ``params verify`` and the exports ask of a parameter file beyond its
     structure and checksum (a checksum recomputed over an edit proves nothing): a fit
@@ -288,8 +309,7 @@ def check_usable(doc: dict, path: str) -> None:
     on purpose (``fit.quality.accepted``); a parameter the fit did not calibrate at
     its start value; none moved by more than :data:`MAX_MOVE` times its size; every
     calibrated gear ratio and length of the robot with its start value's sign and
-    within the gate's factor of it (:data:`PLAUSIBLE_FACTOR`, the same rule as the
-    gate's). A :class:`TraceFormatError` naming the file and the
+    within the gate's factor of it (:func:`factor_judged`, the gate's rule). A :class:`TraceFormatError` naming the file and the
     parameter otherwise."""
     from calibration.robots import get_robot
     from drivers.robot_file import spec_from_source
@@ -318,16 +338,13 @@ def check_usable(doc: dict, path: str) -> None:
                  f"more than {MAX_MOVE:g} times its size, not a plausible calibration")
     if accepted:        # a poor fit kept on purpose: its values are what they are
         return
+    serial = "robot_file" in doc
     model = (get_robot(spec_from_source(doc["robot_file"], "robot_file"))
-             if "robot_file" in doc else get_robot(doc["robot"]))
-    own = set(model.param_names)
-    frame = ("a0",) if doc.get("method") == "sm-distance-tilt" else ()
+             if serial else get_robot(doc["robot"]))
     for name, p in doc["parameters"].items():
-        if (name not in own or not p.get("identifiable") or name.endswith("_off")
-                or name.startswith(("theta", "plane_")) or name in frame):
-            continue
         x0, x = float(p["nominal"]), float(p["value"])
-        if x0 == 0:
+        if not p.get("identifiable") or not factor_judged(name, x0, model, serial=serial,
+                                                          method=doc.get("method")):
             continue
         ratio = x / x0
         if not 1 / PLAUSIBLE_FACTOR <= ratio <= PLAUSIBLE_FACTOR:

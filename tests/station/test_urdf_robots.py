@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -275,3 +276,38 @@ def test_a_tracker_s_single_reflector_is_reported_in_3d_mm(tmp_path, capsys):
     assert re.search(r"fit: points' 3D RMS 0\.1\d* mm", out), out
     assert len(re.findall(r"validation: held-out points' 3D RMS went [\d.]+ -> 0\.\d+ mm", out)) == 1
     assert "validation: x RMS" not in out
+
+
+def test_the_parameter_file_s_check_judges_what_the_gate_judges(tmp_path, capsys):
+    """``params verify`` and the exports ask of a URDF robot's parameter file what the gate
+    asked of its fit (``station.outputs.params_file.factor_judged``): the instrument
+    frame's translation is free, whatever its ratio to the start (TIAGo's 4-point fit
+    moved ``base_x`` from 5.1 to 14.0 mm, and its export was refused with "not a
+    plausible calibration" while the gate had passed it); an AGEBOT gear ratio beyond
+    the factor is still refused."""
+    from station.outputs.params_file import checksum, write_params
+
+    tracker_case(tmp_path, seed=2, held=0)
+    assert run(capsys, *import_args(tmp_path))[0] == 0
+    assert run(capsys, "batch", tmp_path / "t.jsonl", "--out", tmp_path / "p.json")[0] == 0
+    doc = json.loads((tmp_path / "p.json").read_text())
+    p = doc["parameters"]["base_x"]
+    assert p["identifiable"] and abs(p["nominal"]) > 1e-6
+    p["value"] = 2.7 * p["nominal"]
+    del doc["checksum"]
+    write_params(tmp_path / "moved.json", doc)
+    rc, out, err = run(capsys, "params", "verify", tmp_path / "moved.json")
+    assert rc == 0, err
+    rc, out, err = run(capsys, "params", "export", tmp_path / "moved.json", "--urdf",
+                       tmp_path / "cal.urdf")
+    assert rc == 0 and "calibrated URDF written" in out, err
+    # AGEBOT: a gear ratio 2.7 times its start is refused as before
+    trace = Path(__file__).resolve().parents[2] / "fixtures" / "traces" / "sm-distance-tilt.jsonl"
+    assert run(capsys, "batch", trace, "--out",
+               tmp_path / "a.json")[0] == 0
+    doc = json.loads((tmp_path / "a.json").read_text())
+    doc["parameters"]["k2"]["value"] *= 2.7
+    doc["checksum"] = checksum({k: v for k, v in doc.items() if k != "checksum"})
+    (tmp_path / "a2.json").write_text(json.dumps(doc))
+    refused(capsys, ["params", "verify", tmp_path / "a2.json"], "parameters.k2",
+            "not a plausible calibration")
