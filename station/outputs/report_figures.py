@@ -76,7 +76,7 @@ def _fig_parameters(ctx, hist) -> str:
     fig = kit.figure(width, 2.1 * nrow + 0.55, left=left, bottom=0.5, top=0.25, right=legend,
                      wspace=legend / panel, hspace=0.3)
     axes = fig.subplots(nrow, ncol, squeeze=False, sharex=True, sharey=True)
-    ticks = np.array([-1.0, -0.5, 0.0, 0.5, 1.0])
+    ticks = np.array([-1.0, 0.0, 1.0])
     for g, group in enumerate(groups):
         ax = axes[g // ncol][g % ncol]
         ax.axhline(0.0, color="k", lw=0.7, ls="--")
@@ -182,6 +182,10 @@ def _fig_condition(ctx, hist) -> str:
     ax.set_xlabel("iteration k", fontsize=8)
     ax.set_ylabel("condition number", fontsize=8)
     kit.style(ax, iterations=True)
+    if ax.get_yscale() != "log":
+        from matplotlib.ticker import MaxNLocator
+
+        ax.yaxis.set_major_locator(MaxNLocator(5))
     return kit.img(fig, "condition number per iteration",
                 "Condition number of the scaled, weighted observation matrix per iteration "
                 "(report Fig. 12, 30).")
@@ -197,6 +201,11 @@ def _fig_residuals(ctx) -> str:
     fig = kit.figure(10.0, 2.2 * len(chans) + 0.4, left=0.8, bottom=0.55, top=0.3,
                   wspace=0.3, hspace=0.6)
     axes = fig.subplots(len(chans), ncol, squeeze=False)
+    if len({int(ctx.rows_of(c).sum()) for c, _ in chans}) == 1:   # rows read under the last
+        for col in range(ncol - 1):
+            for row in range(1, len(chans)):
+                axes[row][col].sharex(axes[0][col])
+                axes[row - 1][col].xaxis.set_tick_params(labelbottom=False)
     for row, (c, ch) in enumerate(chans):
         si = ctx.channel_unit[ch]
         sel = ctx.rows_of(c)
@@ -270,6 +279,8 @@ def validation_figure(rows, units):
     good = [v for v in rows if kit.finite(v.get("rms_after")) and kit.finite(v.get("max_after"))]
     if not good:
         return None
+    from matplotlib.ticker import LogLocator
+
     ncol = min(4, len(good))
     nrow = math.ceil(len(good) / ncol)
     fig = kit.figure(2.6 * ncol + 0.4, 2.4 * nrow + 0.3, left=0.7, bottom=0.35, top=0.6,
@@ -298,6 +309,7 @@ def validation_figure(rows, units):
         ax.set_xticks(pos, ["RMS", "max"])
         kit.title(ax, f"{v.get('channel')}" + (f" [{label}]" if label else ""))
         kit.style(ax, 7, minor=False)
+        ax.yaxis.set_major_locator(LogLocator(numticks=5))   # every decade up to 4
         if n == 0:
             fig.legend(*ax.get_legend_handles_labels(), fontsize=7, frameon=False,
                        loc="upper right", ncol=2)      # above the titles, not on them
