@@ -38,35 +38,77 @@ def _active(ctx):
     return [j for j, g in enumerate(ctx.groups) if g == "identifiable"]
 
 
-@kit.styled(7, grid="y")
+def parameter_panels(n: int) -> list[range]:
+    """The parameters figure's panels: the identifiable parameters in table order, at
+    most 4 lines per panel up to 16 parameters, at most 6 panels beyond; filled in turn
+    (AGEBOT's 14: offsets, gains, lengths, the rest), evenly where the last panel would
+    keep less than half a panel (17: 3, 4, 3, 4, 3)."""
+    panels = math.ceil(n / max(4, math.ceil(n / 6)))
+    per = math.ceil(n / panels)
+    if 2 * (n - per * (panels - 1)) >= per:
+        cut = [min(n, per * p) for p in range(panels + 1)]
+    else:
+        cut = [round(n * p / panels) for p in range(panels + 1)]
+    return [range(a, b) for a, b in zip(cut, cut[1:])]
+
+
+def normalised_path(xs, x_final):
+    """A parameter's path ``xs`` (iterations 0..K) as ``(xs - x_final) / D``, D its
+    largest distance from ``x_final`` (the path's span, so that every path fits in
+    [-1, 1]); D = 0 (never moved): zeros. Returns (path, D)."""
+    d = np.asarray(xs, dtype=float) - x_final
+    big = float(np.max(np.abs(d))) if d.size else 0.0
+    return (d / big if big > 0 else np.zeros_like(d)), big
+
+
+@kit.styled(7)
 def _fig_parameters(ctx, hist) -> str:
     idx = _active(ctx)
     if not idx:
         return None
-    from matplotlib.ticker import NullLocator
-
     k, X = _series(ctx, hist)
-    ncol = 4 if len(idx) > 6 else min(3, len(idx))
-    nrow = math.ceil(len(idx) / ncol)
-    fig = kit.figure(2.5 * ncol, 1.8 * nrow + 0.5, left=0.6, bottom=0.55, top=0.3,
-                  wspace=0.55, hspace=0.6)
-    for a, (ax, j) in enumerate(zip(kit.panels(fig, len(idx), ncol), idx)):
-        x_end, s = ctx.x[j], ctx.std[j]
-        if kit.finite(s) and s > 0:
-            ax.axhspan(x_end - s, x_end + s, color="#d62728", alpha=0.15, lw=0)
-        ax.axhline(x_end, color="#d62728", lw=0.8, ls="--")
-        ax.plot(k, X[:, j], color="#1f77b4", lw=1.2, marker=kit.marker(len(k)), ms=2.5)
-        unit = ctx.units.get(ctx.names[j], "")
-        kit.title(ax, f"{ctx.names[j]}" + (f" [{unit}]" if unit else ""))
-        kit.style(ax, nbins=4, iterations=True)
-        if a + ncol < len(idx):     # the iterations are read under the column's last panel
-            ax.xaxis.set_major_locator(NullLocator())
-        ax.ticklabel_format(axis="y", useOffset=False, style="sci", scilimits=(-3, 4))
-        ax.yaxis.get_offset_text().set_fontsize(7)
-    fig.supxlabel("iteration k", fontsize=8, y=0.01)
-    return kit.img(fig, "parameter values per iteration",
-                "Calibrated parameters \u03be(k) per iteration (k = 0: start values); dashed: "
-                "the calibrated value, band: \u00b1 1 std (report Fig. 10, 28).")
+    groups = parameter_panels(len(idx))
+    ncol = min(2, len(groups))
+    nrow = math.ceil(len(groups) / ncol)
+    legend, left = 1.9, 0.75                # inches: a legend right of each panel
+    width = 10.0 if ncol == 2 else 5.0
+    panel = (width - left - ncol * legend) / ncol
+    fig = kit.figure(width, 2.1 * nrow + 0.55, left=left, bottom=0.5, top=0.25, right=legend,
+                     wspace=legend / panel, hspace=0.3)
+    axes = fig.subplots(nrow, ncol, squeeze=False, sharex=True, sharey=True)
+    ticks = np.array([-1.0, 0.0, 1.0])
+    for g, group in enumerate(groups):
+        ax = axes[g // ncol][g % ncol]
+        ax.axhline(0.0, color="k", lw=0.7, ls="--")
+        for n, a in enumerate(group):
+            j = idx[a]
+            y, big = normalised_path(X[:, j], ctx.x[j])
+            unit = ctx.units.get(ctx.names[j], "")
+            ax.plot(k, y, lw=1.2, marker=kit.marker(len(k)), ms=2.5,
+                    label=f"{ctx.names[j]} (1 = {big:.3g}{' ' + unit if unit else ''})",
+                    **kit.line_style(n))
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False,
+                  handlelength=1.6, borderaxespad=0.2)
+    for g in range(len(groups), nrow * ncol):   # an empty cell: iterations read above it
+        axes[g // ncol][g % ncol].set_visible(False)
+        above = axes[g // ncol - 1][g % ncol]
+        above.xaxis.set_tick_params(labelbottom=True)
+        above.set_xlabel("iteration k", fontsize=8)
+    ax0 = axes[0][0]
+    ax0.set_yticks(ticks)
+    ax0.set_ylim(-1.12, 1.12)
+    kit.style(ax0, iterations=True)
+    for row in axes:
+        row[0].set_ylabel("(\u03be(k) \u2212 \u03be_final) / D", fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("iteration k", fontsize=8)
+    return kit.img(fig, "parameter paths per iteration, each scaled by its largest distance",
+                   "Calibrated parameters \u03be(k) per iteration (k = 0: start values; report "
+                   "Fig. 10, 28), each as its distance from the calibrated value \u03be_final "
+                   "divided by D, its largest distance over the iterations (the legend gives D "
+                   "in the parameter's unit: \u03be(k) = \u03be_final + D \u00d7 the value "
+                   "drawn); 0: the calibrated value. The start and calibrated values are in the "
+                   "parameter table, the distance in standard deviations in the next figure.")
 
 
 @kit.styled(8)
@@ -140,6 +182,10 @@ def _fig_condition(ctx, hist) -> str:
     ax.set_xlabel("iteration k", fontsize=8)
     ax.set_ylabel("condition number", fontsize=8)
     kit.style(ax, iterations=True)
+    if ax.get_yscale() != "log":
+        from matplotlib.ticker import MaxNLocator
+
+        ax.yaxis.set_major_locator(MaxNLocator(5))
     return kit.img(fig, "condition number per iteration",
                 "Condition number of the scaled, weighted observation matrix per iteration "
                 "(report Fig. 12, 30).")
@@ -155,6 +201,11 @@ def _fig_residuals(ctx) -> str:
     fig = kit.figure(10.0, 2.2 * len(chans) + 0.4, left=0.8, bottom=0.55, top=0.3,
                   wspace=0.3, hspace=0.6)
     axes = fig.subplots(len(chans), ncol, squeeze=False)
+    if len({int(ctx.rows_of(c).sum()) for c, _ in chans}) == 1:   # rows read under the last
+        for col in range(ncol - 1):
+            for row in range(1, len(chans)):
+                axes[row][col].sharex(axes[0][col])
+                axes[row - 1][col].xaxis.set_tick_params(labelbottom=False)
     for row, (c, ch) in enumerate(chans):
         si = ctx.channel_unit[ch]
         sel = ctx.rows_of(c)
@@ -194,7 +245,12 @@ def _fig_residuals(ctx) -> str:
         if not hi > lo:
             lo, hi = lo - 0.5, hi + 0.5
         edges = np.linspace(lo, hi, nb + 1)
-        ax.hist(a, bins=edges, color="#1f77b4", alpha=0.75, edgecolor="white", linewidth=0.5)
+        counts = np.histogram(a, bins=edges)[0]
+        # one filled step patch and the bins' white borders as one collection: the look
+        # of ax.hist without a Rectangle artist per bin
+        ax.stairs(counts, edges, fill=True, color="#1f77b4", alpha=0.75, lw=0)
+        ax.vlines(edges[1:-1], 0, np.minimum(counts[:-1], counts[1:]), color="white",
+                  lw=0.5)
         if sf > 0 and a.size > 1:
             xs = np.linspace(lo, hi, 200)
             pdf = np.exp(-0.5 * (xs / sf) ** 2) / (sf * math.sqrt(2 * math.pi))
@@ -223,6 +279,8 @@ def validation_figure(rows, units):
     good = [v for v in rows if kit.finite(v.get("rms_after")) and kit.finite(v.get("max_after"))]
     if not good:
         return None
+    from matplotlib.ticker import LogLocator
+
     ncol = min(4, len(good))
     nrow = math.ceil(len(good) / ncol)
     fig = kit.figure(2.6 * ncol + 0.4, 2.4 * nrow + 0.3, left=0.7, bottom=0.35, top=0.6,
@@ -251,6 +309,7 @@ def validation_figure(rows, units):
         ax.set_xticks(pos, ["RMS", "max"])
         kit.title(ax, f"{v.get('channel')}" + (f" [{label}]" if label else ""))
         kit.style(ax, 7, minor=False)
+        ax.yaxis.set_major_locator(LogLocator(numticks=5))   # every decade up to 4
         if n == 0:
             fig.legend(*ax.get_legend_handles_labels(), fontsize=7, frameon=False,
                        loc="upper right", ncol=2)      # above the titles, not on them

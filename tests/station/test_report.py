@@ -295,6 +295,44 @@ def test_validation_after_bars_are_visible():
         assert format(v["rms_after"] * MM_DEG.unit(v["unit"])[1], ".3g") in labels
 
 
+def test_the_parameter_figure_draws_every_calibrated_parameter_s_path(sm_report, monkeypatch):
+    """The parameters figure (a few panels of scaled paths, not a panel per parameter):
+    each identifiable parameter once in a legend, with its scale D in its unit, and its
+    drawn path is its iterations exactly, (xi(k) - xi_final) / D, within [-1, 1]."""
+    import numpy as np
+
+    from station.outputs import report_figures, report_plotting
+    from station.outputs.report_context import ReportContext
+
+    outcome = sm_report[0]
+    ctx = ReportContext(outcome)
+    hist = list(outcome.result.history)
+    drawn = []
+    monkeypatch.setattr(report_plotting, "img", lambda fig, alt, caption: drawn.append(fig))
+    report_figures._fig_parameters(ctx, hist)
+    (fig,) = drawn
+    paths = np.vstack([outcome.result.x0] + [h.x for h in hist])
+    seen = []
+    for ax in fig.axes:
+        if not ax.get_visible():
+            continue
+        legend = ax.get_legend()
+        for line, text in zip(legend.get_lines(), legend.get_texts()):
+            name = text.get_text().split(" (1 = ")[0]
+            seen.append(name)
+            j = ctx.names.index(name)
+            y = next(ln.get_ydata() for ln in ax.get_lines() if ln.get_label() == text.get_text())
+            scale = np.max(np.abs(paths[:, j] - ctx.x[j]))
+            assert f"(1 = {scale:.3g}" in text.get_text()
+            unit = ctx.units.get(name, "")
+            assert text.get_text().endswith(f" {unit})" if unit else ")")
+            assert np.max(np.abs(y)) <= 1.0 + 1e-12
+            assert np.allclose(ctx.x[j] + scale * np.asarray(y), paths[:, j], rtol=0,
+                               atol=1e-12 * max(1.0, abs(ctx.x[j])))
+    identifiable = [n for n, g in zip(ctx.names, ctx.groups) if g == "identifiable"]
+    assert sorted(seen) == sorted(identifiable) and len(identifiable) > 4
+
+
 def test_units_policy():
     """People read mm and degrees (or the config's [display]); the config's choices
     are the units module's."""
