@@ -131,3 +131,35 @@ def test_a_dead_simulator_is_survived(open_window, qtbot, tmp_path, answers):
     said.append(setup.missing.text())
     text = "\n".join(said)
     assert "cable" not in text and "{'" not in text, text
+
+
+def test_the_same_fault_a_third_time_on_a_pose_suggests_skip(open_window, qtbot):
+    """A drive's reference-limit FAULT that comes back on every attempt at one pose (its
+    tool below the floor on this robot) is not a flaky cable: the third time, the dialog
+    says so and Skip is its default button. Another pose's or another fault's first
+    time still defaults to Retry."""
+    from types import SimpleNamespace
+
+    from drivers.errors import DeviceError
+    from station.gui.worker import FaultQuestion
+
+    win = open_window()
+    ex = win.page(PageId.EXECUTE)
+    limit = DeviceError("drive node 3 reports FAULT: reference limit switch")
+    asked = []
+
+    def ask(index, error, attempt):
+        req = FaultQuestion.Request(SimpleNamespace(index=index), error, attempt)
+        ex.ask_fault(req)
+        box = ex.fault_box
+        asked.append((box.suggested, box.defaultButton() is box.answer_buttons["skip"],
+                      "Skip is suggested" in box.informativeText()))
+        qtbot.mouseClick(box.defaultButton(), Qt.MouseButton.LeftButton)
+        assert req.event.is_set() and ex.fault_box is None
+        return req.reply
+
+    assert [ask(44, limit, k) for k in range(2)] == ["retry", "retry"]
+    assert ask(12, DeviceError("draw-wire: no answer"), 0) == "retry"    # another pose
+    assert ask(44, limit, 2) == "skip"
+    assert asked[-1] == ("skip", True, True)
+    assert asked[:3] == [("retry", False, False)] * 3

@@ -14,6 +14,9 @@ from station.gui.pages.base import Page, error_text
 from station.gui.widgets import (BAD_COLOR, OK_COLOR, WARN_COLOR, ReadingsPanel, note,
                                  target_coords)
 
+#: the same fault this many times on one pose: Skip is suggested (the default button)
+REPEATED_FAULT = 3
+
 EVENT_COLOR = {"fault": BAD_COLOR, "abort": BAD_COLOR, "skip": WARN_COLOR, "retry": WARN_COLOR,
                "warning": WARN_COLOR}
 
@@ -69,6 +72,7 @@ class ExecutePage(Page):
         self.finished = False
         self.fault_box: QMessageBox | None = None
         self.faults_asked = 0
+        self._faults_seen: dict[int, list[str]] = {}   # pose index -> the faults asked there
         self._restart = False      # Retry answered where the devices were lost
         controller.progressed.connect(self._progress)
         controller.eventLogged.connect(self._event)
@@ -142,6 +146,7 @@ class ExecutePage(Page):
         return ("roll", "pitch", "yaw")
 
     def _session_changed(self) -> None:
+        self._faults_seen = {}
         self.finished = False
         self.running = False
         self.log.clear()
@@ -260,14 +265,24 @@ class ExecutePage(Page):
                       if lost and self.controller.simulate else
                       "Retry: reset the drive or reconnect the device and measure the pose "
                       "again.")
+        text = error_text(request.error)
+        seen = self._faults_seen.setdefault(pose.index, [])
+        # the same fault a third time on this pose: the pose, not the device, is at fault
+        repeated = seen.count(text) >= REPEATED_FAULT - 1
+        seen.append(text)
+        hint = (f"\n\nThe same fault came back {seen.count(text)} times on this pose: "
+                "the pose is likely out of this robot's reach (a limit switch, the floor, "
+                "an obstacle) rather than a flaky device. Skip is suggested."
+                if repeated else "")
         box.setInformativeText(
-            f"{error_text(request.error)}\n\n{retry_text}\nSkip: leave this pose out and go "
+            f"{text}\n\n{retry_text}\nSkip: leave this pose out and go "
             "on.\nAbort: stop here; the recorded poses stay in the trace and you can "
-            "continue later.")
+            f"continue later.{hint}")
         retry = box.addButton("&Retry", QMessageBox.ButtonRole.AcceptRole)
         skip = box.addButton("S&kip pose", QMessageBox.ButtonRole.ActionRole)
         abort = box.addButton("&Abort", QMessageBox.ButtonRole.RejectRole)
-        box.setDefaultButton(retry)
+        box.setDefaultButton(skip if repeated else retry)
+        box.suggested = "skip" if repeated else "retry"
         box.setEscapeButton(abort)
         answers = {retry: "retry", skip: "skip", abort: "abort"}
         box.answer_buttons = {v: k for k, v in answers.items()}
