@@ -110,6 +110,19 @@ def d2_interval(ks, dofs, alpha: float = 0.01, draws: int = 200_000,
     return float(lo), float(hi)
 
 
+def rms_bound(dofs, alpha: float = 0.01, draws: int = 1_000_000, seed: int = 0) -> float:
+    """What an honest std's error/std of one parameter exceeds in RMS over sessions
+    with probability ``alpha``: one error per session, each sigma estimated on that
+    session's ``dofs`` (:func:`d2_interval` with one parameter per session: Student's t
+    scaled to unit RMS, heavier-tailed than a normal error: the chi-square bound
+    ``sqrt(chi2_k(1 - alpha) / k)``, Bonferroni over 27 parameters at 1 %, is exceeded
+    by some parameter of an honest pool of 3 sessions 3, 6.5 and 12.5 % of the time at
+    38, 20 and 12 degrees of freedom). Seeded Monte Carlo."""
+    k = len(dofs)
+    hi = d2_interval([1] * k, list(dofs), 2 * alpha, draws=draws, seed=seed)[1]
+    return math.sqrt(hi / k)
+
+
 def residual_offset(session, truth: SimTruth, state: dict) -> dict:
     """The fit poses' distance residuals at the true parameters (captured frame): their
     mean and its standard error (m) with the zero taken as exact (``distance_off``
@@ -234,10 +247,12 @@ def summary(scores: list[SessionScore]) -> dict:
     z = np.concatenate([s.z for s in done]) if done else np.zeros(0)
     per: dict[str, float] = {}
     sq: dict[str, list] = {}
+    dofs: dict[str, list] = {}
     for s in done:
         for n, v in zip(s.names, s.z):
             per[n] = max(per.get(n, 0.0), abs(float(v)))
             sq.setdefault(n, []).append(float(v) ** 2)
+            dofs.setdefault(n, []).append(s.dof)
     exc: dict[str, float] = {}
     for s in scores:
         for k, v in s.excursion.items():
@@ -268,6 +283,8 @@ def summary(scores: list[SessionScore]) -> dict:
             "rms_whitened": float(np.sqrt(np.mean(w ** 2))) if w.size else math.nan,
             "coverage_2std_whitened": float(np.mean(np.abs(w) <= 2.0)) if w.size else math.nan,
             "rms_per_parameter": {n: (math.sqrt(sum(v) / len(v)), len(v)) for n, v in sq.items()},
+            # the sessions' fewest channel dof behind each parameter's errors (rms_bound)
+            "dof_per_parameter": dofs,
             "excursion": exc,
             "tool_error": [s.tool_error for s in done],
             "heldout": {ch: [s.heldout.get(ch, math.nan) for s in done]
