@@ -151,8 +151,11 @@ def main() -> int:
             print(f"compliance, {len(pts)} point(s): {mc['statement']}")
         print(f"{'calibration':<26}{'fit 3D RMS':>11}{'held-out':>10}{'max':>8}{'params':>7}"
               f"   FIGAROH fit / held-out / max (mm)")
+        def mm(v, width, digits):     # a figure the parameter file does not hold: "-"
+            return f"{v:>{width}.{digits}f}mm" if math.isfinite(v) else f"{'-':>{width + 2}}"
+
         for lab, fit, held, mx, n_id, fig in rows:
-            print(f"{lab:<26}{fit:>9.3f}mm{held:>8.3f}mm{mx:>6.2f}mm{n_id:>7d}   {fig}")
+            print(f"{lab:<26}{mm(fit, 9, 3)}{mm(held, 8, 3)}{mm(mx, 6, 2)}{n_id:>7d}   {fig}")
         print(f"4-point fit, marker 1's held-out 3D RMS alone: {marker_one_heldout(p4) * 1e3:.3f} mm")
         print(f"(gate of the full marker-1 fit: {[ln for ln in text.splitlines() if 'outlier' in ln]})")
         # the same data turned anywhere
