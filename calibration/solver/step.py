@@ -150,6 +150,17 @@ class Scaled:
             return trtrs(qr[:n, :n], qr[:n, n])[0]
         return trtrs(self.R, self.Rc[:, n])[0]
 
+    def predicted(self, z) -> float:
+        """The cost decrease the linear model predicts for the step ``z``:
+        ``0.5 (||b||^2 - ||b - A z||^2)``."""
+        if self.svd is None:
+            v = self.R @ z
+            c = self.Rc[:, self.n]
+        else:
+            v = self.sv * (self.svd[0] @ z)
+            c = self.svd[1]
+        return float(v @ (c - 0.5 * v))
+
     def scaled_norm(self, z) -> float:
         """``||A z||``."""
         v = self.R @ z if self.svd is None else self.sv * (self.svd[0] @ z)
@@ -268,6 +279,21 @@ class Stepping:
         decrease = 0.5 * F.scaled_norm(z0) ** 2
         return decrease > STALL_CHI2 * F.cost / dof
 
+    def _relaxed(self, F, z, cost, cost_try, floor) -> float:
+        """The damping after an accepted step ``z`` once the damping swings
+        (see :meth:`iterate`), by its gain ratio ``rho`` (actual over predicted
+        decrease of the cost; Nielsen 1999, Madsen, Nielsen & Tingleff 2004):
+        ``lambda^2`` times ``max(1/3, 1 - (2 rho - 1)^3)``, never below lambda
+        nor ``floor`` (the damping last rejected). A step the linear model
+        predicted well relaxes the damping, a poor one (rho near 0) raises it."""
+        p_dec = F.predicted(z)
+        if p_dec > 1e-10 * cost:
+            rho = min(max((cost - cost_try) / p_dec, 0.0), 1.0)
+            f2 = max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+        else:  # a decrease at round-off: the linear model is as good as exact
+            f2 = 1.0 / 3.0
+        return max(self.lam, floor, self.lam_eff * math.sqrt(f2))
+
     def iterate(self, early: bool = False) -> tuple[bool, str]:
         """Iterate on the current active set until the step is below epsilon.
 
@@ -278,6 +304,21 @@ class Stepping:
         opt = self.opt
         eps, adaptive, max_iter = opt.epsilon, opt.adaptive, opt.max_iter
         rejected = 0
+        # Adaptive damping (Levenberg-Marquardt safeguard): a rejected step is
+        # retried with ten times the damping, an accepted one relaxes it tenfold
+        # (never below lambda). Where that swings, i.e. two iterations in a row
+        # needed a rejected step first, the damping tenfold down is rejected
+        # again and again (a curved valley: sm-distance at 100 poses took 106
+        # iterations and 210 evaluations): from then on, in this round, an
+        # accepted step relaxes the damping by its gain ratio (:meth:`_relaxed`),
+        # no lower than the damping last rejected. A rejection still raises it
+        # tenfold: a smaller rise keeps the steps towards the spurious minimum
+        # a Gauss-Newton step can point at (sm-distance), and the plain tenfold
+        # relaxation before any swing keeps the paths of the problems that never
+        # swing (most) as they were.
+        swings = 0  # consecutive iterations that began with a rejected step
+        cautious = False
+        lam_rej = 0.0  # the damping last rejected
         self.lam_eff = self.lam
         self.stopped_early = False
         self.r_pred = None
@@ -363,12 +404,17 @@ class Stepping:
                     rejected += 1
                     if rejected > 30:
                         return False, f"no step lowers the cost any more (iteration {self.k + 1})"
+                    lam_rej = self.lam_eff
                     self.lam_eff = max(10 * self.lam_eff, 1e-3 * F.s0)
                     continue
                 if not ok:
                     return False, f"the step left the model's domain at iteration {self.k + 1}"
+            if adaptive:
+                swings = swings + 1 if rejected else 0
+                cautious = cautious or swings >= 2
+                self.lam_eff = (self._relaxed(F, z, cost, cost_try, lam_rej) if cautious
+                                else max(self.lam, self.lam_eff / 10))
             rejected = 0
-            self.lam_eff = max(self.lam, self.lam_eff / 10)
             if early:
                 e = r_try - r_lin
                 pred = (r_lin, zn, math.sqrt(e @ e))
