@@ -89,7 +89,7 @@ def make_result(run, converged: bool, message: str, t_start: float) -> Calibrati
     elif f is not None:
         cov = _covariance(run, cov_sigma, run.row_weights(cov_sigma), need_cond=False)[0]
     std = np.full(len(names), np.nan)
-    std[active] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    std[active] = np.sqrt(np.clip(cov.diagonal(), 0, None))
     rss = np.bincount(run.row_channel, weights=r * r, minlength=len(run.channels)).tolist()
     rms = {ch: math.sqrt(s / nc) if nc else math.nan
            for ch, s, nc in zip(run.channels, rss, run.channel_count.tolist())}
@@ -225,15 +225,16 @@ def _final_status(run, sigma, weights):
         rg = np.sqrt(weights) * run.r
         floor = max(floor, opt.kappa * math.sqrt(float(rg @ rg)))
     out = []
+    status = ident.ParameterStatus.of
     for nm, a, c, i_ok, i_dep, rd, cn in zip(run.names, run.active.tolist(), cand.tolist(),
                                              ok.tolist(), dep.tolist(), rdiag.tolist(),
                                              norms.tolist()):
         if a:
-            out.append(ident.ParameterStatus(nm, True, False, rd, cn))
+            out.append(status(nm, True, False, rd, cn))
         elif not c:
-            out.append(ident.ParameterStatus(nm, False, bool(cn > floor), rd, cn, fixed=True))
+            out.append(status(nm, False, bool(cn > floor), rd, cn, True))
         elif i_ok:  # excluded earlier, independent now: it still was not calibrated
-            out.append(ident.ParameterStatus(nm, False, True, rd, cn))
+            out.append(status(nm, False, True, rd, cn))
         else:
-            out.append(ident.ParameterStatus(nm, False, i_dep, rd, cn))
+            out.append(status(nm, False, i_dep, rd, cn))
     return out

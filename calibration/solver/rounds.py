@@ -17,7 +17,7 @@ from calibration.errors import CalibrationError
 from calibration.model import MeasurementModel
 from calibration.solver.options import SolverOptions
 from calibration.solver.result import CalibrationResult, make_result
-from calibration.solver.step import Iteration, Stepping
+from calibration.solver.step import Iteration, Scaled, Stepping, clearly_identifiable
 from calibration.solver.weighting import Weighting
 
 
@@ -88,13 +88,17 @@ class Algorithm2(Weighting, Stepping):
         self.r_pred = None  # residual predicted at the pooled solution (early stop)
         self.last_check = None  # the last recheck (Check)
         self.last_factor = None  # the factorization the last iteration ended on
+        self.next_factor = None  # the factorization the next iteration starts from, if made
         self._sigma_memo = (None, -1, None, None)
         self.sigma_dof: dict = {}  # channel -> degrees of freedom of its estimated sigma
     # -- identifiability ------------------------------------------------------
     def initial_status(self):
         model, opt = self.model, self.opt
         twin = model.consistent_twin(self.x)
-        if twin is model:
+        cls = self._first_factor_status() if twin is model else None
+        if cls is not None:
+            pass
+        elif twin is model:
             g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
             Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
             cls = ident.classify(Wg, candidates=self.candidates, rank_tol=opt.rank_tol,
@@ -120,6 +124,35 @@ class Algorithm2(Weighting, Stepping):
                 f"at least {int(np.ceil((n_dep + 1) / p))} poses are needed "
                 f"(recommended {ident.minimum_poses(n_dep, p)}, eq. 60)")
 
+    def _first_factor_status(self):
+        """The start classification from the first iteration's factorization,
+        where every parameter is a candidate and clearly identifiable there:
+        ``(identifiable, influences)``, the factorization kept for the first
+        iteration (:attr:`next_factor`); else None (then
+        :func:`calibration.identifiability.classify` decides).
+
+        The QR of ``[G W H, G r]`` the first iteration makes holds that of the
+        unit columns the classification factors (the same matrix up to a column
+        scaling): its ``|R[j, j]| / ||R[:, j]||`` is the distance of column j from
+        the span of the earlier ones. The decisions are taken from it only where
+        every margin exceeds the round-off that tells the two QRs apart."""
+        order = self.model.identify_order
+        if not self.candidates.all() or (order is not None and
+                                         not np.array_equal(order, np.arange(len(order)))):
+            return None
+        self._set_active(self.candidates)
+        try:
+            F = self._factor()
+        except np.linalg.LinAlgError:
+            return None
+        if not isinstance(F, Scaled) or F.Rinv is None:
+            return None
+        if not clearly_identifiable(F, self.opt.rank_tol, 0.0):
+            return None
+        self.next_factor = F
+        n = len(self.names)
+        return np.ones(n, bool), np.zeros(n, bool)
+
     def _set_active(self, mask):
         self.active = np.asarray(mask, bool)
         self.active_idx = np.flatnonzero(self.active)
@@ -143,10 +176,16 @@ class Algorithm2(Weighting, Stepping):
         else:
             sigma, weights = None, np.ones(self.rows)
         cand = self.active & self.candidates
-        *cls, R = ident.classify(self.W, weights=weights, candidates=cand, residual=r,
-                                 rank_tol=opt.rank_tol, kappa=opt.kappa, return_r=True,
-                                 order=self.model.identify_order)
-        self.last_check = Check(self.W, r, sigma, weights, cand, cls, R)
+        chk = self.last_check
+        if not (chk is not None and chk.W is self.W and chk.r is r and chk.sigma == sigma
+                and np.array_equal(chk.candidates, cand)):
+            # (a round that ended where it began, e.g. after the per-channel
+            # weights of a noise-free fit changed at round-off: the same check)
+            *cls, R = ident.classify(self.W, weights=weights, candidates=cand, residual=r,
+                                     rank_tol=opt.rank_tol, kappa=opt.kappa, return_r=True,
+                                     order=self.model.identify_order)
+            chk = self.last_check = Check(self.W, r, sigma, weights, cand, cls, R)
+        cls = chk.cls
         new_active = cls[0] & self.active
         if np.array_equal(new_active, self.active):
             return False
@@ -162,7 +201,7 @@ class Algorithm2(Weighting, Stepping):
                 "no parameter can be identified at the solution: every column is within "
                 f"kappa = {self.opt.kappa:g} times the residual there (the model does not "
                 "fit the data: a local minimum, or a fixed parameter far from its value)")
-        self.r_pred = None
+        self.r_pred = self.next_factor = None
         x = self.x.copy()
         x[mask] = self.x0[mask]
         try:

@@ -180,6 +180,26 @@ class Scaled:
 
 
 
+def clearly_identifiable(F: Scaled, rank_tol: float, floor_res: float) -> bool:
+    """Would :func:`calibration.identifiability.classify` find every column of
+    ``F``'s matrix identifiable, with the residual floor ``floor_res``
+    (``kappa`` times the weighted residual norm, 0 at the start), and with a
+    margin that the round-off of a different QR of the same columns cannot
+    cross? ``F`` factors ``A = G W_R H``: ``||R[:, j]|| = ||A[:, j]||``, so
+    ``|R[j, j]| / ||R[:, j]||`` is the distance of the unit column j from the
+    span of the earlier ones and ``||R[:, j]|| / h_j`` the weighted column norm
+    ``||G W_R[:, j]||``. False where in doubt (classify then decides)."""
+    R = F.R
+    cn = np.sqrt(np.einsum("ij,ij->j", R, R))
+    d = np.abs(R.diagonal()) / cn
+    norms = cn / F.h
+    floor = max(rank_tol * float(norms.max()), floor_res) * (1 + 1e-9)
+    # |R[j, j]| of unit columns is exact to a few n eps (backward stable QR)
+    dmin = d - 1e-12
+    return bool(np.all(dmin > rank_tol) and np.all(dmin * norms > floor)
+                and np.all(norms > floor))
+
+
 class Iteration:
     """One iteration's record (the data behind the report's figures); read-only.
 
@@ -327,6 +347,8 @@ class Stepping:
         pred = None  # (predicted residual after the last step, its ||z||, ||actual - predicted||)
         F = None  # the factored problem at the current x and weights
         while self.k < max_iter:
+            if F is None:
+                F, self.next_factor = self.next_factor, None
             if F is None:
                 try:
                     F = self._factor()
