@@ -178,7 +178,7 @@ class Algorithm2(Weighting, Stepping):
         cand = self.active & self.candidates
         chk = self.last_check
         if not (chk is not None and chk.W is self.W and chk.r is r and chk.sigma == sigma
-                and np.array_equal(chk.candidates, cand)):
+                and chk.candidates.tobytes() == cand.tobytes()):  # (bool masks)
             # (a round that ended where it began, e.g. after the per-channel
             # weights of a noise-free fit changed at round-off: the same check)
             *cls, R = ident.classify(self.W, weights=weights, candidates=cand, residual=r,
@@ -187,7 +187,7 @@ class Algorithm2(Weighting, Stepping):
             chk = self.last_check = Check(self.W, r, sigma, weights, cand, cls, R)
         cls = chk.cls
         new_active = cls[0] & self.active
-        if np.array_equal(new_active, self.active):
+        if new_active.tobytes() == self.active.tobytes():  # (bool masks)
             return False
         self.drop(self.active & ~new_active)
         return True

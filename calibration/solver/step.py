@@ -196,8 +196,9 @@ def clearly_identifiable(F: Scaled, rank_tol: float, floor_res: float) -> bool:
     floor = max(rank_tol * float(norms.max()), floor_res) * (1 + 1e-9)
     # |R[j, j]| of unit columns is exact to a few n eps (backward stable QR)
     dmin = d - 1e-12
-    return bool(np.all(dmin > rank_tol) and np.all(dmin * norms > floor)
-                and np.all(norms > floor))
+    # (the smallest of each: False where any is NaN, as np.all would be)
+    return (float(dmin.min()) > rank_tol and float((dmin * norms).min()) > floor
+            and float(norms.min()) > floor)
 
 
 class Iteration:
