@@ -126,32 +126,68 @@ class Algorithm2(Weighting, Stepping):
 
     def _first_factor_status(self):
         """The start classification from the first iteration's factorization,
-        where every parameter is a candidate and clearly identifiable there:
-        ``(identifiable, influences)``, the factorization kept for the first
+        where every parameter is a candidate: ``(identifiable, influences)``
+        where the columns above classify's zero floor are all clearly
+        identifiable there (:func:`~calibration.solver.step.clearly_identifiable`;
+        the others have no influence), the factorization kept for the first
         iteration (:attr:`next_factor`); else None (then
         :func:`calibration.identifiability.classify` decides).
 
-        The QR of ``[G W H, G r]`` the first iteration makes holds that of the
+        The QR of ``[G W_R H, G r]`` the first iteration makes holds that of the
         unit columns the classification factors (the same matrix up to a column
-        scaling): its ``|R[j, j]| / ||R[:, j]||`` is the distance of column j from
-        the span of the earlier ones. The decisions are taken from it only where
-        every margin exceeds the round-off that tells the two QRs apart."""
+        scaling). Its column norms and zero floor are classify's own."""
         order = self.model.identify_order
         if not self.candidates.all() or (order is not None and
                                          not np.array_equal(order, np.arange(len(order)))):
             return None
-        self._set_active(self.candidates)
+        g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
+        Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
+        norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
+        floor = self.opt.rank_tol * norms.max()
+        use = norms > floor
+        if not use.any():
+            return None
+        self._set_active(use)
         try:
             F = self._factor()
         except np.linalg.LinAlgError:
             return None
-        if not isinstance(F, Scaled) or F.Rinv is None:
-            return None
-        if not clearly_identifiable(F, self.opt.rank_tol, 0.0):
+        if (not isinstance(F, Scaled) or F.Rinv is None
+                or clearly_identifiable(F, self.opt.rank_tol, norms[self.active_idx],
+                                        float(floor)) is None):
             return None
         self.next_factor = F
-        n = len(self.names)
-        return np.ones(n, bool), np.zeros(n, bool)
+        return use, np.zeros(len(use), bool)
+
+    def _check_from_last(self, r, sigma, weights, cand):
+        """The identifiability check at the solution from the last iteration's
+        factorization, where its weights and the check's are both the same for
+        every row (one channel, or channels whose sigmas agree): a
+        :class:`Check`, where every active parameter is clearly identifiable
+        there (:func:`~calibration.solver.step.clearly_identifiable`, with
+        classify's column norms and zero floor at the solution); else None."""
+        F, order = self.last_factor, self.model.identify_order
+        if (F is None or F.W is not self.W or F.Rinv is None or F.svd is not None
+                or not isinstance(F.g, float) or F.n != self.n_active
+                or (sigma is not None and len(set(sigma.values())) > 1)
+                or cand.tobytes() != self.active.tobytes()
+                or (order is not None and not np.array_equal(order, np.arange(len(order))))):
+            return None
+        opt = self.opt
+        # classify's column norms and zero floor, made as it makes them
+        gw = np.sqrt(weights)
+        Wg = self.W * gw[:, None]
+        norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
+        floor = opt.rank_tol * (norms.max() if cand.all() else norms.max(initial=0.0, where=cand))
+        rg = gw * r
+        floor = max(floor, opt.kappa * math.sqrt(float(rg @ rg)))
+        d = clearly_identifiable(F, opt.rank_tol, norms[self.active_idx], float(floor))
+        if d is None:
+            return None
+        rdiag = np.zeros(len(cand))
+        rdiag[self.active_idx] = d
+        cls = (cand.copy(), np.zeros(len(cand), bool), rdiag, norms)
+        return Check(self.W, r, sigma, weights, cand, cls, None)
 
     def _set_active(self, mask):
         self.active = np.asarray(mask, bool)
@@ -181,10 +217,13 @@ class Algorithm2(Weighting, Stepping):
                 and chk.candidates.tobytes() == cand.tobytes()):  # (bool masks)
             # (a round that ended where it began, e.g. after the per-channel
             # weights of a noise-free fit changed at round-off: the same check)
-            *cls, R = ident.classify(self.W, weights=weights, candidates=cand, residual=r,
-                                     rank_tol=opt.rank_tol, kappa=opt.kappa, return_r=True,
-                                     order=self.model.identify_order)
-            chk = self.last_check = Check(self.W, r, sigma, weights, cand, cls, R)
+            chk = self._check_from_last(r, sigma, weights, cand)
+            if chk is None:
+                *cls, R = ident.classify(self.W, weights=weights, candidates=cand, residual=r,
+                                         rank_tol=opt.rank_tol, kappa=opt.kappa, return_r=True,
+                                         order=self.model.identify_order)
+                chk = Check(self.W, r, sigma, weights, cand, cls, R)
+            self.last_check = chk
         cls = chk.cls
         new_active = cls[0] & self.active
         if new_active.tobytes() == self.active.tobytes():  # (bool masks)

@@ -180,25 +180,25 @@ class Scaled:
 
 
 
-def clearly_identifiable(F: Scaled, rank_tol: float, floor_res: float) -> bool:
-    """Would :func:`calibration.identifiability.classify` find every column of
-    ``F``'s matrix identifiable, with the residual floor ``floor_res``
-    (``kappa`` times the weighted residual norm, 0 at the start), and with a
-    margin that the round-off of a different QR of the same columns cannot
-    cross? ``F`` factors ``A = G W_R H``: ``||R[:, j]|| = ||A[:, j]||``, so
-    ``|R[j, j]| / ||R[:, j]||`` is the distance of the unit column j from the
-    span of the earlier ones and ``||R[:, j]|| / h_j`` the weighted column norm
-    ``||G W_R[:, j]||``. False where in doubt (classify then decides)."""
+def clearly_identifiable(F: Scaled, rank_tol: float, norms, floor: float):
+    """The distances :func:`calibration.identifiability.classify` finds for
+    the columns of ``F``'s matrix, where it would find every one identifiable
+    by a margin that the round-off of a different QR of the same columns
+    cannot cross; else None (classify then decides). ``norms``, ``floor``: its
+    weighted column norms ``||G W_R[:, j]||`` and its zero floor, as it makes
+    them. ``F`` factors ``A = G' W_R H`` with ``G'`` a constant times the check's
+    ``G``, so ``||R[:, j]|| = ||A[:, j]||`` and ``|R[j, j]| / ||R[:, j]||`` is the
+    distance of the unit column j from the span of the earlier ones (classify's
+    ``r_diag``)."""
     R = F.R
-    cn = np.sqrt(np.einsum("ij,ij->j", R, R))
-    d = np.abs(R.diagonal()) / cn
-    norms = cn / F.h
-    floor = max(rank_tol * float(norms.max()), floor_res) * (1 + 1e-9)
-    # |R[j, j]| of unit columns is exact to a few n eps (backward stable QR)
+    d = np.abs(R.diagonal()) / np.sqrt(np.einsum("ij,ij->j", R, R))
+    # |R[j, j]| of unit columns is exact to a few n eps (backward stable QR);
+    # the smallest of each: False where any is NaN, as np.all would be
     dmin = d - 1e-12
-    # (the smallest of each: False where any is NaN, as np.all would be)
-    return (float(dmin.min()) > rank_tol and float((dmin * norms).min()) > floor
-            and float(norms.min()) > floor)
+    if (float(dmin.min()) > rank_tol and float((dmin * norms).min()) > floor * (1 + 1e-9)
+            and float(norms.min()) > floor):
+        return d
+    return None
 
 
 class Iteration:
