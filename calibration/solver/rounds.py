@@ -194,7 +194,6 @@ class Algorithm2(Weighting, Stepping):
         self.active_idx = np.flatnonzero(self.active)
         self.n_active = len(self.active_idx)
         self.all_active = self.n_active == len(self.active)
-        self._nan = np.full(len(self.active), np.nan)
 
     @property
     def r_sol(self):

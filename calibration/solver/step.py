@@ -205,7 +205,8 @@ class Iteration:
     """One iteration's record (the data behind the report's figures); read-only.
 
     x:                 ``(N,)`` parameters after the step
-    variance:          ``(N,)`` variance of each parameter (NaN where not calibrated)
+    variance:          ``(N,)`` variance of each parameter (NaN where not calibrated;
+                       formed when first read, like the condition number)
     condition_number:  of the scaled, weighted observation matrix (computed from
                        the iteration's triangle when first read: the loop itself
                        does not need it)
@@ -214,17 +215,32 @@ class Iteration:
     sigma:             channel -> sigma estimate
     """
 
-    __slots__ = ("_cond", "cost", "sigma", "step", "variance", "x")
+    __slots__ = ("_cond", "_var", "cost", "sigma", "step", "x")
 
     def __init__(self, x, variance, condition_number, step, cost, sigma):
-        # condition_number: a number, or the (n, n) triangle R whose it is
+        # condition_number: a number, or the (n, n) triangle R whose it is;
+        # variance: an array, or (factor, h, v, active_idx, N): factor * h^2 * v
+        # on the calibrated parameters (active_idx; None: all)
         s = object.__setattr__
         s(self, "x", x)
-        s(self, "variance", variance)
+        s(self, "_var", variance)
         s(self, "_cond", condition_number)
         s(self, "step", step)
         s(self, "cost", cost)
         s(self, "sigma", sigma)
+
+    @property
+    def variance(self) -> np.ndarray:
+        v = self._var
+        if isinstance(v, tuple):
+            factor, h, vs, idx, n = v
+            v = (factor * (h * h)) * vs
+            if idx is not None:
+                full = np.full(n, np.nan)
+                full[idx] = v
+                v = full
+            object.__setattr__(self, "_var", v)
+        return v
 
     @property
     def condition_number(self) -> float:
@@ -274,12 +290,8 @@ class Stepping:
             factor = float(g0 * g0 * self.sigma[self.ch0] ** 2)
         else:
             factor = 1.0
-        h = F.h
-        var = (factor * (h * h)) * F.variance_scaled()
-        if not self.all_active:
-            var_all = self._nan.copy()
-            var_all[self.active_idx] = var
-            var = var_all
+        var = (factor, F.h, F.variance_scaled(), None if self.all_active else self.active_idx,
+               len(self.active))
         it = Iteration(self.x.copy(), var, F.R if F._sv is None else F.cond, step, cost,
                        dict(self.sigma))
         self.history.append(it)
