@@ -271,8 +271,9 @@ def profile_ours(prob, n):
     groups = [
         ("model.evaluate (r and W)", cum(lambda k: k[2] == "evaluate"
                                          and "calibration" in k[0] and "methods" in k[0])),
-        ("identifiability.classify (start, recheck)", cum(lambda k: k[2] == "classify"
-                                                          and in_ident(k))),
+        ("identifiability (classify, or read off a QR)", cum(
+            lambda k: (k[2] == "classify" and in_ident(k))
+            or (k[2] == "clearly_identifiable" and in_step(k)))),
         ("Scaled: QR of [G W H, G r], sing. values", cum(lambda k: in_step(k)
                                                           and k[1] == SCALED_LINE)),
         ("Scaled.step (damped step, eq. 48)", cum(lambda k: k[2] == "step" and in_solver(k))),

@@ -49,6 +49,16 @@ class ParameterStatus:
     # ``influences_model`` says whether its column is above the zero floor
     fixed: bool = False
 
+    @classmethod
+    def of(cls, name, identifiable, influences_model, r_diag, column_norm, fixed=False):
+        """The same as the constructor, without its per-field checks of a frozen
+        dataclass (half the time; the solver makes one per parameter per solve)."""
+        s = object.__new__(cls)
+        s.__dict__.update(name=name, identifiable=identifiable,
+                          influences_model=influences_model, r_diag=r_diag,
+                          column_norm=column_norm, fixed=fixed)
+        return s
+
     @property
     def label(self) -> str:
         if self.identifiable:
@@ -146,11 +156,16 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
         # on q rows, not on all of them)
         q = T.shape[1]
         T = lapack.dgeqrf(T)[0][:q] * _upper(q)
+        tri = True  # T is its own R (a QR of it would give it back unchanged)
     else:  # not tall (rare): restarts below on T as it always was, in C order
         T = np.ascontiguousarray(T)
+        tri = False
     basis = None  # orthonormal basis of the kept columns before idx[0], once one was dropped
     while idx.size:
-        d, qr = _r_diagonal(T)
+        if tri:
+            d, qr, tri = np.abs(T.diagonal()), T, False
+        else:
+            d, qr = _r_diagonal(T)
         bad = (d <= rank_tol) | (d * nidx <= floor)
         if not bad.any():
             rdiag[idx] = d

@@ -28,7 +28,11 @@ damping), :mod:`~calibration.solver.weighting` (sigma and L, eq. 51),
 Cost: one Householder QR of ``[G W_R H, G r]`` per iteration gives the step
 for every damping tried there, the variance and (with the singular values of
 its small triangle) the condition number; the final covariance and condition
-number reuse a QR already made at the solution where the weights allow. The
+number reuse a QR already made at the solution where the weights allow, and
+so do the identifiability checks: at the start the first iteration's QR, at
+the solution the last iteration's where both weightings are uniform, decide
+wherever every parameter is clearly identifiable (else
+:func:`calibration.identifiability.classify` does). The
 per-channel weights of a multi-channel fit are fixed as soon as the pooled fit
 predicts its solution's residual reliably (see :func:`solve`), not after
 iterating the pooled fit to epsilon.

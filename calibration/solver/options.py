@@ -20,7 +20,9 @@ class SolverOptions:
     fixed:          parameter names kept at their start values.
     adaptive:       reject a step that raises the weighted cost and retry it with
                     ten times the damping (Levenberg-Marquardt safeguard); the
-                    damping relaxes back to lambda after accepted steps. False
+                    damping relaxes back to lambda after accepted steps (by
+                    the gain ratio once it swings, see
+                    :meth:`calibration.solver.step.Stepping.iterate`). False
                     runs the report's plain Algorithm 2.
     """
 

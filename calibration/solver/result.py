@@ -89,7 +89,7 @@ def make_result(run, converged: bool, message: str, t_start: float) -> Calibrati
     elif f is not None:
         cov = _covariance(run, cov_sigma, run.row_weights(cov_sigma), need_cond=False)[0]
     std = np.full(len(names), np.nan)
-    std[active] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    std[active] = np.sqrt(np.maximum(cov.diagonal(), 0.0))
     rss = np.bincount(run.row_channel, weights=r * r, minlength=len(run.channels)).tolist()
     rms = {ch: math.sqrt(s / nc) if nc else math.nan
            for ch, s, nc in zip(run.channels, rss, run.channel_count.tolist())}
@@ -147,7 +147,7 @@ def _covariance(run, sigma, w, need_cond=True, need_cov=True):
     if n and rows > n and norms.min() > 0:
         chk = run.last_check
         if (chk is not None and chk.R is not None and chk.saw(run, sigma)
-                and np.array_equal(chk.cls[0], run.active)):
+                and chk.cls[0].tobytes() == run.active.tobytes()):  # (bool masks)
             # the recheck's R is that of G W_R D, D = 1/||G W_R[:, j]||: G W_R H = (G W_R D) S
             # with S = diag(||G W_R[:, j]|| h_j), so R S is the triangle of G W_R H
             R = chk.R * (chk.cls[3][run.active_idx] * h)
@@ -220,20 +220,24 @@ def _final_status(run, sigma, weights):
     # a fixed parameter's column against the zero floor of the classification
     # (rank and, at the solution, the residual): strong, a wrong value biases the others
     cand = run.candidates
-    floor = opt.rank_tol * float(norms.max(initial=0.0, where=cand)) if cand.any() else 0.0
+    if cand.all():
+        floor = opt.rank_tol * float(norms.max())
+    else:
+        floor = opt.rank_tol * float(norms.max(initial=0.0, where=cand)) if cand.any() else 0.0
     if opt.recheck:
         rg = np.sqrt(weights) * run.r
         floor = max(floor, opt.kappa * math.sqrt(float(rg @ rg)))
     out = []
+    status = ident.ParameterStatus.of
     for nm, a, c, i_ok, i_dep, rd, cn in zip(run.names, run.active.tolist(), cand.tolist(),
                                              ok.tolist(), dep.tolist(), rdiag.tolist(),
                                              norms.tolist()):
         if a:
-            out.append(ident.ParameterStatus(nm, True, False, rd, cn))
+            out.append(status(nm, True, False, rd, cn))
         elif not c:
-            out.append(ident.ParameterStatus(nm, False, bool(cn > floor), rd, cn, fixed=True))
+            out.append(status(nm, False, bool(cn > floor), rd, cn, True))
         elif i_ok:  # excluded earlier, independent now: it still was not calibrated
-            out.append(ident.ParameterStatus(nm, False, True, rd, cn))
+            out.append(status(nm, False, True, rd, cn))
         else:
-            out.append(ident.ParameterStatus(nm, False, i_dep, rd, cn))
+            out.append(status(nm, False, i_dep, rd, cn))
     return out

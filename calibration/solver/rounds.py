@@ -17,7 +17,7 @@ from calibration.errors import CalibrationError
 from calibration.model import MeasurementModel
 from calibration.solver.options import SolverOptions
 from calibration.solver.result import CalibrationResult, make_result
-from calibration.solver.step import Iteration, Stepping
+from calibration.solver.step import Iteration, Scaled, Stepping, clearly_identifiable
 from calibration.solver.weighting import Weighting
 
 
@@ -88,13 +88,17 @@ class Algorithm2(Weighting, Stepping):
         self.r_pred = None  # residual predicted at the pooled solution (early stop)
         self.last_check = None  # the last recheck (Check)
         self.last_factor = None  # the factorization the last iteration ended on
+        self.next_factor = None  # the factorization the next iteration starts from, if made
         self._sigma_memo = (None, -1, None, None)
         self.sigma_dof: dict = {}  # channel -> degrees of freedom of its estimated sigma
     # -- identifiability ------------------------------------------------------
     def initial_status(self):
         model, opt = self.model, self.opt
         twin = model.consistent_twin(self.x)
-        if twin is model:
+        cls = self._first_factor_status() if twin is model else None
+        if cls is not None:
+            pass
+        elif twin is model:
             g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
             Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
             cls = ident.classify(Wg, candidates=self.candidates, rank_tol=opt.rank_tol,
@@ -120,12 +124,76 @@ class Algorithm2(Weighting, Stepping):
                 f"at least {int(np.ceil((n_dep + 1) / p))} poses are needed "
                 f"(recommended {ident.minimum_poses(n_dep, p)}, eq. 60)")
 
+    def _first_factor_status(self):
+        """The start classification from the first iteration's factorization,
+        where every parameter is a candidate: ``(identifiable, influences)``
+        where the columns above classify's zero floor are all clearly
+        identifiable there (:func:`~calibration.solver.step.clearly_identifiable`;
+        the others have no influence), the factorization kept for the first
+        iteration (:attr:`next_factor`); else None (then
+        :func:`calibration.identifiability.classify` decides).
+
+        The QR of ``[G W_R H, G r]`` the first iteration makes holds that of the
+        unit columns the classification factors (the same matrix up to a column
+        scaling). Its column norms and zero floor are classify's own."""
+        order = self.model.identify_order
+        if not self.candidates.all() or (order is not None and
+                                         not np.array_equal(order, np.arange(len(order)))):
+            return None
+        g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
+        Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
+        norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
+        floor = self.opt.rank_tol * norms.max()
+        use = norms > floor
+        if not use.any():
+            return None
+        self._set_active(use)
+        try:
+            F = self._factor()
+        except np.linalg.LinAlgError:
+            return None
+        if (not isinstance(F, Scaled) or F.Rinv is None
+                or clearly_identifiable(F, self.opt.rank_tol, norms[self.active_idx],
+                                        float(floor)) is None):
+            return None
+        self.next_factor = F
+        return use, np.zeros(len(use), bool)
+
+    def _check_from_last(self, r, sigma, weights, cand):
+        """The identifiability check at the solution from the last iteration's
+        factorization, where its weights and the check's are both the same for
+        every row (one channel, or channels whose sigmas agree): a
+        :class:`Check`, where every active parameter is clearly identifiable
+        there (:func:`~calibration.solver.step.clearly_identifiable`, with
+        classify's column norms and zero floor at the solution); else None."""
+        F, order = self.last_factor, self.model.identify_order
+        if (F is None or F.W is not self.W or F.Rinv is None or F.svd is not None
+                or not isinstance(F.g, float) or F.n != self.n_active
+                or (sigma is not None and len(set(sigma.values())) > 1)
+                or cand.tobytes() != self.active.tobytes()
+                or (order is not None and not np.array_equal(order, np.arange(len(order))))):
+            return None
+        opt = self.opt
+        # classify's column norms and zero floor, made as it makes them
+        gw = np.sqrt(weights)
+        Wg = self.W * gw[:, None]
+        norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
+        floor = opt.rank_tol * (norms.max() if cand.all() else norms.max(initial=0.0, where=cand))
+        rg = gw * r
+        floor = max(floor, opt.kappa * math.sqrt(float(rg @ rg)))
+        d = clearly_identifiable(F, opt.rank_tol, norms[self.active_idx], float(floor))
+        if d is None:
+            return None
+        rdiag = np.zeros(len(cand))
+        rdiag[self.active_idx] = d
+        cls = (cand.copy(), np.zeros(len(cand), bool), rdiag, norms)
+        return Check(self.W, r, sigma, weights, cand, cls, None)
+
     def _set_active(self, mask):
         self.active = np.asarray(mask, bool)
         self.active_idx = np.flatnonzero(self.active)
         self.n_active = len(self.active_idx)
         self.all_active = self.n_active == len(self.active)
-        self._nan = np.full(len(self.active), np.nan)
 
     @property
     def r_sol(self):
@@ -143,12 +211,21 @@ class Algorithm2(Weighting, Stepping):
         else:
             sigma, weights = None, np.ones(self.rows)
         cand = self.active & self.candidates
-        *cls, R = ident.classify(self.W, weights=weights, candidates=cand, residual=r,
-                                 rank_tol=opt.rank_tol, kappa=opt.kappa, return_r=True,
-                                 order=self.model.identify_order)
-        self.last_check = Check(self.W, r, sigma, weights, cand, cls, R)
+        chk = self.last_check
+        if not (chk is not None and chk.W is self.W and chk.r is r and chk.sigma == sigma
+                and chk.candidates.tobytes() == cand.tobytes()):  # (bool masks)
+            # (a round that ended where it began, e.g. after the per-channel
+            # weights of a noise-free fit changed at round-off: the same check)
+            chk = self._check_from_last(r, sigma, weights, cand)
+            if chk is None:
+                *cls, R = ident.classify(self.W, weights=weights, candidates=cand, residual=r,
+                                         rank_tol=opt.rank_tol, kappa=opt.kappa, return_r=True,
+                                         order=self.model.identify_order)
+                chk = Check(self.W, r, sigma, weights, cand, cls, R)
+            self.last_check = chk
+        cls = chk.cls
         new_active = cls[0] & self.active
-        if np.array_equal(new_active, self.active):
+        if new_active.tobytes() == self.active.tobytes():  # (bool masks)
             return False
         self.drop(self.active & ~new_active)
         return True
@@ -162,7 +239,7 @@ class Algorithm2(Weighting, Stepping):
                 "no parameter can be identified at the solution: every column is within "
                 f"kappa = {self.opt.kappa:g} times the residual there (the model does not "
                 "fit the data: a local minimum, or a fixed parameter far from its value)")
-        self.r_pred = None
+        self.r_pred = self.next_factor = None
         x = self.x.copy()
         x[mask] = self.x0[mask]
         try:

@@ -150,6 +150,17 @@ class Scaled:
             return trtrs(qr[:n, :n], qr[:n, n])[0]
         return trtrs(self.R, self.Rc[:, n])[0]
 
+    def predicted(self, z) -> float:
+        """The cost decrease the linear model predicts for the step ``z``:
+        ``0.5 (||b||^2 - ||b - A z||^2)``."""
+        if self.svd is None:
+            v = self.R @ z
+            c = self.Rc[:, self.n]
+        else:
+            v = self.sv * (self.svd[0] @ z)
+            c = self.svd[1]
+        return float(v @ (c - 0.5 * v))
+
     def scaled_norm(self, z) -> float:
         """``||A z||``."""
         v = self.R @ z if self.svd is None else self.sv * (self.svd[0] @ z)
@@ -169,11 +180,33 @@ class Scaled:
 
 
 
+def clearly_identifiable(F: Scaled, rank_tol: float, norms, floor: float):
+    """The distances :func:`calibration.identifiability.classify` finds for
+    the columns of ``F``'s matrix, where it would find every one identifiable
+    by a margin that the round-off of a different QR of the same columns
+    cannot cross; else None (classify then decides). ``norms``, ``floor``: its
+    weighted column norms ``||G W_R[:, j]||`` and its zero floor, as it makes
+    them. ``F`` factors ``A = G' W_R H`` with ``G'`` a constant times the check's
+    ``G``, so ``||R[:, j]|| = ||A[:, j]||`` and ``|R[j, j]| / ||R[:, j]||`` is the
+    distance of the unit column j from the span of the earlier ones (classify's
+    ``r_diag``)."""
+    R = F.R
+    d = np.abs(R.diagonal()) / np.sqrt(np.einsum("ij,ij->j", R, R))
+    # |R[j, j]| of unit columns is exact to a few n eps (backward stable QR);
+    # the smallest of each: False where any is NaN, as np.all would be
+    dmin = d - 1e-12
+    if (float(dmin.min()) > rank_tol and float((dmin * norms).min()) > floor * (1 + 1e-9)
+            and float(norms.min()) > floor):
+        return d
+    return None
+
+
 class Iteration:
     """One iteration's record (the data behind the report's figures); read-only.
 
     x:                 ``(N,)`` parameters after the step
-    variance:          ``(N,)`` variance of each parameter (NaN where not calibrated)
+    variance:          ``(N,)`` variance of each parameter (NaN where not calibrated;
+                       formed when first read, like the condition number)
     condition_number:  of the scaled, weighted observation matrix (computed from
                        the iteration's triangle when first read: the loop itself
                        does not need it)
@@ -182,17 +215,32 @@ class Iteration:
     sigma:             channel -> sigma estimate
     """
 
-    __slots__ = ("_cond", "cost", "sigma", "step", "variance", "x")
+    __slots__ = ("_cond", "_var", "cost", "sigma", "step", "x")
 
     def __init__(self, x, variance, condition_number, step, cost, sigma):
-        # condition_number: a number, or the (n, n) triangle R whose it is
+        # condition_number: a number, or the (n, n) triangle R whose it is;
+        # variance: an array, or (factor, h, v, active_idx, N): factor * h^2 * v
+        # on the calibrated parameters (active_idx; None: all)
         s = object.__setattr__
         s(self, "x", x)
-        s(self, "variance", variance)
+        s(self, "_var", variance)
         s(self, "_cond", condition_number)
         s(self, "step", step)
         s(self, "cost", cost)
         s(self, "sigma", sigma)
+
+    @property
+    def variance(self) -> np.ndarray:
+        v = self._var
+        if isinstance(v, tuple):
+            factor, h, vs, idx, n = v
+            v = (factor * (h * h)) * vs
+            if idx is not None:
+                full = np.full(n, np.nan)
+                full[idx] = v
+                v = full
+            object.__setattr__(self, "_var", v)
+        return v
 
     @property
     def condition_number(self) -> float:
@@ -242,12 +290,8 @@ class Stepping:
             factor = float(g0 * g0 * self.sigma[self.ch0] ** 2)
         else:
             factor = 1.0
-        h = F.h
-        var = (factor * (h * h)) * F.variance_scaled()
-        if not self.all_active:
-            var_all = self._nan.copy()
-            var_all[self.active_idx] = var
-            var = var_all
+        var = (factor, F.h, F.variance_scaled(), None if self.all_active else self.active_idx,
+               len(self.active))
         it = Iteration(self.x.copy(), var, F.R if F._sv is None else F.cond, step, cost,
                        dict(self.sigma))
         self.history.append(it)
@@ -268,6 +312,21 @@ class Stepping:
         decrease = 0.5 * F.scaled_norm(z0) ** 2
         return decrease > STALL_CHI2 * F.cost / dof
 
+    def _relaxed(self, F, z, cost, cost_try, floor) -> float:
+        """The damping after an accepted step ``z`` once the damping swings
+        (see :meth:`iterate`), by its gain ratio ``rho`` (actual over predicted
+        decrease of the cost; Nielsen 1999, Madsen, Nielsen & Tingleff 2004):
+        ``lambda^2`` times ``max(1/3, 1 - (2 rho - 1)^3)``, never below lambda
+        nor ``floor`` (the damping last rejected). A step the linear model
+        predicted well relaxes the damping, a poor one (rho near 0) raises it."""
+        p_dec = F.predicted(z)
+        if p_dec > 1e-10 * cost:
+            rho = min(max((cost - cost_try) / p_dec, 0.0), 1.0)
+            f2 = max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+        else:  # a decrease at round-off: the linear model is as good as exact
+            f2 = 1.0 / 3.0
+        return max(self.lam, floor, self.lam_eff * math.sqrt(f2))
+
     def iterate(self, early: bool = False) -> tuple[bool, str]:
         """Iterate on the current active set until the step is below epsilon.
 
@@ -278,6 +337,21 @@ class Stepping:
         opt = self.opt
         eps, adaptive, max_iter = opt.epsilon, opt.adaptive, opt.max_iter
         rejected = 0
+        # Adaptive damping (Levenberg-Marquardt safeguard): a rejected step is
+        # retried with ten times the damping, an accepted one relaxes it tenfold
+        # (never below lambda). Where that swings, i.e. two iterations in a row
+        # needed a rejected step first, the damping tenfold down is rejected
+        # again and again (a curved valley: sm-distance at 100 poses took 106
+        # iterations and 210 evaluations): from then on, in this round, an
+        # accepted step relaxes the damping by its gain ratio (:meth:`_relaxed`),
+        # no lower than the damping last rejected. A rejection still raises it
+        # tenfold: a smaller rise keeps the steps towards the spurious minimum
+        # a Gauss-Newton step can point at (sm-distance), and the plain tenfold
+        # relaxation before any swing keeps the paths of the problems that never
+        # swing (most) as they were.
+        swings = 0  # consecutive iterations that began with a rejected step
+        cautious = False
+        lam_rej = 0.0  # the damping last rejected
         self.lam_eff = self.lam
         self.stopped_early = False
         self.r_pred = None
@@ -286,6 +360,8 @@ class Stepping:
         pred = None  # (predicted residual after the last step, its ||z||, ||actual - predicted||)
         F = None  # the factored problem at the current x and weights
         while self.k < max_iter:
+            if F is None:
+                F, self.next_factor = self.next_factor, None
             if F is None:
                 try:
                     F = self._factor()
@@ -363,12 +439,17 @@ class Stepping:
                     rejected += 1
                     if rejected > 30:
                         return False, f"no step lowers the cost any more (iteration {self.k + 1})"
+                    lam_rej = self.lam_eff
                     self.lam_eff = max(10 * self.lam_eff, 1e-3 * F.s0)
                     continue
                 if not ok:
                     return False, f"the step left the model's domain at iteration {self.k + 1}"
+            if adaptive:
+                swings = swings + 1 if rejected else 0
+                cautious = cautious or swings >= 2
+                self.lam_eff = (self._relaxed(F, z, cost, cost_try, lam_rej) if cautious
+                                else max(self.lam, self.lam_eff / 10))
             rejected = 0
-            self.lam_eff = max(self.lam, self.lam_eff / 10)
             if early:
                 e = r_try - r_lin
                 pred = (r_lin, zn, math.sqrt(e @ e))

@@ -95,7 +95,7 @@ class Weighting:
         g = self.g
         A = A * g if isinstance(g, float) else A * g[:, None]
         norms = np.sqrt(np.einsum("ij,ij->j", A, A))
-        if not np.all(norms > 0):
+        if not norms.min() > 0:  # (also where NaN)
             return [None] * nch
         qr, tau, _work, info = geqrf(np.divide(A, norms, out=np.empty(A.shape, order="F")))
         # Q in C order, as np.linalg.qr gives it (the row sums below then add
