@@ -90,6 +90,24 @@ def analyze(W: np.ndarray, names, *, weights: np.ndarray | None = None,
                                                  rdiag.tolist(), norms.tolist())]
 
 
+def column_floor(Wg, rank_tol: float, candidates=None, rg=None,
+                 kappa: float = 0.0) -> tuple[np.ndarray, float]:
+    """The column norms of the weighted matrix ``Wg`` and the floor below which
+    :func:`classify` takes a column for zero: ``rank_tol`` times the largest norm
+    (of the ``candidates``' columns where given), raised to ``kappa`` times the
+    weighted residual's norm where ``rg`` is given. The solver's checks read off an
+    iteration's QR (:mod:`calibration.solver.rounds`) use the same."""
+    norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
+    if candidates is None:
+        floor = rank_tol * norms.max() if Wg.shape[1] else 0.0
+    else:
+        floor = rank_tol * (norms.max() if candidates.all()
+                            else norms.max(initial=0.0, where=candidates))
+    if rg is not None:
+        floor = max(floor, kappa * math.sqrt(float(rg @ rg)))
+    return norms, floor
+
+
 def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
              candidates: np.ndarray | None = None, residual: np.ndarray | None = None,
              rank_tol: float = 1e-8, kappa: float = 3.0, return_r: bool = False,
@@ -126,18 +144,12 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
     else:
         g = np.sqrt(np.asarray(weights, dtype=float))
         Wg = W * g[:, None]
-    norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
-    if candidates is None:
-        floor = rank_tol * norms.max() if n else 0.0
-        use = norms > floor
-    else:
-        cand = np.asarray(candidates, bool)
-        floor = rank_tol * (norms.max() if cand.all() else norms.max(initial=0.0, where=cand))
-        use = cand & (norms > floor)
+    cand = None if candidates is None else np.asarray(candidates, bool)
+    rg = None
     if residual is not None:
         rg = np.asarray(residual, dtype=float) if g is None else g * residual
-        floor = max(floor, kappa * math.sqrt(float(rg @ rg)))
-        use &= norms > floor
+    norms, floor = column_floor(Wg, rank_tol, cand, rg, kappa)
+    use = norms > floor if cand is None else cand & (norms > floor)
     rdiag = np.zeros(n)
     dep = np.zeros(n, bool)
     R = None

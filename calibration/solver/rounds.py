@@ -142,8 +142,7 @@ class Algorithm2(Weighting, Stepping):
             return None
         g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
         Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
-        norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
-        floor = self.opt.rank_tol * norms.max()
+        norms, floor = ident.column_floor(Wg, self.opt.rank_tol)
         use = norms > floor
         if not use.any():
             return None
@@ -174,13 +173,9 @@ class Algorithm2(Weighting, Stepping):
                 or (order is not None and not np.array_equal(order, np.arange(len(order))))):
             return None
         opt = self.opt
-        # classify's column norms and zero floor, made as it makes them
+        # classify's column norms and zero floor
         gw = np.sqrt(weights)
-        Wg = self.W * gw[:, None]
-        norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
-        floor = opt.rank_tol * (norms.max() if cand.all() else norms.max(initial=0.0, where=cand))
-        rg = gw * r
-        floor = max(floor, opt.kappa * math.sqrt(float(rg @ rg)))
+        norms, floor = ident.column_floor(self.W * gw[:, None], opt.rank_tol, cand, gw * r, opt.kappa)
         d = clearly_identifiable(F, opt.rank_tol, norms[self.active_idx], float(floor))
         if d is None:
             return None
