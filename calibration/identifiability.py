@@ -90,22 +90,27 @@ def analyze(W: np.ndarray, names, *, weights: np.ndarray | None = None,
                                                  rdiag.tolist(), norms.tolist())]
 
 
-def column_floor(Wg, rank_tol: float, candidates=None, rg=None,
-                 kappa: float = 0.0) -> tuple[np.ndarray, float]:
-    """The column norms of the weighted matrix ``Wg`` and the floor below which
-    :func:`classify` takes a column for zero: ``rank_tol`` times the largest norm
-    (of the ``candidates``' columns where given), raised to ``kappa`` times the
-    weighted residual's norm where ``rg`` is given. The solver's checks read off an
-    iteration's QR (:mod:`calibration.solver.rounds`) use the same."""
-    norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
+def zero_floor(norms, rank_tol: float, candidates=None, rg=None, kappa: float = 0.0):
+    """The floor below which :func:`classify` takes a column of norm ``norms[j]`` for
+    zero: ``rank_tol`` times the largest norm (of the ``candidates``' columns where
+    given; 0 where there is none), raised to ``kappa`` times the weighted residual's
+    norm where ``rg`` is given. The solver's checks (:mod:`calibration.solver.rounds`,
+    :mod:`calibration.solver.result`) use the same."""
     if candidates is None:
-        floor = rank_tol * norms.max() if Wg.shape[1] else 0.0
+        floor = rank_tol * norms.max() if norms.size else 0.0
     else:
         floor = rank_tol * (norms.max() if candidates.all()
                             else norms.max(initial=0.0, where=candidates))
     if rg is not None:
         floor = max(floor, kappa * math.sqrt(float(rg @ rg)))
-    return norms, floor
+    return floor
+
+
+def column_floor(Wg, rank_tol: float, candidates=None, rg=None,
+                 kappa: float = 0.0) -> tuple[np.ndarray, float]:
+    """The column norms of the weighted matrix ``Wg`` and their :func:`zero_floor`."""
+    norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
+    return norms, zero_floor(norms, rank_tol, candidates, rg, kappa)
 
 
 def classify(W: np.ndarray, *, weights: np.ndarray | None = None,

@@ -197,6 +197,7 @@ def _final_status(run, sigma, weights):
     opt = run.opt
     cls = None
     chk = run.last_check
+    rg = np.sqrt(weights) * run.r if opt.recheck else None  # the weighted residual
     if opt.recheck and chk is not None and chk.saw(run, sigma):
         ok, dep, rdiag, norms = chk.cls
         extra = run.candidates & ~chk.candidates
@@ -205,9 +206,8 @@ def _final_status(run, sigma, weights):
         else:
             # a zero column is left out of the QR, and so changes nothing, if it
             # does not raise the largest candidate norm (the rank floor) either
-            floor_rank = opt.rank_tol * float(norms.max(initial=0.0, where=chk.candidates))
-            rg = np.sqrt(weights) * run.r
-            floor = max(floor_rank, opt.kappa * math.sqrt(float(rg @ rg)))
+            floor_rank = ident.zero_floor(norms, opt.rank_tol, chk.candidates)
+            floor = ident.zero_floor(norms, opt.rank_tol, chk.candidates, rg, opt.kappa)
             ne = norms[extra]
             if np.all(ne <= floor) and opt.rank_tol * float(ne.max()) <= floor_rank:
                 cls = chk.cls
@@ -220,13 +220,7 @@ def _final_status(run, sigma, weights):
     # a fixed parameter's column against the zero floor of the classification
     # (rank and, at the solution, the residual): strong, a wrong value biases the others
     cand = run.candidates
-    if cand.all():
-        floor = opt.rank_tol * float(norms.max())
-    else:
-        floor = opt.rank_tol * float(norms.max(initial=0.0, where=cand)) if cand.any() else 0.0
-    if opt.recheck:
-        rg = np.sqrt(weights) * run.r
-        floor = max(floor, opt.kappa * math.sqrt(float(rg @ rg)))
+    floor = ident.zero_floor(norms, opt.rank_tol, cand, rg, opt.kappa)
     out = []
     status = ident.ParameterStatus.of
     for nm, a, c, i_ok, i_dep, rd, cn in zip(run.names, run.active.tolist(), cand.tolist(),

@@ -96,14 +96,12 @@ class Algorithm2(Weighting, Stepping):
         model, opt = self.model, self.opt
         twin = model.consistent_twin(self.x)
         cls = self._first_factor_status() if twin is model else None
-        if cls is not None:
-            pass
-        elif twin is model:
+        if cls is None and twin is model:
             g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
             Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
             cls = ident.classify(Wg, candidates=self.candidates, rank_tol=opt.rank_tol,
                                  order=model.identify_order)
-        else:
+        elif cls is None:
             r_t, W_t = twin.evaluate(self.x)
             self.nfev += 1
             cls = ident.classify(W_t, candidates=self.candidates, residual=r_t,
