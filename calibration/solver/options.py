@@ -19,7 +19,8 @@ class SolverOptions:
     recheck:        re-analyse identifiability at the solution.
     fixed:          parameter names kept at their start values.
     adaptive:       reject a step that raises the weighted cost and retry it with
-                    ten times the damping (Levenberg-Marquardt safeguard); the
+                    the damping whose step is a tenth as long (a
+                    Levenberg-Marquardt trust region shrunk tenfold); the
                     damping relaxes back to lambda after accepted steps (by
                     the gain ratio once it swings, see
                     :meth:`calibration.solver.step.Stepping.iterate`). False

@@ -25,7 +25,8 @@ class CalibrationResult:
     converged, message, iterations, nfev: how it ended.
     sigma:         channel -> estimated sigma of one row (eq. 51), residual units.
     sigma_dof:     channel -> degrees of freedom of its estimated sigma (none where
-                   known); the covariance adds that sigma's own uncertainty
+                   known, nor where the fit is exact: every channel's residual at
+                   round-off, ``weighting.ROUNDOFF_SIGMA``); the covariance adds that sigma's own uncertainty
                    (:meth:`~calibration.solver.weighting.Weighting.covariance_sigma`).
     residual_rms:  channel -> RMS of the final residual.
     condition_number: of the final scaled, weighted observation matrix.

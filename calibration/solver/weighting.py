@@ -20,6 +20,14 @@ geqrf, orgqr = lapack.dgeqrf, lapack.dorgqr
 SIGMA_FLOOR = 1e-14
 # A material change of a channel's sigma between rounds (relative).
 SIGMA_CHANGE = 0.05
+# Every channel's sigma below this (SI units: 0.1 nm, 0.1 nrad, four orders of
+# magnitude below the finest instrument) means the model matches the readings to
+# round-off (noise-free data): weights per channel would only reweight round-off
+# (a channel's sigma of 1e-13 m next to another's 1e-14 m), so no round is run
+# for them, and where every channel's residual sum of squares is below its
+# square, the channels share one sigma, with no degrees of freedom
+# (:meth:`Weighting.channel_sigma`).
+ROUNDOFF_SIGMA = 1e-10
 
 
 class Weighting:
@@ -36,6 +44,17 @@ class Weighting:
             return dict(memo[2])
         rss = np.bincount(self.row_channel, weights=r * r, minlength=len(self.channels)).tolist()
         known = self.known
+        if not known and max(rss) <= ROUNDOFF_SIGMA ** 2:
+            # the model matches every reading to round-off: the residual says
+            # nothing of the noise (per-channel estimates would differ by the
+            # round-off of each channel's arithmetic): one sigma for all, eq. 51
+            # over all rows, and no degrees of freedom (it estimates no noise,
+            # so it adds no uncertainty of its own to the covariance)
+            out = self._pooled_sigma(float(sum(rss)), n, n_active)
+            dofs = {}
+            self._sigma_memo = (r, n_active, out, dofs)
+            self.sigma_dof = dict(dofs)
+            return dict(out)
         # the leverage (a QR of the whole matrix) only serves the channels estimated here
         used = ([None] * len(self.channels) if all(ch in known for ch in self.channels)
                 else self._channel_leverage(n_active))
@@ -127,8 +146,8 @@ class Weighting:
             self.g = (1.0 / s)[self.row_channel]
             self._g_sigma = self.sigma
     def _sigma_changed(self, sigma, old) -> bool:
-        floor = all(v <= 10 * SIGMA_FLOOR for v in sigma.values())
-        return not floor and any(abs(sigma[ch] / old[ch] - 1) > SIGMA_CHANGE for ch in sigma)
+        exact = all(v <= ROUNDOFF_SIGMA for v in sigma.values())
+        return not exact and any(abs(sigma[ch] / old[ch] - 1) > SIGMA_CHANGE for ch in sigma)
 
     def can_reweight(self) -> bool:
         return not (self.mode == "known" or not self.opt.weight_errors or len(self.channels) < 2)
@@ -145,6 +164,7 @@ class Weighting:
         sigma = self.channel_sigma(self.r_sol, self.n_active)
         old = self.sigma
         self.sigma, self.mode = sigma, "channel"
+        self.next_factor = None  # made with the old weights
         self._set_weights()
         return self._sigma_changed(sigma, old)
 

@@ -806,3 +806,29 @@ def test_a_fixed_parameter_reports_its_columns_influence():
     assert st["x3"].fixed and not st["x3"].influences_model
     assert st["x3"].label == f"{ident.FIXED}, {ident.NO_INFLUENCE}"
     assert not st["x0"].fixed and st["x0"].label == ident.IDENTIFIABLE
+
+
+def test_an_exact_fit_shares_one_sigma_and_runs_no_round_for_round_off():
+    """Noise-free sm-full-pose (four channels): every residual at round-off. The
+    per-channel estimates then differ only by each channel's arithmetic (x 1.1e-13 m
+    against z's 1e-14 floor before): reweighting by them ran a second round that moved
+    nothing. Now one sigma (eq. 51 over all rows) for every channel, no degrees of
+    freedom (it estimates no noise, so no t factor in the std), one round."""
+    from tests.calibration.helpers import dataset
+    from calibration.solver.weighting import ROUNDOFF_SIGMA
+
+    model, truth = dataset("sm-full-pose", seed=0, count=30)
+    res = solve(model)
+    assert res.converged, res.message
+    assert max(res.residual_rms.values()) < ROUNDOFF_SIGMA
+    assert len(set(res.sigma.values())) == 1, res.sigma
+    r = res.residual
+    s = max(math.sqrt(float(r @ r) / (len(r) - res.n_identifiable)), 1e-14)
+    assert res.sigma[model.channels[0]] == pytest.approx(s, rel=1e-9)
+    assert res.sigma_dof == {}
+    assert [h.step < 1e-10 for h in res.history].count(True) == 1   # one round
+    ident = np.array([st.identifiable for st in res.status])
+    W = model.evaluate(res.x)[1][:, ident]
+    std = s * np.sqrt(np.diag(np.linalg.inv(W.T @ W)))
+    np.testing.assert_allclose(res.std[ident], std, rtol=1e-6)
+    np.testing.assert_allclose(res.x[ident], truth[ident], atol=1e-9)
