@@ -40,7 +40,7 @@ from station.outputs import report, report_sections  # noqa: E402
 
 #: the last commit before the report's rework (issue 24): its figures module is "before"
 BEFORE_COMMIT = "c327d63"
-IMG = re.compile(r'data:image/png;base64,[A-Za-z0-9+/=]+')
+IMG = re.compile(r'data:image/(?:png|svg\+xml);base64,[A-Za-z0-9+/=]+')  # PNG before, SVG now
 FIGURE = re.compile(r'<figure><img src="[^"]*" alt="([^"]*)"><figcaption>(.*?)</figcaption>'
                     r'</figure>', re.S)
 CITED = re.compile(r"Fig\. \d+(?:, \d+)*")

@@ -1,6 +1,6 @@
-"""The report's figures (station/outputs/report.py): matplotlib on its own Agg canvas (pyplot
+"""The report's figures (station/outputs/report.py): matplotlib on its own canvas (pyplot
 and its global state are not used), each returned as ``{"src", "alt", "caption"}``
-with the PNG embedded as a base64 data URI.
+with the SVG embedded as a base64 data URI.
 
 Parameters are plotted in SI (as in the parameter file), residuals and validation
 errors in the display units of :mod:`station.outputs.units` (mm and degrees by default).
@@ -87,8 +87,7 @@ def _fig_parameters(ctx, hist) -> str:
             ax.plot(k, y, lw=1.2, marker=kit.marker(len(k)), ms=2.5,
                     label=f"{ctx.names[j]} (1 = {big:.3g}{' ' + unit if unit else ''})",
                     **kit.line_style(n))
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False,
-                  handlelength=1.6, borderaxespad=0.2)
+        kit.legend(ax, anchor=(1.0, 1.0), handlelength=1.6, borderaxespad=0.2)
     for g in range(len(groups), nrow * ncol):   # an empty cell: iterations read above it
         axes[g // ncol][g % ncol].set_visible(False)
         above = axes[g // ncol - 1][g % ncol]
@@ -130,8 +129,7 @@ def _fig_deviation(ctx, hist) -> str:
     ax.set_ylabel("|\u03be(k) \u2212 \u03be_final| / std", fontsize=8)
     ax.set_ylim(bottom=floor / 2)
     kit.style(ax, iterations=True)
-    ax.legend(fontsize=7, ncol=kit.legend_columns(len(idx)), loc="upper left",
-              bbox_to_anchor=(1.01, 1.0), frameon=False)
+    kit.legend(ax, ncol=kit.legend_columns(len(idx)))
     return kit.img(fig, "parameter deviation from the final value in standard deviations",
                 f"Convergence: distance of each identifiable parameter from its calibrated value "
                 f"in units of its std (values below {floor:g} drawn at {floor:g}).")
@@ -153,8 +151,7 @@ def _fig_variance(ctx, hist) -> str:
     ax.set_xlabel("iteration k", fontsize=8)
     ax.set_ylabel("variance [SI units\u00b2]", fontsize=8)
     kit.style(ax, iterations=True)
-    ax.legend(fontsize=7, ncol=kit.legend_columns(len(cols)), loc="upper left",
-              bbox_to_anchor=(1.01, 1.0), frameon=False)
+    kit.legend(ax, ncol=kit.legend_columns(len(cols)))
     return kit.img(fig, "variance per iteration",
                 "Variance of each calibrated parameter per iteration, Var(e(k)) (eq. 52; "
                 "report Fig. 11, 29). Gaps: the parameter was not calibrated in that iteration.")
@@ -220,16 +217,14 @@ def _fig_residuals(ctx) -> str:
         if has_before:
             b = ctx.before[sel] * f
             ax = axes[row][col]
-            ax.vlines(i, 0, b, color="#7f7f7f", lw=1.0)
-            ax.plot(i, b, "o", color="#7f7f7f", ms=2.5)
+            kit.segments(ax, i, 0, b, color="#7f7f7f", lw=1.0, marker="o", ms=2.5)
             ax.axhline(0, color="k", lw=0.6)
             kit.title(ax, f"{ch}: before (start values)")
             ax.set_ylabel(f"residual [{unit}]" if unit else "residual", fontsize=8)
             kit.style(ax, nbins=4)
             col += 1
         ax = axes[row][col]
-        ax.vlines(i, 0, a, color="#1f77b4", lw=1.0)
-        ax.plot(i, a, "o", color="#1f77b4", ms=2.5)
+        kit.segments(ax, i, 0, a, color="#1f77b4", lw=1.0, marker="o", ms=2.5)
         ax.axhline(0, color="k", lw=0.6)
         if sf > 0:
             for sgn in (-1, 1):
@@ -246,11 +241,11 @@ def _fig_residuals(ctx) -> str:
             lo, hi = lo - 0.5, hi + 0.5
         edges = np.linspace(lo, hi, nb + 1)
         counts = np.histogram(a, bins=edges)[0]
-        # one filled step patch and the bins' white borders as one collection: the look
-        # of ax.hist without a Rectangle artist per bin
+        # one filled step patch and the bins' white borders as one line: the look of
+        # ax.hist without a Rectangle artist per bin
         ax.stairs(counts, edges, fill=True, color="#1f77b4", alpha=0.75, lw=0)
-        ax.vlines(edges[1:-1], 0, np.minimum(counts[:-1], counts[1:]), color="white",
-                  lw=0.5)
+        kit.segments(ax, edges[1:-1], 0, np.minimum(counts[:-1], counts[1:]), color="white",
+                     lw=0.5)
         if sf > 0 and a.size > 1:
             xs = np.linspace(lo, hi, 200)
             pdf = np.exp(-0.5 * (xs / sf) ** 2) / (sf * math.sqrt(2 * math.pi))

@@ -1,11 +1,12 @@
 """The HTML calibration report (station/outputs/report.py): one self-contained file,
-written atomically, escaped, with the figures embedded as PNG."""
+written atomically, escaped, with the figures embedded as SVG."""
 import base64
 import json
 import os
 import re
 import shutil
 import warnings
+import xml.etree.ElementTree as ET
 from html.parser import HTMLParser
 
 import markupsafe
@@ -17,8 +18,8 @@ from station.outputs.report import ReportError, write_report
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TRACES = os.path.join(ROOT, "fixtures", "traces")
-PNG = b"\x89PNG\r\n\x1a\n"
-IMG = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
+SVG_NS = "{http://www.w3.org/2000/svg}"
+IMG = re.compile(r'<img src="data:image/svg\+xml;base64,([A-Za-z0-9+/=]+)"')
 GROUPS = ("Identifiable (", "Not identifiable, without influence (",
           "Not identifiable, with influence (")
 VALIDATION = [
@@ -82,9 +83,20 @@ def check_html(text):
     return p
 
 
-def pngs(text):
+def svgs(text):
+    """The report's figures: each an SVG document that parses, with its text as <text>
+    (drawn by the browser, not as glyph paths) and nothing from elsewhere (its links
+    only to its own definitions, no images, no scripts)."""
     out = [base64.b64decode(b, validate=True) for b in IMG.findall(text)]
-    assert all(b.startswith(PNG) for b in out)
+    for svg in out:
+        root = ET.fromstring(svg)
+        assert root.tag == SVG_NS + "svg"
+        assert any(e.text and e.text.strip() for e in root.iter(SVG_NS + "text"))
+        for e in root.iter():
+            assert e.tag not in (SVG_NS + "script", SVG_NS + "image", SVG_NS + "foreignObject")
+            for key, value in e.attrib.items():
+                if key.endswith("href"):
+                    assert value.startswith("#"), (key, value)
     return out
 
 
@@ -123,7 +135,7 @@ def test_sm_report_content(sm_report):
         assert f'<td class="name">{name}</td>' in text
     for group in GROUPS:  # sm-self-redundancy has all three classes
         assert group in text
-    assert len(pngs(text)) >= 6  # 4 iteration figures, residuals, validation
+    assert len(svgs(text)) >= 6  # 4 iteration figures, residuals, validation
     assert "sm-self-redundancy.jsonl" in text and outcome.document is None
     assert "Eq. 60 minimum poses" in text and "Condition number" in text
     for key in ("dx", "dy"):
@@ -140,7 +152,7 @@ def test_validation_table(sm_report):
         for key in ("channel", "unit", "n", "rms_before", "rms_after", "max_before", "max_after"):
             assert f">{row[key]}<" in sec, (key, row[key])
     assert ">-99.87 %<" in sec and ">-99.79 %<" in sec  # RMS change of dx, dy
-    assert len(pngs(sec)) == 1
+    assert len(svgs(sec)) == 1
 
 
 def test_events_and_session_are_escaped(sm_report):
@@ -158,7 +170,7 @@ def test_pm_report(pm_report):
     for name in outcome.result.names:
         assert f'<td class="name">{name}</td>' in text
     assert GROUPS[0] in text and GROUPS[2] in text and GROUPS[1] not in text
-    assert len(pngs(text)) >= 5
+    assert len(svgs(text)) >= 5
     assert "q3_off and k3" in text  # the method's note
     assert 'id="validation"' not in text and 'id="events"' not in text
 
@@ -171,7 +183,7 @@ def test_batch_cli_writes_the_report(tmp_path, capsys):
     assert "report written to" in capsys.readouterr().out
     text = report.read_text(encoding="utf-8")
     check_html(text)
-    assert len(pngs(text)) >= 5
+    assert len(svgs(text)) >= 5
     assert json.loads(params.read_text())["checksum"] in text  # the parameter file it goes with
     assert "Base frame" in text  # sm-distance-tilt's frame statement
     assert sorted(os.listdir(tmp_path)) == ["p.json", "r.html"]
@@ -297,8 +309,9 @@ def test_validation_after_bars_are_visible():
 
 def test_the_parameter_figure_draws_every_calibrated_parameter_s_path(sm_report, monkeypatch):
     """The parameters figure (a few panels of scaled paths, not a panel per parameter):
-    each identifiable parameter once in a legend, with its scale D in its unit, and its
-    drawn path is its iterations exactly, (xi(k) - xi_final) / D, within [-1, 1]."""
+    each identifiable parameter once in a legend, with its scale D in its unit, its key
+    drawn as its path is (colour, dash, width, marker), and its drawn path is its
+    iterations exactly, (xi(k) - xi_final) / D, within [-1, 1]."""
     import numpy as np
 
     from station.outputs import report_figures, report_plotting
@@ -316,12 +329,17 @@ def test_the_parameter_figure_draws_every_calibrated_parameter_s_path(sm_report,
     for ax in fig.axes:
         if not ax.get_visible():
             continue
-        legend = ax.get_legend()
-        for line, text in zip(legend.get_lines(), legend.get_texts()):
+        entries = report_plotting.legend_entries(ax)
+        assert entries
+        for key, text in entries:
             name = text.get_text().split(" (1 = ")[0]
             seen.append(name)
             j = ctx.names.index(name)
-            y = next(ln.get_ydata() for ln in ax.get_lines() if ln.get_label() == text.get_text())
+            (path,) = [ln for ln in ax.get_lines() if ln.get_label() == text.get_text()]
+            y = path.get_ydata()
+            assert (key.get_color(), key.get_linestyle(), key.get_linewidth(),
+                    key.get_marker()) == (path.get_color(), path.get_linestyle(),
+                                          path.get_linewidth(), path.get_marker())
             scale = np.max(np.abs(paths[:, j] - ctx.x[j]))
             assert f"(1 = {scale:.3g}" in text.get_text()
             unit = ctx.units.get(name, "")
@@ -331,6 +349,58 @@ def test_the_parameter_figure_draws_every_calibrated_parameter_s_path(sm_report,
                                atol=1e-12 * max(1.0, abs(ctx.x[j])))
     identifiable = [n for n, g in zip(ctx.names, ctx.groups) if g == "identifiable"]
     assert sorted(seen) == sorted(identifiable) and len(identifiable) > 4
+
+
+@pytest.mark.parametrize("ncol, options", [
+    (1, {}), (1, {"anchor": (1.0, 1.0), "handlelength": 1.6, "borderaxespad": 0.2}),
+    (2, {})])
+def test_the_report_legend_is_laid_out_as_matplotlib_s(ncol, options):
+    """The kit's legend (a line and a text per entry, placed once) puts every key and
+    label where matplotlib's own legend does, to 0.05 pt: the same rows, the entries in
+    the same columns (matplotlib's columns as wide as their labels, the kit's
+    LEGEND_COLUMN wide: compared in the first column)."""
+    import numpy as np
+
+    from station.outputs import report_plotting as kit
+
+    opts = {"anchor": (1.01, 1.0), "handlelength": 2.0, "borderaxespad": 0.5, **options}
+
+    @kit.styled(8)
+    def draw(ours):
+        fig = kit.figure(10.0, 3.6, right=kit.legend_right(5 * ncol), left=0.8)
+        ax = fig.subplots()
+        for n in range(5 * ncol):
+            ax.semilogy(np.arange(6), 10.0 ** (np.arange(6) - n), marker="o", ms=2.5,
+                        label=f"p{n} (1 = {0.3 * n:.3g} rad)", **kit.line_style(n))
+        if ours:
+            kit.legend(ax, ncol=ncol, **opts)
+        else:
+            leg = ax.legend(fontsize=7, ncol=ncol, loc="upper left", frameon=False,
+                            bbox_to_anchor=opts["anchor"], handlelength=opts["handlelength"],
+                            borderaxespad=opts["borderaxespad"])
+        fig.canvas.draw()
+        pairs = (kit.legend_entries(ax) if ours
+                 else list(zip(leg.get_lines(), leg.get_texts())))
+        x0, y0 = ax.transAxes.transform(opts["anchor"])
+        pt = 72 / fig.dpi
+        out = []
+        for key, text in pairs:
+            xy = key.get_transform().transform(np.c_[key.get_xdata(), key.get_ydata()])
+            box = text.get_window_extent()
+            out.append((text.get_text(), (xy[0][0] - x0) * pt, (xy[-1][0] - x0) * pt,
+                        (xy[0][1] - y0) * pt, (box.x0 - x0) * pt,
+                        ((box.y0 + box.y1) / 2 - y0) * pt))
+        return out
+
+    ours, theirs = draw(True), draw(False)
+    assert [o[0] for o in ours] == [t[0] for t in theirs] and len(ours) == 5 * ncol
+    first = ours[0][1]
+    for o, t in zip(ours, theirs):
+        assert abs(o[3] - t[3]) < 0.05 and abs(o[5] - t[5]) < 0.05, (o, t)   # rows
+        assert (o[1] > first + 1) == (t[1] > first + 1), (o, t)               # columns
+        if o[1] < first + 1:
+            assert np.allclose(o[1:5:3], t[1:5:3], atol=0.05), (o, t)
+            assert abs(o[2] - t[2]) < 0.05, (o, t)
 
 
 def test_units_policy():

@@ -119,7 +119,7 @@ def test_sm_distance_tilt_session_recovers_the_unseen_truth(tmp_path):
     assert len(trace.fit_poses) == 24 and len(trace.validation_poses) == 6
     assert [e for e in trace.events if e["kind"] == "plan"]
     html = Path(files["report"]).read_text()
-    assert "theta0" in html and "data:image/png;base64," in html
+    assert "theta0" in html and "data:image/svg+xml;base64," in html
 
 
 def wrist_checks(session, truth_xi, *, box_deg: float = 15.0) -> tuple[float, float]:
