@@ -47,6 +47,7 @@ class Problem:
     model: object
     truth: np.ndarray
     residual: object
+    options: object = None  # the SolverOptions ours runs with (None: the defaults)
 
 
 def _fk_residual(method, robot, model):
@@ -130,6 +131,57 @@ def make_problems(seed: int = 1, methods=METHODS, variants=("noise-free", "noisy
             out.append(Problem(f"{method} {variant} ({model.n_poses} poses, "
                                f"{len(model.row_channel)} rows)",
                                method, noisy, model, truth, res))
+    return out
+
+
+AGEBOT_FILE = os.path.join(ROOT, "fixtures", "robots", "agebot-sm.toml")
+
+
+def agebot_file_vector(robot, x):
+    """The builtin AGEBOT serial arm's parameters ``x`` (q_off, k, theta0, a0,
+    L2-L4) as those of its robot file ``robot`` (fixtures/robots/agebot-sm.toml:
+    the same arm with the generic model's 32 parameters, the others at the file's
+    nominal): theta0 and a0 become the base's ``base_a`` and ``a1``."""
+    b = dict(zip(get_robot("agebot-sm").param_names, x))
+    v = dict(zip(robot.param_names, robot.nominal))
+    v.update({nm: b[nm] for nm in b if nm in v})     # q_off, k
+    v.update(a2=b["L2"], a3=b["L3"], a4=b["L4"], base_a=b["a0"] * np.cos(b["theta0"]),
+             a1=b["a0"] * np.sin(b["theta0"]))
+    return np.array([v[nm] for nm in robot.param_names])
+
+
+def make_robot_file_problems(seed: int = 1, variants=("noise-free", "noisy"),
+                             poses: int | None = None):
+    """sm-distance on the AGEBOT arm written as a robot file (the generic serial
+    model a user's arm gets, 32 parameters, 19 of them fixed by the file): the
+    poses, reference and readings of :func:`make_problems`' sm-distance problems
+    (same seed), the truth and nominal mapped by :func:`agebot_file_vector`.
+    Ours runs as the station runs a trace that states its sensors' noise: with
+    the file's ``fixed`` and the draw-wire's sigma (one weight for every row:
+    scipy's plain problem has the same minimum); scipy moves the parameters ours
+    calibrates, as for the other problems."""
+    from calibration.methods import MethodData, build
+    from calibration.solver import SolverOptions
+    from drivers.robot_file import load_robot_file
+
+    robot = get_robot(load_robot_file(AGEBOT_FILE))
+    sm = get_robot("agebot-sm")
+    out = []
+    for prob in make_problems(seed, ("sm-distance",), variants, poses):
+        m = prob.model
+        truth = agebot_file_vector(robot, sm.true)
+        data = MethodData(m.qm, {"distance": m.D_m}, reference_qm=m.reference_qm)
+        model = build("sm-distance", robot, data, agebot_file_vector(robot, sm.nominal))
+        qm, ref_qm, D_m = m.qm, m.reference_qm, m.D_m
+
+        def res(x, qm=qm, ref_qm=ref_qm, D_m=D_m):
+            X = robot.fk(np.vstack([qm, ref_qm]), x)
+            return D_m - np.linalg.norm(X[:-1, :3] - X[-1, :3], axis=1)
+        for x in (model.x0, truth):
+            assert np.allclose(res(x), model.evaluate(x)[0], rtol=0, atol=1e-13), \
+                "fk residual mismatch"
+        out.append(Problem(f"robot file {prob.name}", "sm-distance", prob.noisy, model, truth,
+                           res, SolverOptions(fixed=robot.fixed, sigma=NOISE["sm-distance"])))
     return out
 
 

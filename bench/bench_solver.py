@@ -1,9 +1,12 @@
 """Bench: calibration.solver.solve (Algorithm 2) against scipy.optimize.least_squares.
 
 Per problem (sm-full-pose, sm-distance with the plain residual, sm-distance-tilt;
-each noise-free and noisy, the same poses for both) it runs
+each noise-free and noisy, the same poses for both; and sm-distance on the same arm
+written as a robot file, the generic serial model a user's arm gets:
+``bench/_common.py`` ``make_robot_file_problems``) it runs
 
-* ``ours``       ``solve(model)`` with the default ``SolverOptions``;
+* ``ours``       ``solve(model)`` with the default ``SolverOptions`` (the robot
+  file's problems: its ``fixed`` and the stated sigma, as the station runs a trace);
 * ``lm-jac``     ``least_squares(method='lm')``, analytic Jacobian ``-W``;
 * ``lm-2pt``     ``least_squares(method='lm')``, finite differences ('2-point');
 * ``trf-jac``, ``trf-2pt``  the same with ``method='trf'``;
@@ -78,7 +81,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
-from _common import METHODS, interleaved_times, make_problems, table  # noqa: E402
+from _common import (METHODS, interleaved_times, make_problems,  # noqa: E402
+                     make_robot_file_problems, table)
 from scipy.optimize import least_squares  # noqa: E402
 
 from calibration.solver import SIGMA_CHANGE, SIGMA_FLOOR, SolverOptions, solve  # noqa: E402
@@ -243,7 +247,7 @@ def profile_ours(prob, n):
     pr = cProfile.Profile()
     pr.enable()
     for _ in range(n):
-        solve(prob.model)
+        solve(prob.model, prob.options)
     pr.disable()
     stats = pstats.Stats(pr).stats  # (file, line, func) -> (cc, nc, tt, ct, callers)
 
@@ -326,8 +330,8 @@ def best_times(fns, repeats: int, warmup: int = 1):
 
 
 def bench_problem(prob, repeats, x_scale, fd=True):
-    model = prob.model
-    res = solve(model)
+    model, opts = prob.model, prob.options
+    res = solve(model, opts)
     active = np.array([s.identifiable for s in res.status])
     std = res.std[active]
     x_ours = res.x
@@ -347,7 +351,7 @@ def bench_problem(prob, repeats, x_scale, fd=True):
     rows = [dict(runner="ours", conv=res.converged, iters=res.iterations, nfev=res.nfev,
                  calls=res.nfev, analytic=True, cost=plain_cost(x_ours),
                  dx=0.0, dxs=0.0, same=True, scipy=False, target=True, info=False)]
-    timed = [lambda: solve(model)]
+    timed = [lambda: solve(model, opts)]
     runs = [(f"{m}-{'jac' if a else '2pt'}", m, a, None) for m in ("lm", "trf")
             for a in ((True, False) if fd else (True,))]
     weighted = prob.noisy and len(model.channels) > 1
@@ -407,6 +411,8 @@ def main(argv=None):
     ap.add_argument("--x-scale", default="jac", help="least_squares x_scale: 'jac' or 1")
     ap.add_argument("--poses", type=int, nargs="+",
                     help="pose counts to run every problem at (default: the report's 17, 45, 33)")
+    ap.add_argument("--no-robot-file", action="store_true",
+                    help="leave out sm-distance on AGEBOT's robot file")
     ap.add_argument("--no-fd", action="store_true",
                     help="skip the finite-difference runs (slow at thousands of poses)")
     ap.add_argument("--blas-threads", default="1",
@@ -428,7 +434,9 @@ def main(argv=None):
           f"'*-dtol': scipy's default tolerances (1e-8), information only\n"
           f"ours: default SolverOptions() = {SolverOptions()}")
     problems = [p for n in (args.poses or [None])
-                for p in make_problems(args.seed, tuple(args.methods), poses=n)]
+                for p in make_problems(args.seed, tuple(args.methods), poses=n)
+                + (make_robot_file_problems(args.seed, poses=n)
+                   if "sm-distance" in args.methods and not args.no_robot_file else [])]
     summary = []
     to_profile = []
     failures = []
