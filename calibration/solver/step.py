@@ -161,11 +161,12 @@ class Scaled:
 
     def damping_for(self, radius: float, lam: float) -> float:
         """The damping ``lambda >= lam`` whose step has the scaled length
-        ``||z|| = radius`` (within 10 %; ``lam`` itself where its step is no
-        longer): the Levenberg-Marquardt parameter of a trust region of that
-        radius (More 1978), by Newton's method on ``1/||z(mu)|| - 1/radius``,
+        ``||z|| = radius`` (up to 10 % longer): the Levenberg-Marquardt parameter of
+        a trust region of that radius (More 1978), by Newton's method on
+        ``1/||z(mu)|| - 1/radius`` (from below: it does not overshoot),
         ``mu = lambda^2``, from the SVD of ``R`` (``||z(mu)||^2 = sum (s_i c_i /
-        (s_i^2 + mu))^2``, ``c = U^T Q^T b``)."""
+        (s_i^2 + mu))^2``, ``c = U^T Q^T b``). Where none larger than ``lam``
+        is found, ten times ``lam`` (at least 1e-3 of the largest singular value)."""
         if self.svd is not None:
             s, c = self.sv, self.svd[1]
         else:
@@ -176,17 +177,22 @@ class Scaled:
         mu = lam * lam
         for _ in range(20):
             d = s2 + mu
-            q = a2 / (d * d)
+            q = np.divide(a2, d * d, out=np.zeros_like(a2), where=d > 0)
             nz2 = float(q.sum())
             nz = math.sqrt(nz2)
-            if nz <= radius * 1.1:
+            if not nz > radius * 1.1:  # (also where NaN)
                 break
             # psi(mu) = 1/||z|| - 1/radius and its derivative sum(a2 / d^3) / ||z||^3
-            dpsi = float((q / d).sum()) / (nz2 * nz)
+            dpsi = float(np.divide(q, d, out=np.zeros_like(q), where=d > 0).sum()) / (nz2 * nz)
             if not dpsi > 0:
                 break
             mu += (1.0 / radius - 1.0 / nz) / dpsi
-        return math.sqrt(mu)
+        lam_new = math.sqrt(mu)
+        if not (math.isfinite(lam_new) and lam_new > lam):
+            # no damping found that shortens the step (a degenerate triangle):
+            # the Levenberg-Marquardt safeguard's tenfold rise
+            lam_new = max(10 * lam, 1e-3 * self.s0)
+        return lam_new
 
     def predicted(self, z) -> float:
         """The cost decrease the linear model predicts for the step ``z``:
