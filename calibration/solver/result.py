@@ -26,7 +26,8 @@ class CalibrationResult:
     sigma:         channel -> estimated sigma of one row (eq. 51), residual units.
     sigma_dof:     channel -> degrees of freedom of its estimated sigma (none where
                    known, nor where the fit is exact: every channel's residual at
-                   round-off, ``weighting.ROUNDOFF_SIGMA``); the covariance adds that sigma's own uncertainty
+                   round-off, ``weighting.ROUNDOFF_SIGMA``); the covariance adds
+                   that sigma's own uncertainty
                    (:meth:`~calibration.solver.weighting.Weighting.covariance_sigma`).
     residual_rms:  channel -> RMS of the final residual.
     condition_number: of the final scaled, weighted observation matrix.

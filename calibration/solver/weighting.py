@@ -16,7 +16,8 @@ from scipy.linalg import lapack
 
 geqrf, orgqr = lapack.dgeqrf, lapack.dorgqr
 
-# Below this (in the residual's SI units) a sigma estimate is round-off, not noise.
+# The smallest sigma an estimate takes (the residual's SI units; a zero one would
+# weigh its rows infinitely).
 SIGMA_FLOOR = 1e-14
 # A material change of a channel's sigma between rounds (relative).
 SIGMA_CHANGE = 0.05
@@ -24,9 +25,9 @@ SIGMA_CHANGE = 0.05
 # magnitude below the finest instrument) means the model matches the readings to
 # round-off (noise-free data): weights per channel would only reweight round-off
 # (a channel's sigma of 1e-13 m next to another's 1e-14 m), so no round is run
-# for them, and where every channel's residual sum of squares is below its
-# square, the channels share one sigma, with no degrees of freedom
-# (:meth:`Weighting.channel_sigma`).
+# for them; and where no channel's sigma is given and every channel's residual sum
+# of squares is below its square, the channels share one sigma, with no degrees of
+# freedom (:meth:`Weighting.channel_sigma`).
 ROUNDOFF_SIGMA = 1e-10
 
 
@@ -43,18 +44,23 @@ class Weighting:
             self.sigma_dof = dict(memo[3])
             return dict(memo[2])
         rss = np.bincount(self.row_channel, weights=r * r, minlength=len(self.channels)).tolist()
-        known = self.known
-        if not known and max(rss) <= ROUNDOFF_SIGMA ** 2:
+        if not self.known and max(rss) <= ROUNDOFF_SIGMA ** 2:
             # the model matches every reading to round-off: the residual says
             # nothing of the noise (per-channel estimates would differ by the
             # round-off of each channel's arithmetic): one sigma for all, eq. 51
             # over all rows, and no degrees of freedom (it estimates no noise,
             # so it adds no uncertainty of its own to the covariance)
-            out = self._pooled_sigma(float(sum(rss)), n, n_active)
-            dofs = {}
-            self._sigma_memo = (r, n_active, out, dofs)
-            self.sigma_dof = dict(dofs)
-            return dict(out)
+            out, dofs = self._pooled_sigma(float(sum(rss)), n, n_active), {}
+        else:
+            out, dofs = self._estimated_sigma(rss, n, n_active)
+        self._sigma_memo = (r, n_active, out, dofs)
+        self.sigma_dof = dict(dofs)
+        return dict(out)
+
+    def _estimated_sigma(self, rss, n, n_active):
+        """``(sigma, dof)`` per channel from its residual sum of squares ``rss``
+        (:meth:`channel_sigma`)."""
+        known = self.known
         # the leverage (a QR of the whole matrix) only serves the channels estimated here
         used = ([None] * len(self.channels) if all(ch in known for ch in self.channels)
                 else self._channel_leverage(n_active))
@@ -81,9 +87,7 @@ class Weighting:
                 s = max(math.sqrt(rss_all / dof_all), SIGMA_FLOOR)
                 out.update(dict.fromkeys(sub, s))
                 dofs.update(dict.fromkeys(sub, dof_all))
-        self._sigma_memo = (r, n_active, out, dofs)
-        self.sigma_dof = dict(dofs)
-        return dict(out)
+        return out, dofs
 
     def covariance_sigma(self, sigma):
         """The sigma the covariance (eq. 52) is made with: a known sigma as given; an
