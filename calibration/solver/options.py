@@ -19,8 +19,7 @@ class SolverOptions:
     recheck:        re-analyse identifiability at the solution.
     fixed:          parameter names kept at their start values.
     adaptive:       reject a step that raises the weighted cost and retry it with
-                    the damping whose step is a tenth as long (a
-                    Levenberg-Marquardt trust region shrunk tenfold); the
+                    ten times the damping (Levenberg-Marquardt safeguard); the
                     damping relaxes back to lambda after accepted steps (by
                     the gain ratio once it swings, see
                     :meth:`calibration.solver.step.Stepping.iterate`). False

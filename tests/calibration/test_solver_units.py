@@ -528,33 +528,6 @@ def test_scaled_singular_uses_the_pseudo_inverse():
     assert F.scaled_norm(np.ones(3)) == pytest.approx(np.linalg.norm(A @ np.ones(3)), rel=1e-8)
 
 
-@pytest.mark.parametrize("rows", [12, 3])
-@pytest.mark.parametrize("lam", [0.0, 1e-2, 0.5])
-def test_damping_for_a_step_length(rows, lam):
-    """The damping of a rejected step's retry (the trust region shrunk tenfold): its
-    step is a tenth as long as the rejected one, up to 10 % longer, never shorter."""
-    rng = np.random.default_rng(rows)
-    WA = rng.normal(size=(rows, 3)) * [1.0, 50.0, 0.01]
-    r = rng.normal(size=rows)
-    F = Scaled(WA, {}, WA, 1 / np.linalg.norm(WA, axis=0), 1.0, r)
-    length = np.linalg.norm(F.step(lam ** 2))
-    new = F.damping_for(0.1 * length, lam)
-    assert new > lam
-    assert 0.1 * length * (1 - 1e-9) <= np.linalg.norm(F.step(new ** 2)) <= 0.11 * length
-
-
-def test_damping_for_a_singular_triangle_rises():
-    """A triangle with a zero singular value and no damping yet: a finite damping
-    larger than zero, not NaN."""
-    rng = np.random.default_rng(7)
-    c = rng.normal(size=(10, 2))
-    WA = np.column_stack([c[:, 0], c[:, 1], c[:, 0] + c[:, 1]])
-    F = Scaled(WA, {}, WA, 1 / np.linalg.norm(WA, axis=0), 1.0, rng.normal(size=10))
-    assert F.svd is not None
-    new = F.damping_for(0.1 * np.linalg.norm(F.step(0.0)), 0.0)
-    assert math.isfinite(new) and new > 0
-
-
 def test_masks(monkeypatch):
     monkeypatch.setattr(step, "_MASKS", {})  # (filled by earlier tests: made anew here)
     tri, aug = masks(3)
