@@ -440,6 +440,7 @@ def main(argv=None):
     summary = []
     to_profile = []
     failures = []
+    spurious = []
     for prob in problems:
         res, rows, (t_model, t_fk) = bench_problem(prob, repeats, x_scale, fd=not args.no_fd)
         t_ours = rows[0]["t"]
@@ -450,6 +451,14 @@ def main(argv=None):
               f"{np.abs(res.x - prob.truth)[[s.identifiable for s in res.status]].max():.2e}"
               f"\n    one call: model.evaluate (r, W) {1e3 * t_model:.3f} ms, "
               f"r by fk only {1e3 * t_fk:.3f} ms")
+        # a spurious minimum: a sum of squares well above the truth's (a minimum has at
+        # most the truth's); scipy may end there too and count as "the same optimum"
+        r_t = prob.residual(prob.truth)
+        ss, ss_t = float(res.residual @ res.residual), float(r_t @ r_t)
+        if ss > 1.5 * ss_t + 1e-20 * len(r_t):
+            spurious.append(prob.name)
+            print(f"--> WARNING: ours ends at a sum of squares {ss:.3g}, the truth's "
+                  f"{ss_t:.3g}: a spurious minimum")
         out = []
         for r in rows:
             out.append((r["runner"], r["conv"], r["iters"], r["nfev"], r["calls"],
@@ -505,6 +514,9 @@ def main(argv=None):
         print(f"\n=== cProfile of ours ({args.profile_runs} solves per problem; the profiler "
               f"inflates many small Python calls, read the shares)")
         print(profile_report(to_profile, args.profile_runs))
+    if spurious:
+        print("\nours ends in a spurious minimum (sum of squares above the truth's): "
+              + "; ".join(spurious))
     print(f"\nbench wall time {time.perf_counter() - t_start:.1f} s")
     if failures:
         print("\nFAILED: " + "; ".join(failures))
