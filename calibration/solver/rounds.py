@@ -95,13 +95,14 @@ class Algorithm2(Weighting, Stepping):
     def initial_status(self):
         model, opt = self.model, self.opt
         twin = model.consistent_twin(self.x)
-        cls = self._first_factor_status() if twin is model else None
-        if cls is None and twin is model:
+        if twin is model:
             g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
             Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
-            cls = ident.classify(Wg, candidates=self.candidates, rank_tol=opt.rank_tol,
-                                 order=model.identify_order)
-        elif cls is None:
+            cls = self._first_factor_status(Wg)
+            if cls is None:
+                cls = ident.classify(Wg, candidates=self.candidates, rank_tol=opt.rank_tol,
+                                     order=model.identify_order)
+        else:
             r_t, W_t = twin.evaluate(self.x)
             self.nfev += 1
             cls = ident.classify(W_t, candidates=self.candidates, residual=r_t,
@@ -122,7 +123,12 @@ class Algorithm2(Weighting, Stepping):
                 f"at least {int(np.ceil((n_dep + 1) / p))} poses are needed "
                 f"(recommended {ident.minimum_poses(n_dep, p)}, eq. 60)")
 
-    def _first_factor_status(self):
+    def _natural_order(self) -> bool:
+        """Are the columns judged in parameter order (the order of the solver's QR)?"""
+        order = self.model.identify_order
+        return order is None or np.array_equal(order, np.arange(len(order)))
+
+    def _first_factor_status(self, Wg):
         """The start classification from the first iteration's factorization,
         where every parameter is a candidate: ``(identifiable, influences)``
         where the columns above classify's zero floor are all clearly
@@ -133,13 +139,10 @@ class Algorithm2(Weighting, Stepping):
 
         The QR of ``[G W_R H, G r]`` the first iteration makes holds that of the
         unit columns the classification factors (the same matrix up to a column
-        scaling). Its column norms and zero floor are classify's own."""
-        order = self.model.identify_order
-        if not self.candidates.all() or (order is not None and
-                                         not np.array_equal(order, np.arange(len(order)))):
+        scaling). Its column norms and zero floor are classify's own; ``Wg``: the
+        weighted matrix it classifies."""
+        if not (self.candidates.all() and self._natural_order()):
             return None
-        g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
-        Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
         norms, floor = ident.column_floor(Wg, self.opt.rank_tol)
         use = norms > floor
         if not use.any():
@@ -163,12 +166,11 @@ class Algorithm2(Weighting, Stepping):
         :class:`Check`, where every active parameter is clearly identifiable
         there (:func:`~calibration.solver.step.clearly_identifiable`, with
         classify's column norms and zero floor at the solution); else None."""
-        F, order = self.last_factor, self.model.identify_order
+        F = self.last_factor
         if (F is None or F.W is not self.W or F.Rinv is None or F.svd is not None
                 or not isinstance(F.g, float) or F.n != self.n_active
                 or (sigma is not None and len(set(sigma.values())) > 1)
-                or cand.tobytes() != self.active.tobytes()
-                or (order is not None and not np.array_equal(order, np.arange(len(order))))):
+                or cand.tobytes() != self.active.tobytes() or not self._natural_order()):
             return None
         opt = self.opt
         # classify's column norms and zero floor
