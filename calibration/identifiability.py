@@ -98,9 +98,12 @@ def zero_floor(norms, rank_tol: float, candidates=None, rg=None, kappa: float = 
     :mod:`calibration.solver.result`) use the same."""
     if candidates is None:
         floor = rank_tol * norms.max() if norms.size else 0.0
-    else:
-        floor = rank_tol * (norms.max() if candidates.all()
-                            else norms.max(initial=0.0, where=candidates))
+    elif candidates.all():
+        floor = rank_tol * norms.max()
+    else:  # (a few columns: a list is faster than numpy's max with where=; NaN as there)
+        vals = norms[candidates].tolist()
+        total = sum(vals)
+        floor = rank_tol * (max(vals, default=0.0) if total == total else math.nan)
     if rg is not None:
         floor = max(floor, kappa * math.sqrt(float(rg @ rg)))
     return floor

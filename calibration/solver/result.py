@@ -200,6 +200,8 @@ def _final_status(run, sigma, weights):
     cls = None
     chk = run.last_check
     rg = np.sqrt(weights) * run.r if opt.recheck else None  # the weighted residual
+    # the residual's part of zero_floor (kappa times the weighted residual's norm)
+    res_floor = opt.kappa * math.sqrt(float(rg @ rg)) if opt.recheck else None
     if opt.recheck and chk is not None and chk.saw(run, sigma):
         ok, dep, rdiag, norms = chk.cls
         extra = run.candidates & ~chk.candidates
@@ -209,9 +211,9 @@ def _final_status(run, sigma, weights):
             # a zero column is left out of the QR, and so changes nothing, if it
             # does not raise the largest candidate norm (the rank floor) either
             floor_rank = ident.zero_floor(norms, opt.rank_tol, chk.candidates)
-            floor = ident.zero_floor(norms, opt.rank_tol, chk.candidates, rg, opt.kappa)
-            ne = norms[extra]
-            if np.all(ne <= floor) and opt.rank_tol * float(ne.max()) <= floor_rank:
+            floor = max(floor_rank, res_floor)  # zero_floor(..., rg, kappa)
+            ne = norms[extra].tolist()
+            if all(v <= floor for v in ne) and opt.rank_tol * max(ne) <= floor_rank:
                 cls = chk.cls
     if cls is None:
         cls = ident.classify(run.W, weights=weights, candidates=run.candidates,
@@ -222,7 +224,9 @@ def _final_status(run, sigma, weights):
     # a fixed parameter's column against the zero floor of the classification
     # (rank and, at the solution, the residual): strong, a wrong value biases the others
     cand = run.candidates
-    floor = ident.zero_floor(norms, opt.rank_tol, cand, rg, opt.kappa)
+    floor = ident.zero_floor(norms, opt.rank_tol, cand)
+    if res_floor is not None:
+        floor = max(floor, res_floor)  # zero_floor(..., rg, kappa)
     out = []
     status = ident.ParameterStatus.of
     for nm, a, c, i_ok, i_dep, rd, cn in zip(run.names, run.active.tolist(), cand.tolist(),

@@ -97,11 +97,10 @@ class Scaled:
         # needed now, and are computed only if asked for (condition number).
         Rinv, info = trtri(R)
         if info == 0:
-            vs = np.einsum("ij,ij->i", Rinv, Rinv)  # row norms of R^-1: variance
-            rf = R.ravel(order="K")
-            bound = float(rf @ rf) * float(vs.sum())
+            rf, vf = R.ravel(order="K"), Rinv.ravel(order="K")
+            bound = float(rf @ rf) * float(vf @ vf)
             if bound < 1e24:  # also False for NaN
-                self.Rinv, self.vs = Rinv, vs
+                self.Rinv = Rinv  # (the variance, its row norms, when first asked for)
                 return
         sv, info = gesvd(R, compute_uv=0)[1::2]
         svl = sv.tolist()
@@ -174,9 +173,16 @@ class Scaled:
             inv = np.divide(1.0, sv * sv, out=np.zeros_like(sv), where=sv > sv[0] * 1e-15)
             return (Vt * Vt).T @ inv
         if self.vs is None:
-            Rinv = self.Rinv = trtri(self.R)[0]
-            self.vs = np.einsum("ij,ij->i", Rinv, Rinv)
+            Rinv = self.Rinv
+            if Rinv is None:
+                Rinv = self.Rinv = trtri(self.R)[0]
+            self.vs = row_norms2(Rinv)
         return self.vs
+
+
+def row_norms2(Rinv):
+    """Squared row norms of ``R^-1``: the scaled variance (eq. 52)."""
+    return np.einsum("ij,ij->i", Rinv, Rinv)
 
 
 
@@ -193,10 +199,13 @@ def clearly_identifiable(F: Scaled, rank_tol: float, norms, floor: float):
     R = F.R
     d = np.abs(R.diagonal()) / np.sqrt(np.einsum("ij,ij->j", R, R))
     # |R[j, j]| of unit columns is exact to a few n eps (backward stable QR);
-    # the smallest of each: False where any is NaN, as np.all would be
-    dmin = d - 1e-12
-    if (float(dmin.min()) > rank_tol and float((dmin * norms).min()) > floor * (1 + 1e-9)
-            and float(norms.min()) > floor):
+    # the smallest of each (as Python lists: a few columns), and None where any
+    # is NaN (Python's min can skip a NaN, their sum cannot)
+    dmin = (d - 1e-12).tolist()
+    nl = norms.tolist()
+    total = sum(dmin) + sum(nl)
+    if (total == total and min(dmin) > rank_tol
+            and min([a * b for a, b in zip(dmin, nl)]) > floor * (1 + 1e-9) and min(nl) > floor):
         return d
     return None
 
@@ -220,6 +229,7 @@ class Iteration:
     def __init__(self, x, variance, condition_number, step, cost, sigma):
         # condition_number: a number, or the (n, n) triangle R whose it is;
         # variance: an array, or (factor, h, v, active_idx, N): factor * h^2 * v
+        # (v: the scaled variance, or the iteration's R^-1 whose squared row norms it is)
         # on the calibrated parameters (active_idx; None: all)
         s = object.__setattr__
         s(self, "x", x)
@@ -234,6 +244,8 @@ class Iteration:
         v = self._var
         if isinstance(v, tuple):
             factor, h, vs, idx, n = v
+            if vs.ndim == 2:  # R^-1 of the iteration: its squared row norms
+                vs = row_norms2(vs)
             v = (factor * (h * h)) * vs
             if idx is not None:
                 full = np.full(n, np.nan)
@@ -275,8 +287,10 @@ class Stepping:
         W = self.W
         WA = W if self.all_active else W.take(self.active_idx, axis=1)
         norms = np.sqrt(np.einsum("ij,ij->j", WA, WA))
-        tol = self.opt.rank_tol * norms.max()
-        if norms.min() <= tol:
+        nl = norms.tolist()  # (a few columns: Python's max and min are faster than numpy's)
+        tol = self.opt.rank_tol * max(nl)
+        total = sum(nl)
+        if min(nl) <= tol and total == total:  # (a NaN norm: on to the QR, as numpy's NaN max did)
             return norms <= tol
         h = 1.0 / norms if self.opt.scale_columns else np.ones(len(norms))
         return Scaled(W, self.sigma, WA, h, self.g, self.r)
@@ -290,7 +304,9 @@ class Stepping:
             factor = float(g0 * g0 * self.sigma[self.ch0] ** 2)
         else:
             factor = 1.0
-        var = (factor, F.h, F.variance_scaled(), None if self.all_active else self.active_idx,
+        vs = F.vs if F.vs is not None or F.Rinv is None else F.Rinv  # (R^-1: formed when read)
+        var = (factor, F.h, F.variance_scaled() if vs is None else vs,
+               None if self.all_active else self.active_idx,
                len(self.active))
         it = Iteration(self.x.copy(), var, F.R if F._sv is None else F.cond, step, cost,
                        dict(self.sigma))
@@ -385,8 +401,10 @@ class Stepping:
             lam2 = self.lam_eff ** 2
             z = F.step(lam2)
             d = F.h * z
-            step = float(np.abs(d).max())
-            if not math.isfinite(step):
+            dl = d.tolist()  # (a few parameters: Python's max is faster than numpy's)
+            step = max(map(abs, dl))
+            total = sum(dl)
+            if not math.isfinite(step) or total != total:  # (max can skip a NaN, the sum not)
                 return False, f"the step became non-finite at iteration {self.k + 1}"
             cost = F.cost
             if step < eps:  # converged: the step is below the tolerance
