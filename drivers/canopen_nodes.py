@@ -36,6 +36,10 @@ from drivers.base import Device, Sample, log
 from drivers.canopen_od import NMT_OPERATIONAL, standard_od
 from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 
+#: how canopen (2.3-2.4) begins the error for an SDO answer about another object
+#: than the one asked for (tests/drivers/test_canopen.py provokes one)
+FOREIGN_ANSWER = "Node returned a value for"
+
 
 #: seconds a CAN bus may take to come up (the socketcand greeting, python-can's connect)
 CONNECT_TIMEOUT_S = 3.0
@@ -335,10 +339,23 @@ class CanopenNodes(Device):
 
     # -- reading --------------------------------------------------------------------
     def sdo_read(self, nid: int, index: int, subindex: int = 0):
-        """One SDO upload (decoded with the standard object dictionary)."""
+        """One SDO upload (decoded with the standard object dictionary).
+
+        An answer that names another object is the late answer to a request given
+        up on (a timeout; the TPDO barrier's time running out) that came in after
+        this request was sent: it is dropped and the upload asked once more (this
+        request's own answer, where it comes in meanwhile, is the one then read: the
+        same object, a moment older)."""
         with self._io(nid, f"reading 0x{index:04X}:{subindex:02X}"):
             obj = self.remote[nid].sdo[index]
-            return (obj[subindex] if subindex else obj).raw
+            var = obj[subindex] if subindex else obj
+            try:
+                return var.raw
+            except SdoCommunicationError as e:
+                if not str(e).startswith(FOREIGN_ANSWER):
+                    raise
+                log.info("%s: %s; the upload asked again", self.node_name(nid), e)
+                return var.raw
 
     def sdo_write(self, nid: int, index: int, value, subindex: int = 0) -> None:
         with self._io(nid, f"writing 0x{index:04X}:{subindex:02X} = {value}"):

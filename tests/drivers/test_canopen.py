@@ -180,6 +180,24 @@ def test_dropped_tpdo_is_timeout_never_old_value(drives, sim):
     assert after.seq > before.seq and after.values == before.values
 
 
+def test_a_late_answer_to_a_request_given_up_on_is_not_taken_for_the_next(drives, sim):
+    """An SDO request given up on (a timeout, or the TPDO barrier's time running out)
+    can still be answered, after the next request was sent: that answer names another
+    object and is dropped, and the next request gets its own answer (before, the
+    SDO fallback after a dropped TPDO failed with "Node returned a value for 0x1000:00
+    instead" on a loaded machine)."""
+    expected = drives.read().values
+    sim.call("faults", {"late_s": 0.3})           # every frame 0.3 s late, in order
+    drives.remote[1].sdo.RESPONSE_TIMEOUT = 0.05
+    try:
+        with pytest.raises(DeviceTimeout, match="0x1000"):
+            drives.sdo_read(1, 0x1000)             # given up on; answered 0.3 s later
+    finally:
+        drives.remote[1].sdo.RESPONSE_TIMEOUT = drives.timeout
+    # asked at once: the answer above comes in first, this request's 0.05 s after it
+    assert drives.read_sdo(timeout=2.0).values == expected
+
+
 def test_lost_tpdos_cost_a_sync_not_the_reading(drives, sim):
     """A flaky bus (10 % of TPDOs lost): readings still succeed, each from one SYNC at
     which every node answered, and the extra SYNCs are counted."""
