@@ -123,7 +123,9 @@ def test_sm_distance_tilt_session(open_window, qtbot, tmp_path, answers):
     ex = win.page(PageId.EXECUTE)
     assert "Continue" in ex.start_button.text()
     qtbot.mouseClick(ex.start_button, Qt.MouseButton.LeftButton)
-    qtbot.waitUntil(ex.is_complete, timeout=60000)
+    # ~35 poses with their rounds' planning refits: ~15 s idle, over 60 s once in CI
+    # beside the slow tests on 2 cores (a liveness bound, not a timing the test judges)
+    qtbot.waitUntil(ex.is_complete, timeout=180000)
     assert c.rezeroed and not s.pending
     assert len(s.measured) == 40        # every round planned and measured (36 + 4 held out)
 
