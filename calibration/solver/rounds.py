@@ -129,22 +129,27 @@ class Algorithm2(Weighting, Stepping):
         return order is None or np.array_equal(order, np.arange(len(order)))
 
     def _first_factor_status(self, Wg):
-        """The start classification from the first iteration's factorization,
-        where every parameter is a candidate: ``(identifiable, influences)``
-        where the columns above classify's zero floor are all clearly
-        identifiable there (:func:`~calibration.solver.step.clearly_identifiable`;
-        the others have no influence), the factorization kept for the first
-        iteration (:attr:`next_factor`); else None (then
+        """The start classification from the first iteration's factorization:
+        ``(identifiable, influences)`` where the candidates' columns above
+        classify's zero floor are all clearly identifiable there
+        (:func:`~calibration.solver.step.clearly_identifiable`; the other
+        candidates have no influence, and the parameters fixed by the options
+        are neither, as classify reports them), the factorization kept for the
+        first iteration (:attr:`next_factor`); else None (then
         :func:`calibration.identifiability.classify` decides).
 
         The QR of ``[G W_R H, G r]`` the first iteration makes holds that of the
         unit columns the classification factors (the same matrix up to a column
-        scaling). Its column norms and zero floor are classify's own; ``Wg``: the
-        weighted matrix it classifies."""
-        if not (self.candidates.all() and self._natural_order()):
+        scaling). Its column norms and zero floor are classify's own (the floor
+        over the candidates' columns); ``Wg``: the weighted matrix it classifies."""
+        if not self._natural_order():
             return None
-        norms, floor = ident.column_floor(Wg, self.opt.rank_tol)
+        cand = self.candidates
+        every = bool(cand.all())
+        norms, floor = ident.column_floor(Wg, self.opt.rank_tol, None if every else cand)
         use = norms > floor
+        if not every:
+            use &= cand
         if not use.any():
             return None
         self._set_active(use)
