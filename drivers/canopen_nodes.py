@@ -36,9 +36,12 @@ from drivers.base import Device, Sample, log
 from drivers.canopen_od import NMT_OPERATIONAL, standard_od
 from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 
-#: how canopen (2.3-2.4) begins the error for an SDO answer about another object
-#: than the one asked for (tests/drivers/test_canopen.py provokes one)
-FOREIGN_ANSWER = "Node returned a value for"
+#: how canopen (2.3-2.4) begins its errors for an answer to another SDO request than
+#: the one waiting: an upload's answer about another object, a download's answer to
+#: an upload, an upload's answer (command 0x4x) to a download (tests/drivers/
+#: test_canopen.py provokes the first and the last)
+FOREIGN_TO_UPLOAD = ("Node returned a value for", "Unexpected response 0x60")
+FOREIGN_TO_DOWNLOAD = ("Unexpected response 0x4",)
 
 
 #: seconds a CAN bus may take to come up (the socketcand greeting, python-can's connect)
@@ -339,28 +342,39 @@ class CanopenNodes(Device):
 
     # -- reading --------------------------------------------------------------------
     def sdo_read(self, nid: int, index: int, subindex: int = 0):
-        """One SDO upload (decoded with the standard object dictionary).
-
-        An answer that names another object is the late answer to a request given
-        up on (a timeout; the TPDO barrier's time running out) that came in after
-        this request was sent: it is dropped and the upload asked once more (this
-        request's own answer, where it comes in meanwhile, is the one then read: the
-        same object, a moment older)."""
+        """One SDO upload (decoded with the standard object dictionary); asked once
+        more where the answer was another request's (:meth:`_own_answer`)."""
         with self._io(nid, f"reading 0x{index:04X}:{subindex:02X}"):
             obj = self.remote[nid].sdo[index]
             var = obj[subindex] if subindex else obj
-            try:
-                return var.raw
-            except SdoCommunicationError as e:
-                if not str(e).startswith(FOREIGN_ANSWER):
-                    raise
-                log.info("%s: %s; the upload asked again", self.node_name(nid), e)
-                return var.raw
+            return self._own_answer(nid, lambda: var.raw, FOREIGN_TO_UPLOAD)
 
     def sdo_write(self, nid: int, index: int, value, subindex: int = 0) -> None:
+        """One SDO download; asked once more where the answer was another request's
+        (:meth:`_own_answer`: the same value again, which the node took already)."""
         with self._io(nid, f"writing 0x{index:04X}:{subindex:02X} = {value}"):
             obj = self.remote[nid].sdo[index]
-            (obj[subindex] if subindex else obj).raw = value
+            var = obj[subindex] if subindex else obj
+
+            def write():
+                var.raw = value
+            self._own_answer(nid, write, FOREIGN_TO_DOWNLOAD)
+
+    def _own_answer(self, nid: int, exchange, foreign: tuple[str, ...]):
+        """``exchange()`` (one SDO transfer with node ``nid``), asked once more where
+        the answer it got was another request's (canopen's error begins with one of
+        ``foreign``): the late answer to a request given up on (a timeout; the TPDO
+        barrier's time running out) that came in after this request was sent. That
+        answer is dropped; this request's own answer, where it comes in meanwhile, is
+        the one the second transfer then takes (the same object: a moment older for
+        an upload, the same value taken for a download)."""
+        try:
+            return exchange()
+        except SdoCommunicationError as e:
+            if not str(e).startswith(foreign):
+                raise
+            log.info("%s: %s; the transfer asked again", self.node_name(nid), e)
+            return exchange()
 
     def _to_units(self, i: int, increments: int) -> float:
         return increments / self.resolution[i]

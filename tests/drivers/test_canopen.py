@@ -198,6 +198,26 @@ def test_a_late_answer_to_a_request_given_up_on_is_not_taken_for_the_next(drives
     assert drives.read_sdo(timeout=5.0).values == expected
 
 
+def test_a_late_upload_answer_is_not_taken_for_a_write_s(drives, sim):
+    """The same late answer coming in while a write waits for its own: the write is
+    asked once more (the same value: the node took the first one all the same)."""
+    expected = drives.read().values
+    sim.call("faults", {"late_s": 1.0})
+    drives.remote[1].sdo.RESPONSE_TIMEOUT = 0.05
+    try:
+        with pytest.raises(DeviceTimeout, match="0x1000"):
+            drives.sdo_read(1, 0x1000)
+    finally:
+        drives.remote[1].sdo.RESPONSE_TIMEOUT = 5.0
+    try:
+        drives.sdo_write(1, 0x6060, 1)             # profile position, as it is already
+    finally:
+        drives.remote[1].sdo.RESPONSE_TIMEOUT = drives.timeout
+    sim.call("clear")              # (the heartbeats came 1 s late too: until they are back)
+    assert eventually(lambda: drives.read_sdo(timeout=5.0)).values == expected
+    assert drives.sdo_read(1, 0x6060) == 1
+
+
 def test_lost_tpdos_cost_a_sync_not_the_reading(drives, sim):
     """A flaky bus (10 % of TPDOs lost): readings still succeed, each from one SYNC at
     which every node answered, and the extra SYNCs are counted."""
