@@ -79,6 +79,7 @@ class SimDrawWire:
         f = self.faults
         if not f.drawwire_answers():       # a lost answer: none is ever sent
             await asyncio.Event().wait()   # (cancelled when the server stops)
+        c = self.counts()                  # read when asked: a late answer carries it
         if f.late_s > 0:
             await asyncio.sleep(f.late_s)
         if f.modbus_exception:
@@ -95,7 +96,6 @@ class SimDrawWire:
             self.offset_m = self.length_m()
             self.zero_calls += 1
             return None
-        c = self.counts()
         base = REG_COUNT - start
         registers[base:base + 2] = split_words(c, self.word_order)
         registers[REG_TURNS - start] = (c // self.counts_per_turn) & 0xFFFF

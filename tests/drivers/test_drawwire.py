@@ -1,6 +1,8 @@
 """Draw-wire driver against its simulated twin (pymodbus server) in a separate process."""
 from __future__ import annotations
 
+import time
+
 import pytest
 from pymodbus.client import ModbusTcpClient
 
@@ -140,6 +142,23 @@ def test_rtu_silent_and_late_answers_time_out(server):
             dw.read(timeout=0.2)
         server.call(clear=True)
         assert dw.read().info["count"] == server.call()["counts"]
+
+
+@pytest.mark.parametrize("make", [tcp, rtu], ids=["tcp", "rtu"])
+def test_a_late_answer_is_never_taken_for_the_next_reading(server, make):
+    """An answer that comes after its request timed out carries the length read when
+    it was asked: the next reading must be the length now, never that one (Modbus RTU
+    has no transaction id to tell the two apart)."""
+    server.call(length=1.0)
+    with make(server) as dw:
+        dw.read()
+        server.call(faults={"late_s": 1.0})
+        with pytest.raises(DeviceTimeout, match="no answer"):
+            dw.read(timeout=0.2)
+        server.call(clear=True, length=1.5)
+        time.sleep(1.0)                              # the late answer (1.0 m) is in
+        assert dw.read(timeout=2.0).values["distance"] == pytest.approx(1.5, abs=MPC)
+        assert dw.read(timeout=2.0).values["distance"] == pytest.approx(1.5, abs=MPC)
 
 
 def test_plain_pymodbus_client_talks_to_the_simulator(server):
