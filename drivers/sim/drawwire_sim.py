@@ -79,7 +79,8 @@ class SimDrawWire:
         f = self.faults
         if not f.drawwire_answers():       # a lost answer: none is ever sent
             await asyncio.Event().wait()   # (cancelled when the server stops)
-        c = self.counts()                  # read when asked: a late answer carries it
+        # a read (no values to set) samples the length when asked: a late answer carries it
+        c = self.counts() if set_values is None else None
         if f.late_s > 0:
             await asyncio.sleep(f.late_s)
         if f.modbus_exception:
