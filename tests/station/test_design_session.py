@@ -18,13 +18,23 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 
 
-def _run(out, *extra):
-    """``app.py run --simulate`` of the wrist on the tests' quick simulated station."""
-    cfg = quick_config(out.parent / "station", "agebot-pm")
-    return subprocess.run([sys.executable, os.path.join(ROOT, "app.py"), "run", "--simulate",
-                           "--robot", "agebot-pm", "--method", "pm-fk", "--config", str(cfg),
-                           "--out", str(out), *extra],
-                          capture_output=True, text=True, timeout=600, env=ENV)
+def _start(out, *extra) -> subprocess.Popen:
+    """``app.py run --simulate`` of the wrist on the tests' quick simulated station,
+    started (each its own simulator on its own ports: independent runs go at once)."""
+    cfg = quick_config(out.parent / f"station-{out.name}", "agebot-pm")
+    return subprocess.Popen([sys.executable, os.path.join(ROOT, "app.py"), "run", "--simulate",
+                             "--robot", "agebot-pm", "--method", "pm-fk", "--config", str(cfg),
+                             "--out", str(out), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+
+
+def _done(proc: subprocess.Popen) -> subprocess.CompletedProcess:
+    out, err = proc.communicate(timeout=600)
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
+def _run(out, *extra) -> subprocess.CompletedProcess:
+    return _done(_start(out, *extra))
 
 
 def _plans(out):
@@ -33,7 +43,11 @@ def _plans(out):
 
 
 def test_wrist_rounds_are_designed_and_a_target_adds_poses(tmp_path):
-    base = _run(tmp_path / "base")
+    # the runs that do not need the first one's figures go beside it
+    started = {name: _start(tmp_path / name, *extra) for name, extra in (
+        ("base", ()), ("random", ("--design", "random")), ("far", ("--target-std", "1e-9")))}
+    runs = {name: _done(proc) for name, proc in started.items()}
+    base = runs["base"]
     assert base.returncode == 0, base.stderr
     plans = _plans(tmp_path / "base")
     final = plans[-1]["wrist"]
@@ -52,11 +66,11 @@ def test_wrist_rounds_are_designed_and_a_target_adds_poses(tmp_path):
     assert len(final_t["poses"]) > n_base
     assert final_t["wrist"]["design"]["predicted_heldout"]["rms"] <= goal
 
-    rnd = _run(tmp_path / "random", "--design", "random")
+    rnd = runs["random"]
     assert rnd.returncode == 0, rnd.stderr
     assert all("design" not in p["wrist"] for p in _plans(tmp_path / "random"))
 
-    far = _run(tmp_path / "far", "--target-std", "1e-9")
+    far = runs["far"]
     assert far.returncode == 2 and "even all" in far.stderr and "Traceback" not in far.stderr
 
 
