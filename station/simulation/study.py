@@ -224,6 +224,29 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _reachable(scheduler: str, timeout: float = 5.0) -> None:
+    """A ``tcp://host:port`` scheduler that refuses the connection (nothing listens
+    there: a typo, a scheduler not started) is said at once; Dask's client would retry
+    it for its whole 10 s. Other addresses are left to Dask."""
+    import socket
+    from urllib.parse import urlsplit
+
+    try:
+        u = urlsplit(scheduler)
+        host, port = u.hostname, u.port
+    except ValueError:
+        return
+    if u.scheme != "tcp" or not host or port is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except ConnectionRefusedError as e:
+        raise StationError(f"cannot reach the Dask scheduler {scheduler}: nothing listens "
+                           f"there ({e.strerror or e})") from None
+    except OSError:
+        return          # (unreachable host, timeout: Dask says so in its own words)
+
+
 def run_study(spec: StudySpec, out_dir, *, scheduler: str | None = None,
               workers: int | None = None) -> dict:
     """Run the study on Dask and write ``out_dir/study.jsonl`` and ``summary.json``."""
@@ -240,6 +263,7 @@ def run_study(spec: StudySpec, out_dir, *, scheduler: str | None = None,
     cluster = None
     logging.getLogger("distributed").setLevel(logging.ERROR)
     if scheduler:
+        _reachable(scheduler)
         try:
             client = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError) as e:

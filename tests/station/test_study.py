@@ -54,13 +54,16 @@ def scheduler():
                 stderr=subprocess.DEVNULL))
         yield addr
     finally:
-        for p in procs[::-1]:
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        # the workers first, while their scheduler still answers their goodbye (with it
+        # gone first they wait out its timeouts: 8 s of teardown), then the scheduler
+        for group in (procs[1:], procs[:1]):
+            for p in group:
+                p.terminate()
+            for p in group:
+                try:
+                    p.wait(timeout=20)
+                except subprocess.TimeoutExpired:
+                    p.kill()
 
 
 def _table(stdout: str) -> list[str]:
