@@ -414,10 +414,10 @@ def robust_worst_row(model, x0, sigma_stated: dict | None = None, *, free=None,
         out[rows] = s[:, None]
         return out
 
-    # the fit itself on every row (a group's scale on each of its rows): the norm of a
-    # group's residual is a poor linear model where it is near the noise (its curvature
-    # is 1 / norm), and Gauss-Newton steps on it crawled (2300 evaluations on a marker
-    # trace whose fit on the rows takes ~100); the rows are judged by group below
+    # the fit itself on the rows: the norm of a group's residual is a poor linear model
+    # where it is near the noise (its curvature is 1 / norm), and the steps on it
+    # crawled (2323 evaluations on a marker trace whose fit on the rows takes 4); the
+    # groups are judged below
     def fun(v, s):
         return model.evaluate(full(v))[0] / s
 
