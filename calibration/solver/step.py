@@ -304,10 +304,9 @@ class Stepping:
             factor = float(g0 * g0 * self.sigma[self.ch0] ** 2)
         else:
             factor = 1.0
-        vs = F.vs if F.vs is not None or F.Rinv is None else F.Rinv  # (R^-1: formed when read)
-        var = (factor, F.h, F.variance_scaled() if vs is None else vs,
-               None if self.all_active else self.active_idx,
-               len(self.active))
+        # the scaled variance, or the R^-1 whose squared row norms it is (formed when read)
+        v = F.Rinv if F.vs is None and F.Rinv is not None else F.variance_scaled()
+        var = (factor, F.h, v, None if self.all_active else self.active_idx, len(self.active))
         it = Iteration(self.x.copy(), var, F.R if F._sv is None else F.cond, step, cost,
                        dict(self.sigma))
         self.history.append(it)

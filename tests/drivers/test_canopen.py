@@ -180,6 +180,18 @@ def test_dropped_tpdo_is_timeout_never_old_value(drives, sim):
     assert after.seq > before.seq and after.values == before.values
 
 
+def _give_up_an_upload(drives, sim):
+    """Every frame 1 s late from now (in order); node 1's upload of 0x1000 given up
+    on after 0.05 s: its answer comes in 1 s after it was asked."""
+    sim.call("faults", {"late_s": 1.0})
+    drives.remote[1].sdo.RESPONSE_TIMEOUT = 0.05
+    try:
+        with pytest.raises(DeviceTimeout, match="0x1000"):
+            drives.sdo_read(1, 0x1000)
+    finally:
+        drives.remote[1].sdo.RESPONSE_TIMEOUT = drives.timeout
+
+
 def test_a_late_answer_to_a_request_given_up_on_is_not_taken_for_the_next(drives, sim):
     """An SDO request given up on (a timeout, or the TPDO barrier's time running out)
     can still be answered, after the next request was sent: that answer names another
@@ -187,13 +199,7 @@ def test_a_late_answer_to_a_request_given_up_on_is_not_taken_for_the_next(drives
     SDO fallback after a dropped TPDO failed with "Node returned a value for 0x1000:00
     instead" on a loaded machine)."""
     expected = drives.read().values
-    sim.call("faults", {"late_s": 1.0})           # every frame 1 s late, in order
-    drives.remote[1].sdo.RESPONSE_TIMEOUT = 0.05
-    try:
-        with pytest.raises(DeviceTimeout, match="0x1000"):
-            drives.sdo_read(1, 0x1000)             # given up on; answered 1 s later
-    finally:
-        drives.remote[1].sdo.RESPONSE_TIMEOUT = drives.timeout
+    _give_up_an_upload(drives, sim)
     # asked at once: the answer above comes in first, this request's 0.05 s after it
     assert drives.read_sdo(timeout=5.0).values == expected
 
@@ -202,13 +208,8 @@ def test_a_late_upload_answer_is_not_taken_for_a_write_s(drives, sim):
     """The same late answer coming in while a write waits for its own: the write is
     asked once more (the same value: the node took the first one all the same)."""
     expected = drives.read().values
-    sim.call("faults", {"late_s": 1.0})
-    drives.remote[1].sdo.RESPONSE_TIMEOUT = 0.05
-    try:
-        with pytest.raises(DeviceTimeout, match="0x1000"):
-            drives.sdo_read(1, 0x1000)
-    finally:
-        drives.remote[1].sdo.RESPONSE_TIMEOUT = 5.0
+    _give_up_an_upload(drives, sim)
+    drives.remote[1].sdo.RESPONSE_TIMEOUT = 5.0
     try:
         drives.sdo_write(1, 0x6060, 1)             # profile position, as it is already
     finally:
