@@ -283,8 +283,12 @@ def robust_start_detail(robot, method_data, nominal, components=None, *,
     every.row_scale = model.row_scale     # the same weights for every pose's own fit
     # recheck=False: the per-pose angles must not meet the statistical test at the
     # solution (a weakly seen gamma_j reset to its guess can leave the reachable set);
-    # q3_off, k3 are structurally dependent and dropped before iterating
-    opts = options or SolverOptions(epsilon=1e-9, max_iter=300, recheck=False)
+    # q3_off, k3 are structurally dependent and dropped before iterating;
+    # hold_damping: the damping, once raised, keeps the joint fit from drifting
+    # along the scale of the model (pm-fk on alpha alone from the report's nominal
+    # otherwise converges to every length 381 times the truth's)
+    opts = options or SolverOptions(epsilon=1e-9, max_iter=300, recheck=False,
+                                    hold_damping=True)
     res = solve(model, opts)
     if not res.converged:       # grow the fitted region as a session grows its box
         staged = _staged_fit(model, opts)

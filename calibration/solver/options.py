@@ -24,6 +24,12 @@ class SolverOptions:
                     the gain ratio once it swings, see
                     :meth:`calibration.solver.step.Stepping.iterate`). False
                     runs the report's plain Algorithm 2.
+    hold_damping:   once the damping swings, keep it at or above the damping
+                    last rejected for the rest of the round. False (default):
+                    each step whose gain ratio is above ``GOOD_GAIN`` lowers
+                    that floor threefold. True: a fit that may drift along a
+                    valley away from its basin stays damped (the PM start fit,
+                    :mod:`calibration.pm_start`).
     """
 
     damping: float | None = None
@@ -37,4 +43,5 @@ class SolverOptions:
     recheck: bool = True
     fixed: tuple[str, ...] = ()
     adaptive: bool = True
+    hold_damping: bool = False
 
