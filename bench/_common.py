@@ -185,6 +185,43 @@ def make_robot_file_problems(seed: int = 1, variants=("noise-free", "noisy"),
     return out
 
 
+FIXTURE_TRACE = os.path.join(ROOT, "fixtures", "traces", "sm-distance.jsonl")
+
+
+def make_fixture_problem():
+    """sm-distance on AGEBOT's robot file over the fixture trace's poses, reference and
+    readings (``fixtures/traces/sm-distance.jsonl``: 45 poses, noise 1e-4 m stated, made
+    with the builtin arm's truth), from the trace's nominal, run as the station runs
+    it (the file's ``fixed``, the trace's sigma): a fit that swings, where the damping
+    decides the path (``docs/methods.md``, step acceptance)."""
+    from calibration.methods import MethodData, build
+    from calibration.solver import SolverOptions
+    from drivers.robot_file import load_robot_file
+    from station.recording.trace import read_trace
+
+    trace = read_trace(FIXTURE_TRACE)
+    robot = get_robot(load_robot_file(AGEBOT_FILE))
+    sm = get_robot("agebot-sm")
+    poses = trace.fit_poses
+    qm = np.array([p["qm"] for p in poses], dtype=float)
+    D_m = np.array([p["distance"] for p in poses], dtype=float)
+    ref_qm = np.asarray(trace.reference["qm"], dtype=float)
+    nominal = np.array([trace.header["nominal"][nm] for nm in sm.param_names])
+    data = MethodData(qm, {"distance": D_m}, reference_qm=ref_qm)
+    model = build("sm-distance", robot, data, agebot_file_vector(robot, nominal))
+    truth = agebot_file_vector(robot, sm.true)
+
+    def res(x):
+        X = robot.fk(np.vstack([qm, ref_qm]), x)
+        return D_m - np.linalg.norm(X[:-1, :3] - X[-1, :3], axis=1)
+    for x in (model.x0, truth):
+        assert np.allclose(res(x), model.evaluate(x)[0], rtol=0, atol=1e-13), \
+            "fk residual mismatch"
+    return Problem(f"robot file sm-distance fixture trace ({model.n_poses} poses, "
+                   f"{len(model.row_channel)} rows)", "sm-distance", True, model, truth, res,
+                   SolverOptions(fixed=robot.fixed, sigma=dict(trace.header["sigma"])))
+
+
 def median_time(fn, repeats: int, warmup: int = 1):
     """``(median seconds, last return value)`` of ``fn()`` over ``repeats`` calls."""
     for _ in range(warmup):

@@ -3,7 +3,9 @@
 Per problem (sm-full-pose, sm-distance with the plain residual, sm-distance-tilt;
 each noise-free and noisy, the same poses for both; and sm-distance on the same arm
 written as a robot file, the generic serial model a user's arm gets:
-``bench/_common.py`` ``make_robot_file_problems``) it runs
+``bench/_common.py`` ``make_robot_file_problems``; at the default sizes also that
+robot file over the fixture trace ``fixtures/traces/sm-distance.jsonl`` from its
+nominal, a fit that swings: ``make_fixture_problem``) it runs
 
 * ``ours``       ``solve(model)`` with the default ``SolverOptions`` (the robot
   file's problems: its ``fixed`` and the stated sigma, as the station runs a trace);
@@ -82,7 +84,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 from _common import (METHODS, interleaved_times, make_problems,  # noqa: E402
-                     make_robot_file_problems, table)
+                     make_fixture_problem, make_robot_file_problems, table)
 from scipy.optimize import least_squares  # noqa: E402
 
 from calibration.solver import SIGMA_CHANGE, SIGMA_FLOOR, SolverOptions, solve  # noqa: E402
@@ -437,6 +439,8 @@ def main(argv=None):
                 for p in make_problems(args.seed, tuple(args.methods), poses=n)
                 + (make_robot_file_problems(args.seed, poses=n)
                    if "sm-distance" in args.methods and not args.no_robot_file else [])]
+    if not args.poses and "sm-distance" in args.methods and not args.no_robot_file:
+        problems.append(make_fixture_problem())     # its own 45 poses
     summary = []
     to_profile = []
     failures = []
