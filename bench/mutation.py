@@ -268,7 +268,10 @@ def run_named(work: Path) -> list[tuple[str, bool, str]]:
         finally:
             path.write_text(original)
         last = (r.stdout.strip().splitlines() or [""])[-1]
-        out.append((label, r.returncode == 1, last))
+        # killed: a test failed. pytest exits 1 then, or 2 where -x stopped the
+        # xdist workers after the failure (the project's default -n auto)
+        killed = r.returncode == 1 or (r.returncode == 2 and " failed" in last)
+        out.append((label, killed, last))
     return out
 
 
