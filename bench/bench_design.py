@@ -28,8 +28,9 @@ from station.planning.pose_design import DEFAULT_NOISE  # noqa: E402
 from station.simulation.tracegen import candidate_pool  # noqa: E402
 
 
-#: the built-in robots' methods (sm-position is a robot file's: a tracker on any arm)
-BUILTIN_METHODS = tuple(m for m in METHODS if m != "sm-position")
+#: the built-in robots' methods (sm-position and sm-markers are a robot file's or a
+#: URDF's: a tracker or motion capture on any arm, not simulated on the built-in arms)
+BUILTIN_METHODS = tuple(m for m in METHODS if m not in ("sm-position", "sm-markers"))
 
 
 def pool(method: str, pool_size: int, seed: int, robot_file: str | None):
