@@ -16,6 +16,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.solver import SolverOptions, solve
@@ -32,7 +33,7 @@ FAR = ROOT / "fixtures" / "traces" / "sm-distance-tilt-far-9422.jsonl"
 READING = 1e-5 / np.sqrt(5)
 
 
-def _fit_from_truth(trace, seed=9300):
+def _fit_from_truth(trace, seed):
     """The fit of the trace's fit poses started at the true parameters (captured frame)."""
     model, _ = batch.make_model(trace)
     truth = station_truth("agebot-sm", seed)
@@ -49,33 +50,22 @@ def test_the_first_fit_of_a_drawn_arms_session_is_at_the_readings_noise():
     assert result.residual_rms["distance"] < 3 * READING, result.residual_rms
 
 
-def test_a_drawn_arms_session_is_calibrated_with_every_reading_at_the_truths_minimum():
-    trace = read_trace(DRAWN)
-    out = batch.calibrate(trace)
-    assert out.quality.passed
-    assert out.quality.outliers == [], out.quality.outliers
-    ref, xi = _fit_from_truth(trace)
-    res = out.result
-    assert np.allclose(res.x, ref.x, rtol=0, atol=1e-3 * np.nanmin(ref.std))
-    n = len(xi)        # the robot's parameters against the truth (distance_off aside)
-    z = (res.x[:n] - xi) / res.std[:n]
-    assert np.max(np.abs(z)) < 5.0, dict(zip(res.names, np.round(z, 2)))
-
-
-def test_a_far_off_arms_trace_is_calibrated_at_the_truths_minimum():
-    """The start-values fit of this trace crawled to its 300-iteration limit, its damping
-    held at the damping last rejected far above the weak directions, and the final fit
-    ended where only 11 of 14 parameters were identifiable: the gate refused the session.
-    That floor now gives way after steps the linear model predicted well."""
-    trace = read_trace(FAR)
+@pytest.mark.parametrize("path, seed", [(DRAWN, 9300), (FAR, 9422)], ids=["drawn", "far-off"])
+def test_an_arms_session_is_calibrated_with_every_reading_at_the_truths_minimum(path, seed):
+    """The drawn arm (module doc), and the far-off one: the start-values fit of its
+    trace crawled to its 300-iteration limit, its damping held at the damping last
+    rejected far above the weak directions, and the final fit ended where only 11 of
+    14 parameters were identifiable: the gate refused the session. That floor now
+    gives way after steps the linear model predicted well."""
+    trace = read_trace(path)
     out = batch.calibrate(trace)
     assert out.quality.passed, out.quality.summary()
     assert out.quality.outliers == [], out.quality.outliers
     res = out.result
     assert res.n_identifiable == 14
-    ref, xi = _fit_from_truth(trace, 9422)
+    ref, xi = _fit_from_truth(trace, seed)
     assert np.allclose(res.x, ref.x, rtol=0, atol=1e-3 * np.nanmin(ref.std))
-    n = len(xi)
+    n = len(xi)        # the robot's parameters against the truth (distance_off aside)
     z = (res.x[:n] - xi) / res.std[:n]
     assert np.max(np.abs(z)) < 5.0, dict(zip(res.names, np.round(z, 2)))
 
