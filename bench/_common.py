@@ -80,6 +80,16 @@ def _fk_residual(method, robot, model):
     return res
 
 
+def _checked_fk_residual(method, robot, model, truth):
+    """:func:`_fk_residual`, checked equal to ``model.evaluate(x)[0]`` at the start and
+    at the truth."""
+    res = _fk_residual(method, robot, model)
+    for x in (model.x0, truth):
+        assert np.allclose(res(x), model.evaluate(x)[0], rtol=0, atol=1e-13), \
+            "fk residual mismatch"
+    return res
+
+
 def make_problems(seed: int = 1, methods=METHODS, variants=("noise-free", "noisy"),
                   poses: int | None = None):
     """The bench problems: per method the same poses (same seed), read without
@@ -124,10 +134,7 @@ def make_problems(seed: int = 1, methods=METHODS, variants=("noise-free", "noisy
                                     noise=NOISE[method] if noisy else None,
                                     rng=np.random.default_rng([seed, mi, 7]))
             model = build(meas)
-            res = _fk_residual(method, sm, model)
-            for x in (model.x0, truth):
-                r_full = model.evaluate(x)[0]
-                assert np.allclose(res(x), r_full, rtol=0, atol=1e-13), "fk residual mismatch"
+            res = _checked_fk_residual(method, sm, model, truth)
             out.append(Problem(f"{method} {variant} ({model.n_poses} poses, "
                                f"{len(model.row_channel)} rows)",
                                method, noisy, model, truth, res))
@@ -172,14 +179,7 @@ def make_robot_file_problems(seed: int = 1, variants=("noise-free", "noisy"),
         truth = agebot_file_vector(robot, sm.true)
         data = MethodData(m.qm, {"distance": m.D_m}, reference_qm=m.reference_qm)
         model = build("sm-distance", robot, data, agebot_file_vector(robot, sm.nominal))
-        qm, ref_qm, D_m = m.qm, m.reference_qm, m.D_m
-
-        def res(x, qm=qm, ref_qm=ref_qm, D_m=D_m):
-            X = robot.fk(np.vstack([qm, ref_qm]), x)
-            return D_m - np.linalg.norm(X[:-1, :3] - X[-1, :3], axis=1)
-        for x in (model.x0, truth):
-            assert np.allclose(res(x), model.evaluate(x)[0], rtol=0, atol=1e-13), \
-                "fk residual mismatch"
+        res = _checked_fk_residual("sm-distance", robot, model, truth)
         out.append(Problem(f"robot file {prob.name}", "sm-distance", prob.noisy, model, truth,
                            res, SolverOptions(fixed=robot.fixed, sigma=NOISE["sm-distance"])))
     return out
@@ -210,13 +210,7 @@ def make_fixture_problem():
     data = MethodData(qm, {"distance": D_m}, reference_qm=ref_qm)
     model = build("sm-distance", robot, data, agebot_file_vector(robot, nominal))
     truth = agebot_file_vector(robot, sm.true)
-
-    def res(x):
-        X = robot.fk(np.vstack([qm, ref_qm]), x)
-        return D_m - np.linalg.norm(X[:-1, :3] - X[-1, :3], axis=1)
-    for x in (model.x0, truth):
-        assert np.allclose(res(x), model.evaluate(x)[0], rtol=0, atol=1e-13), \
-            "fk residual mismatch"
+    res = _checked_fk_residual("sm-distance", robot, model, truth)
     return Problem(f"robot file sm-distance fixture trace ({model.n_poses} poses, "
                    f"{len(model.row_channel)} rows)", "sm-distance", True, model, truth, res,
                    SolverOptions(fixed=robot.fixed, sigma=dict(trace.header["sigma"])))
