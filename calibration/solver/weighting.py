@@ -75,6 +75,20 @@ class Weighting:
                           SIGMA_FLOOR)
             est[ch] = (rc, dof)
         dofs = {ch: d for ch, (_, d) in est.items()}
+        if len(est) > 1 and min(dofs.values()) < CHANNEL_MIN_DOF:
+            # a channel whose rows the fit spends (nearly) all of: its residual
+            # is round-off over round-off and says nothing of its noise (a
+            # 6-pose start fit of sm-distance-tilt: the distance's 1.2e-6 m in
+            # one run, 1.6e-12 m in another, its noise 1e-5 m; the fit then
+            # went elsewhere): every estimated channel shares one sigma, as in
+            # the pooled round
+            rss_all = sum(rc for rc, _ in est.values())
+            dof_all = sum(d for _, d in est.values())
+            if dof_all > 0:
+                s = max(math.sqrt(rss_all / dof_all), SIGMA_FLOOR)
+                out.update(dict.fromkeys(est, s))
+                dofs = dict.fromkeys(est, dof_all)
+                return out, dofs
         for group in getattr(self.model, "noise_groups", ()):
             sub = {ch: est[ch] for ch in group if ch in est}
             if len(sub) > 1 and _homogeneous(sub.values()):
@@ -171,6 +185,11 @@ class Weighting:
         self.next_factor = None  # made with the old weights
         self._set_weights()
         return self._sigma_changed(sigma, old)
+
+
+# Fewest degrees of freedom a channel's own sigma is estimated with; below, every
+# estimated channel shares one sigma (:meth:`Weighting._estimated_sigma`).
+CHANNEL_MIN_DOF = 1.0
 
 
 # Fewest degrees of freedom credited to an estimated sigma (eq. 51) when its

@@ -30,8 +30,8 @@ import numpy as np
 from calibration import identifiability as ident
 from calibration import quality as q
 from calibration.errors import CalibrationError
-from station.fitting.gate_checks import (check_explains, check_plausible, check_plausible_serial,
-                                         check_poses, check_validation, people)
+from station.fitting.gate_checks import (check_explains, check_plausibility, check_poses,
+                                         check_validation, people)
 from station.fitting.pose_count import NR_P, parameter_count
 from station.fitting.verdict import FitQualityError, NotConverged, Quality, describe, max_outliers
 
@@ -362,10 +362,9 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
                       **{k: c[k] for k in ("channel", "stated_sigma", "fitted_sigma", "ratio",
                                            "chi2", "dof", "p")})
     check_poses(quality, trace, model, result)
-    if "robot_file" not in trace.header:    # AGEBOT's parameters, whose kinds are known
-        check_plausible(quality, model, result, trace.method)
-    else:                                   # robot files and URDF robots
-        check_plausible_serial(quality, model, result)
+    serial = "robot_file" in trace.header   # robot files and URDF robots (else AGEBOT's)
+    check_plausibility(quality, model, result, trace.method, serial)
+    if serial:
         check_explains(quality, model, result)
     validation = None
     if validate is not None and trace.validation_poses:

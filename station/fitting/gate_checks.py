@@ -12,6 +12,7 @@ import numpy as np
 from calibration import identifiability as ident
 from calibration import quality as q
 from station.fitting.pose_count import NR_P, parameter_count
+from station.fitting.verdict import Quality
 from station.outputs.params_file import PLAUSIBLE_FACTOR, factor_judged
 from station.outputs.units import MM_DEG, channel_si
 
@@ -119,6 +120,23 @@ def check_poses(quality, trace, model, result) -> None:
                   expected_identifiable=int(expected))
 
 
+
+
+def check_plausibility(quality, model, result, method, serial: bool) -> None:
+    """The gate's plausibility check of ``result`` against the start values
+    ``model.x0``: AGEBOT's parameters (:func:`check_plausible`), a robot file's or
+    URDF robot's (``serial``, :func:`check_plausible_serial`)."""
+    if serial:
+        check_plausible_serial(quality, model, result)
+    else:
+        check_plausible(quality, model, result, method)
+
+
+def implausible(model, result, method, serial: bool) -> list[dict]:
+    """The parameters :func:`check_plausibility` refuses (name, start, calibrated)."""
+    quality = Quality()
+    check_plausibility(quality, model, result, method, serial)
+    return [] if quality.passed else quality.checks[-1]["parameters"]
 
 
 def check_plausible(quality, model, result, method) -> None:

@@ -71,8 +71,8 @@ def test_a_start_that_does_not_converge_at_once_is_grown_from_home(monkeypatch):
     from calibration.robots.agebot_pm import gravity_tilt, rot_xyz
     from drivers.sim.truth import draw_truth
 
-    xi = draw_truth("agebot-pm", np.random.default_rng(7203)).xi()
-    plan = sample_poses(ROBOT, xi, box_array(ROBOT, PM_BOX), 24, np.random.default_rng(7203))
+    xi = draw_truth("agebot-pm", np.random.default_rng(7221)).xi()
+    plan = sample_poses(ROBOT, xi, box_array(ROBOT, PM_BOX), 24, np.random.default_rng(7221))
     data = MethodData(plan.qm, {"tilt": np.column_stack(gravity_tilt(rot_xyz(plan.targets)))})
     nominal = np.r_[NOMINAL, 0.0, 0.0]
     grown = robust_start_detail(ROBOT, data, nominal)

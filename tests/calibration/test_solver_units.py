@@ -341,6 +341,29 @@ def test_per_channel_weights_are_the_channels_sigmas():
     np.testing.assert_allclose(res.history[-1].variance, var_last, rtol=1e-6)
 
 
+def test_a_channel_without_degrees_of_freedom_shares_the_others_sigma():
+    """Two parameters that only the first channel's two rows see: the fit spends
+    both rows on them, their residual is round-off and says nothing of that
+    channel's noise (eq. 51 would divide round-off by round-off). Both channels
+    then get one sigma, the second channel's residual over the degrees of freedom
+    left, as the pooled round has it."""
+    rng = np.random.default_rng(5)
+    A = np.zeros((32, 4))
+    A[:2, :2] = rng.normal(size=(2, 2))
+    A[2:, 2:] = rng.normal(size=(30, 2))
+    A[2:, :2] = 0.0
+    ch = np.repeat([0, 1], [2, 30])
+    y = A @ np.array([0.5, -0.1, 2.0, 1.0]) + np.where(ch == 0, 1e-3, 3e-2) * rng.normal(size=32)
+    res = solve(Linear(A, y, channel=ch, channels=("distance", "tilt")))
+    assert res.converged, res.message
+    r = y - A @ res.x
+    assert float(r[:2] @ r[:2]) < 1e-28           # the first channel fitted exactly
+    want = math.sqrt(float(r @ r) / (32 - 4))
+    assert res.sigma == pytest.approx({"distance": want, "tilt": want}, rel=1e-9)
+    assert res.sigma_dof == pytest.approx({"distance": 28.0, "tilt": 28.0}, rel=1e-9)
+    np.testing.assert_allclose(res.x, _ols(A, y)[0], rtol=1e-9)
+
+
 def test_known_sigma_per_channel():
     model, A, y, ch = _two_channels()
     sig = {"distance": 1e-3, "tilt": 3e-2}
@@ -492,8 +515,10 @@ def test_the_damping_floor_gives_way_along_a_curved_valley():
     """From Rosenbrock's start (-1.2, 1) the steps swing and the damping relaxes by
     the gain ratio. Held at the damping last rejected for the rest of the round
     (``hold_damping``, the PM start fit's choice) it does not reach the minimum
-    within 1000 iterations; giving way threefold after each well-predicted step,
-    it does in 39."""
+    within 1000 iterations (it crawls along the valley: ~1e-8 short of it
+    after 1000 iterations, ~0.2 before rejected steps were retried by the
+    parabola along them); giving way threefold after each well-predicted step,
+    it does in 31 (39 before that retry)."""
     opt = SolverOptions(sigma={"distance": 1.0})
     res = solve(Rosenbrock([-1.2, 1.0]), opt)
     assert res.converged, res.message
@@ -502,7 +527,7 @@ def test_the_damping_floor_gives_way_along_a_curved_valley():
     held = solve(Rosenbrock([-1.2, 1.0]), SolverOptions(sigma={"distance": 1.0},
                                                          hold_damping=True))
     assert not held.converged
-    assert np.abs(held.x - 1.0).max() > 0.1
+    assert held.message == "no convergence within 1000 iterations"
 
 
 @pytest.mark.parametrize("b_true", [3.01, 3.2])

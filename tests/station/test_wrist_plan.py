@@ -17,7 +17,9 @@ from station.planning.wrist_plan import (ADVICE, BOX_DEG, TOLERANCE_DEG, WristPl
 
 ROBOT = get_robot("agebot-pm")
 STROKE = [[-1000.0, 6000.0]] * 3
-SEEDS_TILT = [7104, 7109]
+# (7104 planned in the model's absolute heading reached 21.6 deg, 37 before rejected
+# steps were retried by the parabola along them: no longer a case that shows it)
+SEEDS_TILT = [7109, 7110]
 
 
 def _truth(seed):
@@ -98,7 +100,7 @@ def test_pm_tilt_box_is_centred_on_the_heading_of_home(seed, monkeypatch):
     # 0.7 deg past the tolerance: two readings a pose extrapolate less well)
     assert 0.8 * BOX_DEG < np.degrees(np.abs(X).max()) < 25.0
     monkeypatch.setattr(WristPlanner, "home_heading", lambda self: 0.0)
-    assert np.degrees(np.abs(run()).max()) > 30.0     # 37 and 51 deg
+    assert np.degrees(np.abs(run()).max()) > 30.0     # 55 and 33 deg
 
 
 def test_the_scout_is_planned_relative_to_home():
