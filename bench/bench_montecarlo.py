@@ -6,8 +6,10 @@ averaged over 5 samples, sigma estimated per channel.
     python bench/bench_montecarlo.py                   # 150 runs per method (pm-tilt 50), ~5 min
     python bench/bench_montecarlo.py --runs 40 --methods pm-fk --detail
 
-Per method: runs, fits refused (not converged, or a residual above 3 times the
-noise: a local minimum the fit-quality check refuses), the pooled RMS of
+Per method: runs, fits refused (not converged, a residual above 3 times the
+noise: a local minimum the fit-quality check refuses, or, in the batch's
+canonical form, a gear ratio or length the gate's plausibility check refuses:
+sm-distance's arm mirrored in its plane), the pooled RMS of
 error / reported std (1 when the std is honest), the share of errors within 2
 std (95.4 % for a normal error), and the median reported std / Cramer-Rao
 bound at the truth (1 when sigma is estimated well and the model is linear

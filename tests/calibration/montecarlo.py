@@ -24,8 +24,12 @@ from calibration.methods import METHODS, MethodData, build
 from calibration.methods.pm_tilt import heading_grid, ik_modulo_heading
 from calibration.methods.sm_distance_tilt import reframe_nominal
 from calibration.robots import BUILTIN, get_robot
+from calibration.robots.base import canonical_result
 from calibration.solver import solve
 from drivers.sim.truth import draw_truth
+from station.fitting.gate_checks import check_plausible
+from station.fitting.start_values import ROUND_METHODS
+from station.fitting.verdict import Quality
 from station.simulation.tracegen import generate
 
 SAMPLES = 5  # readings averaged per pose (fixtures/stations/sim-*.toml)
@@ -167,6 +171,16 @@ def one_run(method: str, seed: int, noise: dict | None = None):
                                 zip(model.channels, _channel_sigma(model, noise))):
         # no fit, or a local minimum whose residual is not the noise: the
         # station's fit-quality check refuses it; not a statement about the std
+        return None
+    # as the batch writes it (station.fitting.batch): equivalent forms made one
+    res = canonical_result(robot, res, frame_free=method in ROUND_METHODS)
+    quality = Quality()
+    check_plausible(quality, model, res, method)
+    if not quality.passed:
+        # the gate's plausibility check refuses it too: gear ratios that changed
+        # sign, e.g. the arm mirrored in its plane, which distances alone cannot
+        # tell from it (sm-distance: k2, k3, k4 and their zeros negated fit the
+        # readings as well as the truth, yet put the tool elsewhere)
         return None
     if method == "sm-distance-tilt":
         tv = reframe_nominal(robot, truth, data.reference_qm)
