@@ -19,7 +19,7 @@ class SolverOptions:
     recheck:        re-analyse identifiability at the solution.
     fixed:          parameter names kept at their start values.
     adaptive:       reject a step that raises the weighted cost and retry it with
-                    at least ten times the damping, and at most half as long
+                    at least ten times the damping, and about half as long at most
                     (Levenberg-Marquardt safeguard; the retry's length from the
                     parabola along the rejected step, as MINPACK's); the
                     damping relaxes back to lambda after accepted steps (by

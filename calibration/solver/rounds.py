@@ -91,6 +91,7 @@ class Algorithm2(Weighting, Stepping):
         self.next_factor = None  # the factorization the next iteration starts from, if made
         self._sigma_memo = (None, -1, None, None)
         self.sigma_dof: dict = {}  # channel -> degrees of freedom of its estimated sigma
+        self.sigma_shared = False  # a channel had no degrees of freedom: one sigma from then on
     # -- identifiability ------------------------------------------------------
     def initial_status(self):
         model, opt = self.model, self.opt

@@ -32,9 +32,10 @@ GOOD_GAIN = 0.75
 #: after rejected steps, a Gauss-Newton step still predicting a decrease of the
 #: cost of more than this (chi-square units, i.e. a step of ~0.1 std) is not convergence
 STALL_CHI2 = 1e-2
-#: a rejected step is retried no longer than this fraction of it, nor shorter
-#: than ``RETRY_SHORTEST`` of it (within those, where the cost along the step
-#: is least on the parabola through the two costs and the slope; MINPACK's lmder)
+#: a rejected step is retried no longer than this fraction of it (10 % more at
+#: most: :meth:`Scaled.damping_for`), nor shorter than ``RETRY_SHORTEST`` of it
+#: (within those, where the cost along the step is least on the parabola through
+#: the two costs and the slope; MINPACK's lmder)
 RETRY_LONGEST, RETRY_SHORTEST = 0.5, 0.1
 
 geqrf, gesvd, trtrs, trtri = lapack.dgeqrf, lapack.dgesvd, lapack.dtrtrs, lapack.dtrtri
@@ -158,8 +159,8 @@ class Scaled:
         return trtrs(self.R, self.Rc[:, n])[0]
 
     def damping_for(self, length: float, lam2: float) -> float:
-        """The ``lambda^2``, not below ``lam2``, whose damped step is no longer
-        than ``length`` (scaled) and, if ``lam2``'s is longer, within 10 % of it:
+        """The ``lambda^2``, not below ``lam2``, whose damped step is at most 10 %
+        longer than ``length`` (scaled) and, if ``lam2``'s is longer, no shorter:
         Newton's method on ``1/||z(lambda^2)||``, increasing and concave in
         ``lambda^2``, from ``lam2`` (below the root: it converges from there
         without overshooting; Moré 1978, as MINPACK's lmpar). From the SVD of
@@ -172,8 +173,9 @@ class Scaled:
         s0 = float(sv[0])
         if not s0 > 0:
             return lam2
-        s2 = sv * sv
-        sc2 = s2 * (c * c)
+        keep = sv > s0 * 1e-15  # (the pseudo-inverse's cut, as :meth:`step`)
+        s2 = sv[keep] * sv[keep]
+        sc2 = s2 * (c[keep] * c[keep])
         mu = lam2
         for _ in range(30):
             q = s2 + mu
@@ -207,10 +209,11 @@ class Scaled:
 
     def retry_damping(self, z, lam2: float, cost: float, cost_try: float) -> float:
         """The ``lambda^2`` at which to retry the rejected step ``z`` (made at
-        ``lam2``; the cost ``cost`` here, ``cost_try`` there): its step at most
-        :data:`RETRY_LONGEST` and at least about :data:`RETRY_SHORTEST` as long
-        as ``z``, where the parabola through the two costs and the slope here
-        has its minimum along ``z`` (MINPACK's rule for its trust radius)."""
+        ``lam2``; the cost ``cost`` here, ``cost_try`` there): its step between
+        :data:`RETRY_SHORTEST` and :data:`RETRY_LONGEST` as long as ``z`` (within
+        10 % above: :meth:`damping_for`), where the parabola through the two costs
+        and the slope here has its minimum along ``z`` (MINPACK's rule for its
+        trust radius)."""
         slope = self.slope(z)
         rise = cost_try - cost + slope  # > slope: the cost rose, or fell less than predicted
         t = 0.5 * slope / rise if slope > 0 and rise > 0 else RETRY_SHORTEST
@@ -412,26 +415,26 @@ class Stepping:
         rejected = 0
         # Adaptive damping (Levenberg-Marquardt safeguard): a rejected step is retried
         # with at least ten times the damping and at a damping whose step is at most
-        # half as long, as far along it as the parabola through the two costs and the
-        # slope puts the least cost (no shorter than a tenth: MINPACK's trust-radius
-        # rule; :meth:`Scaled.retry_damping`). Ten times alone lowered the cost of a
-        # first rejected Gauss-Newton step by 13 % where lm's retry (and now ours, at
-        # the same point) lowers it tenfold, and then swung into a curved valley
-        # (AGEBOT's arm as a robot file from its nominal, sigma stated: 49 iterations
-        # and 56 evaluations against lm's 11; 8 and 9 now). An accepted step relaxes
-        # the damping tenfold (never below lambda). Where that swings, i.e. two
-        # iterations in a row needed a rejected step first, the damping tenfold down
-        # is rejected again and again (a curved valley: sm-distance at 100 poses took
-        # 106 iterations and 210 evaluations): from then on, in this round, an
-        # accepted step relaxes the damping by its gain ratio (:meth:`_relaxed`), no
-        # lower than the damping last rejected, a floor that each step the linear
-        # model predicted well (gain ratio above GOOD_GAIN) lowers threefold: held for
-        # the rest of the round it kept the damping far above the weak directions'
-        # singular values where the rejection happened far from the solution (the same
-        # robot file: floor 666 against s_min 50-150, 440 iterations);
-        # ``SolverOptions.hold_damping`` keeps it, as the PM start fit needs:
-        # calibration.pm_start. The retry is never less damped than ten times: a
-        # smaller rise keeps the steps towards the spurious minimum a Gauss-Newton
+        # about half as long (0.55), as far along it as the parabola through the two
+        # costs and the slope puts the least cost (no shorter than a tenth: MINPACK's
+        # trust-radius rule; :meth:`Scaled.retry_damping`). Ten times alone lowered
+        # the cost of a first rejected Gauss-Newton step by 13 % where lm's retry (and
+        # now ours, at the same point) lowers it tenfold, and then swung into a curved
+        # valley (AGEBOT's arm as a robot file from its nominal, sigma stated: 49
+        # iterations and 56 evaluations against lm's 11; 8 and 9 now). An accepted
+        # step relaxes the damping tenfold (never below lambda). Where that swings,
+        # i.e. two iterations in a row needed a rejected step first, the damping
+        # tenfold down is rejected again and again (a curved valley: sm-distance at
+        # 100 poses took 106 iterations and 210 evaluations): from then on, in this
+        # round, an accepted step relaxes the damping by its gain ratio
+        # (:meth:`_relaxed`), no lower than the damping last rejected, a floor that
+        # each step the linear model predicted well (gain ratio above GOOD_GAIN)
+        # lowers threefold: held for the rest of the round it kept the damping far
+        # above the weak directions' singular values where the rejection happened far
+        # from the solution (the same robot file: floor 666 against s_min 50-150, 440
+        # iterations); ``SolverOptions.hold_damping`` keeps it, as the PM start fit
+        # needs: calibration.pm_start. The retry is never less damped than ten times:
+        # a smaller rise keeps the steps towards the spurious minimum a Gauss-Newton
         # step can point at (sm-distance), and retrying at a fixed fraction of the
         # length alone (a trust region, where the damping is far above the weak
         # singular values a milder rise than tenfold) left the 6-9-pose planning

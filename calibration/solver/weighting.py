@@ -75,19 +75,25 @@ class Weighting:
                           SIGMA_FLOOR)
             est[ch] = (rc, dof)
         dofs = {ch: d for ch, (_, d) in est.items()}
-        if len(est) > 1 and min(dofs.values()) < CHANNEL_MIN_DOF:
+        if len(est) > 1 and (self.sigma_shared or min(dofs.values()) < CHANNEL_MIN_DOF):
             # a channel whose rows the fit spends (nearly) all of: its residual
             # is round-off over round-off and says nothing of its noise (a
             # 6-pose start fit of sm-distance-tilt: the distance's 1.2e-6 m in
             # one run, 1.6e-12 m in another, its noise 1e-5 m; the fit then
             # went elsewhere): every estimated channel shares one sigma, as in
-            # the pooled round
+            # the pooled round, for the rest of the fit (at the weights that
+            # sharing gives, the channel's leverage falls and its own estimate
+            # would return, and the weights alternate round after round). The
+            # channels estimated with less than one degree of freedom keep
+            # their own count (the covariance credits them :data:`MIN_DOF`):
+            # the shared sigma is the other channels' noise, not theirs.
             rss_all = sum(rc for rc, _ in est.values())
             dof_all = sum(d for _, d in est.values())
             if dof_all > 0:
+                self.sigma_shared = True
                 s = max(math.sqrt(rss_all / dof_all), SIGMA_FLOOR)
                 out.update(dict.fromkeys(est, s))
-                dofs = dict.fromkeys(est, dof_all)
+                dofs = {ch: d if d < CHANNEL_MIN_DOF else dof_all for ch, d in dofs.items()}
                 return out, dofs
         for group in getattr(self.model, "noise_groups", ()):
             sub = {ch: est[ch] for ch in group if ch in est}

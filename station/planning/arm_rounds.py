@@ -133,13 +133,14 @@ class ArmRounds:
         if len(recs) >= 8:
             staged = staged_start(fit_method, s.robot, data, start, max_iter=PLAN_MAX_ITER)
             if staged is not None:
-                starts.insert(0, staged)
-        best, why = None, "no fit"
+                starts.append(staged)
+        best, why, judge = None, "no fit", None
         # what the model in use leaves unexplained: a refit must do at least as well
         bar = max(EXPLAIN, self._unexplained(self.xi, self.distance_off, data))
         for x0 in starts:
             try:
                 model = build(fit_method, s.robot, data, x0)
+                judge = model if judge is None else judge  # the told start's (the gate's)
                 res = solve(model, SolverOptions(max_iter=PLAN_MAX_ITER,
                                                  fixed=fixed_for_rows(model)))
             except (CalibrationError, np.linalg.LinAlgError, ValueError) as e:
@@ -149,12 +150,11 @@ class ArmRounds:
                 why = res.message
                 continue
             # a fit of few poses may not meet the solver's step tolerance (the noise
-            # weights estimated on a few degrees of freedom wander); for planning it
-            # is judged by what it explains, a converged one preferred; not used
-            # either is one the gate would refuse (6 poses, 9 parameters, L3 a third of
-            # the nominal's: the next pose read 0.27 m, predicted 0.05 m)
-            bad = implausible(model, canonical_result(model.robot, res, frame_free=True),
-                              fit_method, getattr(s, "serial", False))
+            # weights estimated on a few degrees of freedom wander); for planning it is
+            # judged by what it explains, a converged one preferred, never one the gate
+            # would refuse (6 poses: L3 a third of nominal, 0.27 m read, 0.05 predicted)
+            bad = implausible(judge, canonical_result(model.robot, res, frame_free=True),
+                              fit_method, serial=False)
             if bad:
                 why = ("it moves " + ", ".join(f"{p['name']} from {p['start']:.4g} to "
                                                f"{p['calibrated']:.4g}" for p in bad)

@@ -346,7 +346,7 @@ def test_a_channel_without_degrees_of_freedom_shares_the_others_sigma():
     both rows on them, their residual is round-off and says nothing of that
     channel's noise (eq. 51 would divide round-off by round-off). Both channels
     then get one sigma, the second channel's residual over the degrees of freedom
-    left, as the pooled round has it."""
+    left, as the pooled round has it, for the rest of the fit."""
     rng = np.random.default_rng(5)
     A = np.zeros((32, 4))
     A[:2, :2] = rng.normal(size=(2, 2))
@@ -360,8 +360,15 @@ def test_a_channel_without_degrees_of_freedom_shares_the_others_sigma():
     assert float(r[:2] @ r[:2]) < 1e-28           # the first channel fitted exactly
     want = math.sqrt(float(r @ r) / (32 - 4))
     assert res.sigma == pytest.approx({"distance": want, "tilt": want}, rel=1e-9)
-    assert res.sigma_dof == pytest.approx({"distance": 28.0, "tilt": 28.0}, rel=1e-9)
+    # the shared sigma is the tilt's noise, not the distance's: the distance keeps its
+    # own (none), and the covariance credits it the fewest degrees of freedom
+    assert res.sigma_dof["tilt"] == pytest.approx(28.0, rel=1e-9)
+    assert abs(res.sigma_dof["distance"]) < 1e-9
     np.testing.assert_allclose(res.x, _ols(A, y)[0], rtol=1e-9)
+    cov = np.linalg.inv(A.T @ A) * want ** 2
+    t = np.where(np.arange(4) < 2, math.sqrt(_t2(3.0)), math.sqrt(_t2(28.0)))
+    np.testing.assert_allclose(np.sqrt(np.diag(res.covariance)), np.sqrt(np.diag(cov)) * t,
+                               rtol=1e-6)
 
 
 def test_known_sigma_per_channel():
