@@ -87,11 +87,9 @@ class Weighting:
             # channels estimated with less than one degree of freedom keep
             # their own count (the covariance credits them :data:`MIN_DOF`):
             # the shared sigma is the other channels' noise, not theirs.
-            rss_all = sum(rc for rc, _ in est.values())
-            dof_all = sum(d for _, d in est.values())
-            if dof_all > 0:
+            s, dof_all = _one_sigma(est.values())
+            if s is not None:
                 self.sigma_shared = True
-                s = max(math.sqrt(rss_all / dof_all), SIGMA_FLOOR)
                 out.update(dict.fromkeys(est, s))
                 dofs = {ch: d if d < CHANNEL_MIN_DOF else dof_all for ch, d in dofs.items()}
                 return out, dofs
@@ -102,9 +100,7 @@ class Weighting:
                 # cannot tell apart: one sigma from all their rows is far surer
                 # than each component's own, and weights that follow the scatter
                 # of those would cost more than they win
-                rss_all = sum(rc for rc, _ in sub.values())
-                dof_all = sum(d for _, d in sub.values())
-                s = max(math.sqrt(rss_all / dof_all), SIGMA_FLOOR)
+                s, dof_all = _one_sigma(sub.values())
                 out.update(dict.fromkeys(sub, s))
                 dofs.update(dict.fromkeys(sub, dof_all))
         return out, dofs
@@ -191,6 +187,17 @@ class Weighting:
         self.next_factor = None  # made with the old weights
         self._set_weights()
         return self._sigma_changed(sigma, old)
+
+
+def _one_sigma(rss_dof) -> tuple[float | None, float]:
+    """One sigma (eq. 51) for several channels' rows, from each channel's residual
+    sum of squares and degrees of freedom: ``(sigma, total dof)``; sigma None where
+    they leave no degrees of freedom."""
+    rss_dof = list(rss_dof)
+    dof = sum(d for _, d in rss_dof)
+    if not dof > 0:
+        return None, dof
+    return max(math.sqrt(sum(rc for rc, _ in rss_dof) / dof), SIGMA_FLOOR), dof
 
 
 # Fewest degrees of freedom a channel's own sigma is estimated with; below, every
