@@ -23,6 +23,8 @@ class CalibrationResult:
     covariance:    ``(N_R, N_R)`` over ``covariance_names``.
     status:        per parameter :class:`calibration.identifiability.ParameterStatus`.
     converged, message, iterations, nfev: how it ended.
+    rounds:        the rounds of Algorithm 2 that reached a solution (weights
+                   re-estimated, or parameters dropped, in between).
     sigma:         channel -> estimated sigma of one row (eq. 51), residual units.
     sigma_dof:     channel -> degrees of freedom of its estimated sigma (none where
                    known, nor where the fit is exact: every channel's residual at
@@ -56,6 +58,7 @@ class CalibrationResult:
     n_rows: int = 0
     wall_time: float = 0.0
     sigma_dof: dict = field(default_factory=dict)
+    rounds: int = 0
 
     @property
     def n_identifiable(self) -> int:
@@ -68,7 +71,8 @@ class CalibrationResult:
         return float(self.std[self.names.index(name)])
 
 
-def make_result(run, converged: bool, message: str, t_start: float) -> CalibrationResult:
+def make_result(run, converged: bool, message: str, t_start: float,
+                rounds: int = 0) -> CalibrationResult:
     """The result of ``run`` (:class:`calibration.solver.rounds.Algorithm2`)
     at its solution: final statistics (eqs. 51, 52)."""
     opt, model = run.opt, run.model
@@ -96,7 +100,8 @@ def make_result(run, converged: bool, message: str, t_start: float) -> Calibrati
     rms = {ch: math.sqrt(s / nc) if nc else math.nan
            for ch, s, nc in zip(run.channels, rss, run.channel_count.tolist())}
     if converged:
-        message = f"converged in {run.k} iterations (max step < {opt.epsilon:g})"
+        message = (f"converged in {run.k} iterations (max step < {opt.epsilon:g}"
+                   + (": predicted for the step after the last)" if run.settled else ")"))
     return CalibrationResult(
         method=model.method, names=names, x=run.x, x0=run.x0, std=std, covariance=cov,
         covariance_names=tuple(nm for nm, a in zip(names, active) if a),
@@ -104,7 +109,7 @@ def make_result(run, converged: bool, message: str, t_start: float) -> Calibrati
         nfev=run.nfev, sigma=sigma, sigma_known=run.all_known, residual_rms=rms,
         residual=r, condition_number=cond, cost=0.5 * float(r @ (w_cov * r)),
         history=tuple(run.history), n_rows=rows, wall_time=time.perf_counter() - t_start,
-        sigma_dof=dof)
+        sigma_dof=dof, rounds=rounds)
 
 
 # (cond * column-norm spread)^2 below which the covariance is taken from the QR

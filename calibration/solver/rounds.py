@@ -89,6 +89,9 @@ class Algorithm2(Weighting, Stepping):
         self.last_check = None  # the last recheck (Check)
         self.last_factor = None  # the factorization the last iteration ended on
         self.next_factor = None  # the factorization the next iteration starts from, if made
+        self.lin_err = None  # the last step's linearization error, carried as taken
+        self.taken: list = []  # steps accepted in a row in the current round (Stepping.iterate)
+        self.settled = False  # x is the last step's, not evaluated (r predicted, W the point before)
         self._sigma_memo = (None, -1, None, None)
         self.sigma_dof: dict = {}  # channel -> degrees of freedom of its estimated sigma
         self.sigma_shared = False  # a channel had no degrees of freedom: one sigma from then on
@@ -241,6 +244,7 @@ class Algorithm2(Weighting, Stepping):
                 f"kappa = {self.opt.kappa:g} times the residual there (the model does not "
                 "fit the data: a local minimum, or a fixed parameter far from its value)")
         self.r_pred = self.next_factor = None
+        self.settled = False
         x = self.x.copy()
         x[mask] = self.x0[mask]
         try:
@@ -284,4 +288,4 @@ def solve(model: MeasurementModel, options: SolverOptions | None = None,
         changed = run.reweight() or changed
         if not changed:
             break
-    return make_result(run, converged, message, t_start)
+    return make_result(run, converged, message, t_start, rounds)
