@@ -538,7 +538,8 @@ class Stepping:
                     mask = np.zeros_like(self.active)
                     mask[np.flatnonzero(self.active)[F]] = True
                     self.drop(mask)
-                    F = pred = None
+                    F = pred = lin_err = None
+                    taken.clear()
                     continue
             # one factorization gives the damped step for any lambda (eq. 48),
             # the condition number and the variance (eq. 52)
