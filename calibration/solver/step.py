@@ -55,6 +55,11 @@ EXACT_RESIDUAL = 1e-10
 #: under on sm-distance-tilt noise-free, 17 poses, seed 5)
 EXACT_MARGIN = 0.1
 
+#: a damping ``lambda^2`` at most this fraction of the smallest singular value's
+#: square changes the step only at round-off (:meth:`Scaled.step` then solves the
+#: undamped triangle: one LAPACK call instead of a second QR)
+ROUNDOFF_DAMPING = 2.0 ** -53
+
 geqrf, gesvd, trtrs, trtri = lapack.dgeqrf, lapack.dgesvd, lapack.dtrtrs, lapack.dtrtri
 _MASKS: dict[int, tuple] = {}
 
@@ -90,13 +95,15 @@ class Scaled:
     tall, the same quantities come from an SVD with the singular values below
     ``1e-15 s_max`` cut (a pseudo-inverse), as the normal equations would."""
 
-    __slots__ = ("R", "Rc", "Rinv", "W", "_sv", "cost", "g", "h", "n", "sigma", "svd", "vs")
+    __slots__ = ("R", "Rc", "Rinv", "W", "_sv", "cost", "g", "h", "n", "rinv2", "sigma", "svd",
+                 "vs")
 
     def __init__(self, W, sigma, WA, h, g, r):
         rows, n = WA.shape
         self.W, self.sigma, self.h, self.g, self.n = W, sigma, h, g, n
         scalar = isinstance(g, float)
         self.svd = self.Rinv = self.vs = self._sv = None
+        self.rinv2 = math.inf  # ||R^-1||_F^2 (>= 1 / s_min^2) where known
         if rows <= n:
             A = WA * (h * g) if scalar else (WA * h) * g[:, None]
             b = r * g
@@ -127,6 +134,7 @@ class Scaled:
             bound = float(rf @ rf) * float(vf @ vf)
             if bound < 1e24:  # also False for NaN
                 self.Rinv = Rinv  # (the variance, its row norms, when first asked for)
+                self.rinv2 = float(vf @ vf)
                 return
         sv, info = gesvd(R, compute_uv=0)[1::2]
         svl = sv.tolist()
@@ -168,11 +176,13 @@ class Scaled:
                 filt = np.divide(1.0, sv, out=np.zeros_like(sv), where=sv > sv[0] * 1e-15)
             return Vt.T @ (filt * Ub)
         n = self.n
-        if lam2 > 0:
+        if lam2 * self.rinv2 > ROUNDOFF_DAMPING:  # (lam2 = 0 with no bound: 0 * inf is NaN, undamped)
             M = masks(n)[1] * math.sqrt(lam2)
             M[:n] = self.Rc
             qr = geqrf(M, overwrite_a=1)[0]
             return trtrs(qr[:n, :n], qr[:n, n])[0]
+        # undamped, or a damping below round-off against every singular value
+        # (lambda^2 / s_min^2 <= lambda^2 ||R^-1||_F^2): the Gauss-Newton step
         return trtrs(self.R, self.Rc[:, n])[0]
 
     def damping_for(self, length: float, lam2: float) -> float:

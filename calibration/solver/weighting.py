@@ -162,8 +162,11 @@ class Weighting:
         elif self.mode == "pooled":
             self.g = 1.0 / float(self.sigma[self.channels[0]])
         elif self._g_sigma is not self.sigma:
-            s = np.array([self.sigma[ch] for ch in self.channels], dtype=float)
-            self.g = (1.0 / s)[self.row_channel]
+            vals = [self.sigma[ch] for ch in self.channels]
+            if all(v == vals[0] for v in vals):  # one sigma for every row (one channel)
+                self.g = 1.0 / float(vals[0])
+            else:
+                self.g = (1.0 / np.array(vals, dtype=float))[self.row_channel]
             self._g_sigma = self.sigma
     def _sigma_changed(self, sigma, old) -> bool:
         exact = all(v <= ROUNDOFF_SIGMA for v in sigma.values())
