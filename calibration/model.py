@@ -45,6 +45,12 @@ class MeasurementModel:
     # first is calibrated: a method whose instrument frame and tool are unknown
     # judges them first, so that what they absorb is theirs, not the robot's.
     identify_order: np.ndarray | None = None
+    # can :meth:`evaluate` be called at any finite parameters without failing (no
+    # assembly, no domain)? Then the solver may end a round on a step it predicts
+    # and has not evaluated (:meth:`calibration.solver.step.Stepping.iterate`);
+    # a model that can fail somewhere (a PM that cannot assemble) is evaluated at
+    # every point the solver reports.
+    evaluates_everywhere: bool = False
 
     @property
     def n_params(self) -> int:

@@ -13,6 +13,7 @@ class RobotMethod(MeasurementModel):
 
     robot_kind = "serial"
     extra_names: tuple[str, ...] = ()
+    evaluates_everywhere = True  # a serial chain's forward kinematics (PMMethod: not)
 
     def __init__(self, robot, qm, nominal):
         if robot.kind != self.robot_kind:

@@ -78,6 +78,7 @@ class PMMethod(RobotMethod):
 
     robot_kind = "parallel-wrist"
     default_damping = 1e-4
+    evaluates_everywhere = False  # the PM cannot assemble everywhere
     notes = (COMPENSATION_NOTE,)
 
     def operator_notes(self, x=None) -> tuple[str, ...]:

@@ -91,6 +91,7 @@ class Algorithm2(Weighting, Stepping):
         self.next_factor = None  # the factorization the next iteration starts from, if made
         self.lin_err = None  # the last step's linearization error, carried as taken
         self.taken: list = []  # steps accepted in a row in the current round (Stepping.iterate)
+        self.can_settle = bool(getattr(model, "evaluates_everywhere", False))
         self.settled = False  # x is the last step's, not evaluated (r predicted, W the point before)
         self._sigma_memo = (None, -1, None, None)
         self.sigma_dof: dict = {}  # channel -> degrees of freedom of its estimated sigma

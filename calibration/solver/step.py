@@ -252,21 +252,23 @@ class Scaled:
         v = self._image(z)[0]
         return math.sqrt(float(v @ v))
 
-    def next_step_bound(self, z, lam2: float, err) -> float:
-        """In a fit with no residual left after the step ``z`` (made at ``lam2``):
-        a bound on the largest parameter change of the step after it. There the
-        residual is the step's linearization error, ``err`` (weighted, ``g e``),
-        and the Gauss-Newton step from it is ``h R^-1 Q^T g e``: component ``i``
-        at most ``h_i ||row i of R^-1|| ||g e||``. Plus the part of the
-        Gauss-Newton step the damping held back, at most ``lambda^2 / s_min^2``
-        of the step (``||R^-1||_F >= 1 / s_min``). Infinite without ``R^-1``."""
+    def next_step_bound(self, err) -> float:
+        """In a fit with no residual left after a step whose linearization error
+        has the (weighted, ``g e``) norm ``err``: a bound on the largest parameter
+        change of the Gauss-Newton step from there, ``h R^-1 Q^T g e``: component
+        ``i`` at most ``h_i ||row i of R^-1|| ||g e||``. Infinite without ``R^-1``."""
         Rinv = self.Rinv
         if Rinv is None:
             return math.inf
-        rows2 = row_norms2(Rinv)
-        quad = math.sqrt(float(np.max(self.h * self.h * rows2))) * err
-        held = lam2 * float(rows2.sum()) * float(np.max(np.abs(self.h * z)))
-        return quad + held
+        return math.sqrt(float(np.max(self.h * self.h * row_norms2(Rinv)))) * err
+
+    def held_back(self, z, lam2: float) -> float:
+        """The largest parameter change of the part of the Gauss-Newton step that
+        the damping ``lam2`` held back from the step ``z`` (it comes back in the
+        next step); 0 where the damping is below round-off (:meth:`step`)."""
+        if not lam2 * self.rinv2 > ROUNDOFF_DAMPING:
+            return 0.0
+        return float(np.max(np.abs(self.h * (self.step(0.0) - z))))
 
     def variance_scaled(self):
         """``diag((A^T A)^+)`` (to be multiplied by ``h^2`` and the sigma factor)."""
@@ -447,13 +449,16 @@ class Stepping:
         return max(self.lam, floor, self.lam_eff * math.sqrt(f2)), rho
 
     @staticmethod
-    def _settles(step: float, taken, eps: float) -> bool:
+    def _settles(step: float, taken, eps: float, held: float = 0.0) -> bool:
         """Is the step after ``step`` predicted below ``eps``? ``taken``: the
         steps accepted in a row before it (largest parameter change each). The
         last two each contracted the one before by at least
         :data:`SETTLED_CONTRACTION`, ``step`` is below ``sqrt(eps)``, and the
         next step extrapolated at the last rate, ``step * c`` with ``c = step /
-        taken[-1]``, is below ``eps``. That rate, not a quadratic model: the
+        taken[-1]``, plus ``held``, the part of the Gauss-Newton step the damping
+        held back (where the damping is near a weak singular value, that part
+        shrinks slowly while the step's largest component falls fast), is below
+        ``eps``. That rate, not a quadratic model: the
         quadratic constant read off the last two steps (largest components, in
         changing directions) was off a hundredfold (sm-distance noise-free, 30
         poses, seed 38), and a fit with a residual converges at a steady rate."""
@@ -465,7 +470,7 @@ class Stepping:
         c = step / last
         if c > SETTLED_CONTRACTION or last > SETTLED_CONTRACTION * before:
             return False
-        return step * c < eps
+        return step * c + held < eps
 
     def iterate(self, early: bool = False) -> tuple[bool, str]:
         """Iterate on the current active set until the step is below epsilon, or
@@ -574,44 +579,6 @@ class Stepping:
                 self.last_factor = F
                 return True, ""
             r_lin = None  # the residual this step predicts (where needed)
-            if not rejected and step * step <= eps:
-                settle = self._settles(step, taken, eps)
-                if not settle and lin_err is not None:
-                    WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
-                    r_lin = self.r - WA @ d
-                    if float(r_lin @ r_lin) <= EXACT_RESIDUAL ** 2:
-                        # an exact fit: the linearization error after this step,
-                        # from the last step's (second order: as the square of the
-                        # scaled steps), bounds the step after it
-                        e_prev, zn2_prev = lin_err
-                        ge = F.g * e_prev
-                        err = math.sqrt(float(ge @ ge)) * float(z @ z) / zn2_prev
-                        settle = F.next_step_bound(z, lam2, err) < EXACT_MARGIN * eps
-            else:
-                settle = False
-            if settle:
-                # the step after this one is predicted below epsilon: take this one
-                # without evaluating the model there (the residual as the step's
-                # linearization predicts it, off by O(step^2); the observation
-                # matrix and the factorization of this point, off by O(step))
-                if r_lin is None:
-                    WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
-                    r_lin = self.r - WA @ d
-                if self.all_active:
-                    self.x = self.x + d
-                else:
-                    self.x = self.x.copy()
-                    self.x[self.active_idx] += d
-                self.r = r_lin
-                self.settled = True
-                self.k += 1
-                if self.mode == "pooled":
-                    self.sigma = self._pooled_sigma(float(self.r @ self.r), self.rows,
-                                                    self.n_active)
-                self._record(F, step, cost)
-                self._set_weights()
-                self.last_factor = F
-                return True, ""
             watch = not rejected and step <= LINEARIZATION_WATCH
             if (early or watch) and r_lin is None:
                 WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
@@ -637,6 +604,48 @@ class Stepping:
                         self.lin_err = lin_err
                         self.next_factor = F  # the resumed round starts here (same weights)
                         return True, ""
+            # (after the early stop: where both would end the pooled round there, the
+            # early stop's resumed round needs no evaluation at a new point)
+            if self.can_settle and not rejected and step * step <= eps and taken:
+                held = F.held_back(z, lam2)
+                settle = self._settles(step, taken, eps, held)
+                if not settle and lin_err is not None:
+                    if r_lin is None:
+                        WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
+                        r_lin = self.r - WA @ d
+                    if float(r_lin @ r_lin) <= EXACT_RESIDUAL ** 2:
+                        # an exact fit: the linearization error after this step,
+                        # from the last step's (second order: as the square of the
+                        # scaled steps), bounds the step after it
+                        e_prev, zn2_prev = lin_err
+                        ge = F.g * e_prev
+                        err = math.sqrt(float(ge @ ge)) * float(z @ z) / zn2_prev
+                        settle = F.next_step_bound(err) + held < EXACT_MARGIN * eps
+            else:
+                settle = False
+            if settle:
+                # the step after this one is predicted below epsilon: take this one
+                # without evaluating the model there (the residual as the step's
+                # linearization predicts it, off by O(step^2); the observation
+                # matrix and the factorization of this point, off by O(step))
+                if r_lin is None:
+                    WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
+                    r_lin = self.r - WA @ d
+                if self.all_active:
+                    self.x = self.x + d
+                else:
+                    self.x = self.x.copy()
+                    self.x[self.active_idx] += d
+                self.r = r_lin
+                self.settled = True
+                self.k += 1
+                if self.mode == "pooled":
+                    self.sigma = self._pooled_sigma(float(self.r @ self.r), self.rows,
+                                                    self.n_active)
+                self._record(F, step, cost)
+                self._set_weights()
+                self.last_factor = F
+                return True, ""
             if self.all_active:
                 x_try = self.x + d
             else:

@@ -142,17 +142,15 @@ def test_the_adaptive_damping_does_not_swing_in_a_curved_valley():
 NOISE = {"distance": 1e-5, "tilt": 1e-4, "position": 1e-5, "orientation": 1e-4}
 
 
-@pytest.mark.parametrize("method", ["sm-full-pose", "sm-distance", "sm-distance-tilt", "pm-tilt"])
+@pytest.mark.parametrize("method", ["sm-full-pose", "sm-distance", "sm-distance-tilt"])
 def test_a_settled_last_step_is_followed_by_a_step_below_epsilon(method):
     """Where the steps contract fast enough the last is taken without evaluating
-    the model after it (the residual predicted, one evaluation fewer): the step a
-    fresh, undamped run takes from that solution must then be below epsilon, and
-    the predicted residual the model's own there."""
+    the model after it (the residual predicted, one evaluation fewer): the
+    undamped step from that solution at its final weights must then be below
+    epsilon, and the predicted residual the model's own there."""
     settled = 0
     for seed in range(4):
         for noise in (None, NOISE):
-            if method.startswith("pm") and noise is None:
-                continue
             model, _ = dataset(method, seed=seed, count=30, noise=noise)
             res = solve(model)
             assert res.converged, res.message
@@ -160,9 +158,26 @@ def test_a_settled_last_step_is_followed_by_a_step_below_epsilon(method):
                 assert res.history[-1].step < 1e-10
                 continue
             settled += 1
-            model.x0 = res.x.copy()
-            again = solve(model, SolverOptions(damping=0.0))
-            assert again.history[0].step < 1e-10, (seed, noise, again.history[0].step)
-            np.testing.assert_allclose(model.evaluate(res.x)[0], res.residual, rtol=0,
-                                       atol=1e-12)
+            r, W = model.evaluate(res.x)
+            act = np.array([s.identifiable for s in res.status])
+            w = 1.0 / np.array([res.sigma[ch] for ch in model.channels])[model.row_channel]
+            gn = np.linalg.lstsq(W[:, act] * w[:, None], r * w, rcond=None)[0]
+            assert np.abs(gn).max() < 1e-10, (seed, noise, np.abs(gn).max())
+            np.testing.assert_allclose(r, res.residual, rtol=0, atol=1e-12)
     assert settled >= 3  # (the rule is exercised: 4-8 of these fits settle)
+
+
+@pytest.mark.parametrize("seed,count", [(1, 8), (1, 17), (8, 8)])
+def test_no_predicted_last_step_while_the_damping_holds_back_a_direction(seed, count):
+    """Without error weighting (the pooled sigma's weights would dwarf it) the
+    damping can hold back a weak direction while the step's largest component
+    falls fast: predicting the next step from that fall alone ended these fits
+    with a next step of 1.0e-10, 1.6e-10 and 2.3e-10. The part the damping held
+    back is now added to the prediction."""
+    model, _ = dataset("sm-position", seed=seed, count=count, noise={"position": 1e-5})
+    res = solve(model, SolverOptions(weight_errors=False))
+    assert res.converged, res.message
+    r, W = model.evaluate(res.x)
+    act = np.array([s.identifiable for s in res.status])
+    gn = np.linalg.lstsq(W[:, act], r, rcond=None)[0]
+    assert np.abs(gn).max() < 1e-10, np.abs(gn).max()

@@ -475,12 +475,40 @@ def test_nonlinear_matches_scipy_least_squares():
                                rtol=1e-6)
     assert 2 < res.iterations < 30
     steps = [h.step for h in res.history]
-    # the last step was taken without evaluating after it: the steps contracted
-    # fast, and the next one from there is indeed below epsilon
+    # a model with a domain: every point reported was evaluated (no step predicted)
+    assert steps[-1] < 1e-10 and steps[-2] < 1e-4  # quadratic convergence at the end
+    np.testing.assert_array_equal(res.residual, Exponential(t, y, res.x).evaluate(res.x)[0])
+
+
+class Everywhere(Exponential):
+    evaluates_everywhere = True
+
+
+def _gauss_newton_step(model, res) -> float:
+    """Largest component of the undamped step at ``res.x`` with its final weights."""
+    r, W = model.evaluate(res.x)
+    act = np.array([s.identifiable for s in res.status])
+    w = 1.0 / np.array([res.sigma[ch] for ch in model.channels])[model.row_channel]
+    return float(np.abs(np.linalg.lstsq(W[:, act] * w[:, None], r * w, rcond=None)[0]).max())
+
+
+@pytest.mark.parametrize("noise,seed", [(1e-3, 0), (1e-3, 1), (1e-3, 5), (0.0, 0), (0.0, 3)])
+def test_a_model_evaluated_everywhere_ends_on_a_predicted_step(noise, seed):
+    """These fits end on a step the solver predicts and does not evaluate after
+    (one evaluation fewer than with a domain): the undamped step from there is
+    below epsilon, the residual the model's own, the solution the same."""
+    t, y = _exp_data(noise=noise, seed=seed)
+    model = Everywhere(t, y, [1.0, 0.0], limit=np.inf)
+    res = solve(model)
+    assert res.converged and "predicted for the step after the last" in res.message
+    assert res.nfev == res.iterations  # the start, and every step but the last
+    steps = [h.step for h in res.history]
     assert steps[-1] < 1e-5 and steps[-1] < step.SETTLED_CONTRACTION * steps[-2]
-    assert res.nfev == res.iterations
-    again = solve(Exponential(t, y, res.x))
-    assert again.history[0].step < 1e-10, again.history[0].step
+    assert _gauss_newton_step(model, res) < 1e-10
+    np.testing.assert_allclose(model.evaluate(res.x)[0], res.residual, rtol=0, atol=1e-12)
+    ref = solve(Exponential(t, y, [1.0, 0.0]))
+    assert ref.nfev == res.nfev + 1 and "predicted" not in ref.message
+    np.testing.assert_allclose(res.x, ref.x, rtol=1e-10)
 
 
 def test_noise_free_nonlinear_recovers_the_truth():
