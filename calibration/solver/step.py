@@ -580,7 +580,7 @@ class Stepping:
                 return True, ""
             r_lin = None  # the residual this step predicts (where needed)
             watch = not rejected and step <= LINEARIZATION_WATCH
-            if (early or watch) and r_lin is None:
+            if early or watch:
                 WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
                 r_lin = self.r - WA @ d  # the residual this step predicts
             if early:
