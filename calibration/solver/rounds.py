@@ -92,7 +92,7 @@ class Algorithm2(Weighting, Stepping):
         self.lin_err = None  # the last step's linearization error, carried as taken
         self.taken: list = []  # steps accepted in a row in the current round (Stepping.iterate)
         self.can_settle = bool(getattr(model, "evaluates_everywhere", False))
-        self.settled = False  # x is the last step's, not evaluated (r predicted, W the point before)
+        self.settled = False  # x the last step's, not evaluated (r predicted, W the point before)
         self._sigma_memo = (None, -1, None, None)
         self.sigma_dof: dict = {}  # channel -> degrees of freedom of its estimated sigma
         self.sigma_shared = False  # a channel had no degrees of freedom: one sigma from then on

@@ -176,7 +176,8 @@ class Scaled:
                 filt = np.divide(1.0, sv, out=np.zeros_like(sv), where=sv > sv[0] * 1e-15)
             return Vt.T @ (filt * Ub)
         n = self.n
-        if lam2 * self.rinv2 > ROUNDOFF_DAMPING:  # (lam2 = 0 with no bound: 0 * inf is NaN, undamped)
+        # (lam2 = 0 without the bound: 0 * inf is NaN, undamped)
+        if lam2 * self.rinv2 > ROUNDOFF_DAMPING:
             M = masks(n)[1] * math.sqrt(lam2)
             M[:n] = self.Rc
             qr = geqrf(M, overwrite_a=1)[0]
@@ -418,6 +419,15 @@ class Stepping:
         if self.callback is not None:
             self.callback(self.k, it)
 
+    def _reweighed(self, rss=None):
+        """The weights at the current residual: in the pooled round its sigma (eq.
+        51, one for all rows; ``rss``: ``r^T r`` where already made)."""
+        if self.mode == "pooled":
+            r = self.r
+            self.sigma = self._pooled_sigma(float(r @ r) if rss is None else rss, self.rows,
+                                            self.n_active)
+        self._set_weights()
+
     def _stalled(self, F) -> bool:
         """After rejected steps, whether the undamped (Gauss-Newton) step at this
         point still predicts a cost decrease of more than :data:`STALL_CHI2` in
@@ -536,9 +546,7 @@ class Stepping:
             except CalibrationError as e:
                 return False, f"the model cannot be evaluated at the solution ({e})"
             self.next_factor = None
-            if self.mode == "pooled":
-                self.sigma = self._pooled_sigma(float(self.r @ self.r), self.rows, self.n_active)
-            self._set_weights()
+            self._reweighed()
         while self.k < max_iter:
             if F is None:
                 F, self.next_factor = self.next_factor, None
@@ -578,11 +586,13 @@ class Stepping:
                 self._record(F, step, cost)
                 self.last_factor = F
                 return True, ""
-            r_lin = None  # the residual this step predicts (where needed)
             watch = not rejected and step <= LINEARIZATION_WATCH
-            if early or watch:
+            # may this step be the last (below sqrt(epsilon), not after a rejection)?
+            last = self.can_settle and not rejected and step * step <= eps and bool(taken)
+            r_lin = None  # the residual this step predicts (where needed)
+            if early or watch or last:
                 WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
-                r_lin = self.r - WA @ d  # the residual this step predicts
+                r_lin = self.r - WA @ d
             if early:
                 zn = math.sqrt(z @ z)
                 if pred is not None and pred[1] > 0:
@@ -606,31 +616,24 @@ class Stepping:
                         return True, ""
             # (after the early stop: where both would end the pooled round there, the
             # early stop's resumed round needs no evaluation at a new point)
-            if self.can_settle and not rejected and step * step <= eps and taken:
+            settle = False
+            if last:
                 held = F.held_back(z, lam2)
                 settle = self._settles(step, taken, eps, held)
-                if not settle and lin_err is not None:
-                    if r_lin is None:
-                        WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
-                        r_lin = self.r - WA @ d
-                    if float(r_lin @ r_lin) <= EXACT_RESIDUAL ** 2:
-                        # an exact fit: the linearization error after this step,
-                        # from the last step's (second order: as the square of the
-                        # scaled steps), bounds the step after it
-                        e_prev, zn2_prev = lin_err
-                        ge = F.g * e_prev
-                        err = math.sqrt(float(ge @ ge)) * float(z @ z) / zn2_prev
-                        settle = F.next_step_bound(err) + held < EXACT_MARGIN * eps
-            else:
-                settle = False
+                if (not settle and lin_err is not None
+                        and float(r_lin @ r_lin) <= EXACT_RESIDUAL ** 2):
+                    # an exact fit: the linearization error after this step, from
+                    # the last step's (second order: as the square of the scaled
+                    # steps), bounds the step after it
+                    e_prev, zn2_prev = lin_err
+                    ge = F.g * e_prev
+                    err = math.sqrt(float(ge @ ge)) * float(z @ z) / zn2_prev
+                    settle = F.next_step_bound(err) + held < EXACT_MARGIN * eps
             if settle:
                 # the step after this one is predicted below epsilon: take this one
                 # without evaluating the model there (the residual as the step's
                 # linearization predicts it, off by O(step^2); the observation
                 # matrix and the factorization of this point, off by O(step))
-                if r_lin is None:
-                    WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
-                    r_lin = self.r - WA @ d
                 if self.all_active:
                     self.x = self.x + d
                 else:
@@ -639,11 +642,8 @@ class Stepping:
                 self.r = r_lin
                 self.settled = True
                 self.k += 1
-                if self.mode == "pooled":
-                    self.sigma = self._pooled_sigma(float(self.r @ self.r), self.rows,
-                                                    self.n_active)
+                self._reweighed()
                 self._record(F, step, cost)
-                self._set_weights()
                 self.last_factor = F
                 return True, ""
             if self.all_active:
@@ -700,9 +700,7 @@ class Stepping:
                 pred = (r_lin, zn, math.sqrt(e @ e))
             self.x, self.r, self.W = x_try, r_try, W_try
             self.k += 1
-            if self.mode == "pooled":  # eq. 51, one sigma for all rows
-                self.sigma = self._pooled_sigma(rss, self.rows, self.n_active)
+            self._reweighed(rss if isinstance(F.g, float) else None)
             self._record(F, step, cost)
-            self._set_weights()
             F = None
         return False, f"no convergence within {opt.max_iter} iterations"
