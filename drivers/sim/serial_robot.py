@@ -115,6 +115,11 @@ class SimulatedSerial(SimulatedAgebot):
             t1 = self.axes[0].now()
             q1 = np.array([a.position_at(t1) for a in self.axes])
             t_end = min(t1, max(max(a.end_time() for a in self.axes), t0))
+            if t_end <= t0:
+                # every axis ended its move by the last check (the station polls the
+                # statusword at rest): the pose checked then holds, nothing to walk
+                self._checked = (t1, q1)
+                return None
             n = max(1, 2 * int(np.ceil(np.max(np.abs(q1 - q0)) / SUPERVISE_STEP)))
             ts = np.linspace(t0, t_end, n + 1)[1:]
             Q = np.array([[a.position_at(t) for a in self.axes] for t in ts])
