@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -46,8 +47,11 @@ class Algorithm2(Weighting, Stepping):
     the error weighting from :class:`Weighting`, the iteration from
     :class:`Stepping`."""
 
-    def __init__(self, model: MeasurementModel, opt: SolverOptions, callback):
+    def __init__(self, model: MeasurementModel, opt: SolverOptions, callback,
+                 unit_start: bool = False):
         self.model, self.opt, self.callback = model, opt, callback
+        # a restart (solve): the first step damped as at unit weights
+        self.unit_start, self.moved = unit_start, False
         self.lam = model.default_damping if opt.damping is None else float(opt.damping)
         self.names = tuple(model.names)
         self.x0 = np.array(model.x0, dtype=float)
@@ -272,7 +276,40 @@ def solve(model: MeasurementModel, options: SolverOptions | None = None,
     """
     opt = options or SolverOptions()
     t_start = time.perf_counter()
-    run = Algorithm2(model, opt, callback)
+    res, chi2_dof = _solve(model, opt, callback, t_start)
+    if not (chi2_dof > RESTART_CHI2):
+        return res
+    # known sigma and a converged fit that does not explain the readings by their
+    # stated noise: a local minimum the first steps led to, or a model or data that
+    # do not fit. Once more from the start, the first step damped as the report's
+    # first iteration damps it (L = I); the lower of the two minima is the result.
+    try:
+        alt, _ = _solve(model, opt, callback, t_start, unit_start=True)
+    except CalibrationError:
+        alt = None
+    first = f"{chi2_dof:.3g} times the stated noise's chi-square per degree of freedom"
+    if alt is not None and alt.converged and alt.cost < res.cost * (1 - RESTART_GAIN):
+        return replace(alt, nfev=res.nfev + alt.nfev, wall_time=time.perf_counter() - t_start,
+                       message=f"{alt.message}; restarted with the first step damped as at "
+                       f"unit weights: the first fit ended in a local minimum ({first})")
+    return replace(res, nfev=res.nfev + (alt.nfev if alt is not None else 0),
+                   wall_time=time.perf_counter() - t_start,
+                   message=f"{res.message}; a restart with the first step damped as at unit "
+                   f"weights ended no lower ({first})")
+
+
+#: a fit with every sigma known that converges with a chi-square per degree of
+#: freedom above this (its residual RMS three times the stated noise) is run once
+#: more from the start with its first step damped as at unit weights (:func:`solve`)
+RESTART_CHI2 = 9.0
+#: the restart's minimum replaces the first where its cost is lower by this fraction
+RESTART_GAIN = 1e-6
+
+
+def _solve(model, opt, callback, t_start, unit_start=False):
+    """One run of :func:`solve`: ``(result, chi-square per degree of freedom)``, the
+    latter NaN unless every sigma is known, the errors weighted and the run converged."""
+    run = Algorithm2(model, opt, callback, unit_start)
     run.initial_status()
     converged, message = False, ""
     early = run.can_reweight() and run.mode == "pooled"
@@ -289,4 +326,8 @@ def solve(model: MeasurementModel, options: SolverOptions | None = None,
         changed = run.reweight() or changed
         if not changed:
             break
-    return make_result(run, converged, message, t_start, rounds)
+    res = make_result(run, converged, message, t_start, rounds)
+    dof = run.rows - run.n_active
+    chi2_dof = (2.0 * res.cost / dof if converged and run.all_known and opt.weight_errors
+                and dof > 0 else math.nan)
+    return res, chi2_dof

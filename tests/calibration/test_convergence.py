@@ -181,3 +181,59 @@ def test_no_predicted_last_step_while_the_damping_holds_back_a_direction(seed, c
     act = np.array([s.identifiable for s in res.status])
     gn = np.linalg.lstsq(W[:, act], r, rcond=None)[0]
     assert np.abs(gn).max() < 1e-10, np.abs(gn).max()
+
+
+def _distance_100(noise):
+    """sm-distance at 100 poses drawn as bench/_common.py's seed 1 draws them: from
+    the nominal, undamped first steps (a sigma stated, the weights far above lambda)
+    lead the fit into a local minimum (residual RMS 1.6 mm)."""
+    from calibration.methods.sm_distance import Distance
+
+    T, N = SM.true, SM.nominal
+    off = np.r_[SM.base_offset(T), 0.0]
+    ref = SM.ik(np.array([1.0, 1.0, 0.0, 0.2]) + off, T)
+    plan = planning.sample_poses(SM, N, planning.box_array(SM, planning.SM_BOX_7_1, off), 100,
+                                 np.random.default_rng([1, 1]))
+    meas = simulate.measure("sm-distance", SM, T, plan.qm, reference_qm=ref,
+                            noise=None if noise is None else {"distance": noise},
+                            rng=np.random.default_rng([1, 1, 7]))
+    return Distance(SM, plan.qm, meas, N, reference_qm=ref)
+
+
+@pytest.mark.parametrize("noise", [None, 1e-4])
+def test_a_local_minimum_far_above_the_stated_noise_is_left_by_a_restart(noise, monkeypatch):
+    from calibration.solver import rounds
+
+    model = _distance_100(noise)
+    opts = SolverOptions(sigma={"distance": 1e-4})
+    res = solve(model, opts)
+    assert res.converged and "restarted" in res.message, res.message
+    rms = float(np.sqrt(np.mean(res.residual ** 2)))
+    assert rms < (1e-12 if noise is None else 2e-4), rms
+    active = np.array([s.identifiable for s in res.status])
+    err = np.abs(res.x - SM.true)[active]
+    assert np.all(err < (1e-9 if noise is None else 5 * res.std[active])), err
+    # without the restart: the local minimum, which the station's gate would refuse
+    monkeypatch.setattr(rounds, "RESTART_CHI2", np.inf)
+    first = solve(model, opts)
+    assert first.converged and np.sqrt(np.mean(first.residual ** 2)) > 1e-3
+    assert res.nfev > first.nfev and "restart" not in first.message
+
+
+def test_a_fit_that_explains_its_readings_is_not_restarted():
+    """A fit whose noise is stated right is not restarted; one stated ten times too
+    small is, ends no lower, and keeps the first fit (its evaluations counted)."""
+    from calibration.solver import rounds
+
+    model45 = dataset("sm-distance", seed=3, noise={"distance": 1e-4})[0]
+    res = solve(model45, SolverOptions(sigma={"distance": 1e-4}))
+    assert res.converged and "restart" not in res.message
+    tight = solve(model45, SolverOptions(sigma={"distance": 1e-5}))
+    assert tight.converged and "ended no lower" in tight.message, tight.message
+    old = rounds.RESTART_CHI2
+    try:
+        rounds.RESTART_CHI2 = np.inf
+        plain = solve(model45, SolverOptions(sigma={"distance": 1e-5}))
+    finally:
+        rounds.RESTART_CHI2 = old
+    assert np.array_equal(plain.x, tight.x) and tight.nfev > plain.nfev
