@@ -419,23 +419,6 @@ class Stepping:
         if self.callback is not None:
             self.callback(self.k, it)
 
-    def _damping_scale(self, F) -> float:
-        """The factor on lambda for the factorization ``F``: 1, except in a restart
-        (:func:`calibration.solver.rounds.solve`) before its first accepted step,
-        where the damping is that of the report's first iteration, ``L = I``
-        (eq. 48): lambda against the unit-weighted problem, i.e. times the
-        weights' RMS over the residual, ``||G r|| / ||r||``."""
-        if not self.unit_start or self.moved:
-            return 1.0
-        g = F.g
-        if isinstance(g, float):
-            return g
-        r = self.r
-        rr = float(r @ r)
-        rg = g * r
-        return (math.sqrt(float(rg @ rg) / rr) if rr > 0
-                else math.sqrt(float(g @ g) / len(g)))
-
     def _reweighed(self, rss=None):
         """The weights at the current residual: in the pooled round its sigma (eq.
         51, one for all rows; ``rss``: ``r^T r`` where already made)."""
@@ -455,7 +438,7 @@ class Stepping:
         dof = F.W.shape[0] - F.n
         if dof <= 0 or F.cost <= 0:
             return False
-        z0 = F.step((self.lam * self._damping_scale(F)) ** 2)
+        z0 = F.step(self.lam ** 2)
         decrease = 0.5 * F.scaled_norm(z0) ** 2
         return decrease > STALL_CHI2 * F.cost / dof
 
@@ -583,8 +566,7 @@ class Stepping:
                     continue
             # one factorization gives the damped step for any lambda (eq. 48),
             # the condition number and the variance (eq. 52)
-            kd = self._damping_scale(F)
-            lam2 = (self.lam_eff * kd) ** 2
+            lam2 = self.lam_eff ** 2
             z = F.step(lam2)
             d = F.h * z
             dl = d.tolist()  # (a few parameters: Python's max is faster than numpy's)
@@ -688,10 +670,10 @@ class Stepping:
                     if rejected > 30:
                         return False, f"no step lowers the cost any more (iteration {self.k + 1})"
                     lam_rej = self.lam_eff
-                    lam_new = max(10 * self.lam_eff, 1e-3 * F.s0 / kd)
+                    lam_new = max(10 * self.lam_eff, 1e-3 * F.s0)
                     if ok:  # and at least as short as the parabola along it says
                         lam_new = max(lam_new, math.sqrt(F.retry_damping(z, lam2, cost,
-                                                                         cost_try)) / kd)
+                                                                         cost_try)))
                     self.lam_eff = lam_new
                     taken.clear()
                     continue
@@ -717,7 +699,6 @@ class Stepping:
                 e = r_try - r_lin
                 pred = (r_lin, zn, math.sqrt(e @ e))
             self.x, self.r, self.W = x_try, r_try, W_try
-            self.moved = True
             self.k += 1
             self._reweighed(rss if isinstance(F.g, float) else None)
             self._record(F, step, cost)

@@ -85,7 +85,7 @@ class SimulatedSerial(SimulatedAgebot):
         acc = np.broadcast_to(ACCELERATION if acceleration is None else acceleration, (n,))
         self.axes = tuple(SimAxis(float(p), float(v), float(a), clock=clock)
                           for p, v, a in zip(self.home_qm, vel, acc))
-        self._checked = (clock(), self.home_qm.copy())
+        self._checked = (clock(), self.home_qm.copy(), False)   # (t, qm, found inside)
         self._anchor = self.ee_position()
 
     # -- state -----------------------------------------------------------------------------
@@ -111,14 +111,14 @@ class SimulatedSerial(SimulatedAgebot):
         """Walk the motion since the last call (module docstring); at a limit, stop every
         axis at the last point inside and return ``(axis, kind)``, else None."""
         with self._lock:
-            t0, q0 = self._checked
+            t0, q0, inside = self._checked
             t1 = self.axes[0].now()
             q1 = np.array([a.position_at(t1) for a in self.axes])
             t_end = min(t1, max(max(a.end_time() for a in self.axes), t0))
-            if t_end <= t0:
-                # every axis ended its move by the last check (the station polls the
-                # statusword at rest): the pose checked then holds, nothing to walk
-                self._checked = (t1, q1)
+            if inside and t_end <= t0:
+                # every axis ended its move by the last check, which found that pose
+                # inside (the station polls the statusword at rest): nothing to walk
+                self._checked = (t1, q1, True)
                 return None
             n = max(1, 2 * int(np.ceil(np.max(np.abs(q1 - q0)) / SUPERVISE_STEP)))
             ts = np.linspace(t0, t_end, n + 1)[1:]
@@ -128,7 +128,7 @@ class SimulatedSerial(SimulatedAgebot):
             out = (Q < lo - 1e-9) | (Q > hi + 1e-9)
             bad = np.flatnonzero(out.any(axis=1) | (z < 0.0))
             if not bad.size:
-                self._checked = (t1, q1)
+                self._checked = (t1, q1, True)
                 return None
             k = int(bad[0])
             if out[k].any():
@@ -138,7 +138,7 @@ class SimulatedSerial(SimulatedAgebot):
             t_ok = ts[k] - (t_end - t0) / n
             for a in self.axes:
                 a.stop_at(t_ok)
-            self._checked = (self.axes[0].now(), self.qm())
+            self._checked = (self.axes[0].now(), self.qm(), False)
             log.warning("simulated %s: %s hit at qm %s", self.model.name, hit[1],
                         np.round(Q[k], 3).tolist())
             return hit

@@ -83,6 +83,8 @@ def test_simulated_arm_stops_at_a_joint_limit_and_at_the_floor():
     assert sim.supervise() == (5, "joint limit")
     assert 3.05 < sim.qm()[5] <= 3.1 + 1e-9
     assert sim.supervise() is None                       # stopped inside
+    clock.t += 5.0
+    assert sim.supervise() is None                       # at rest: nothing new to walk
     # the floor: drive towards the lowest pose of a sweep of joint 2
     q0 = sim.qm()
     sweep = np.array([q0 + np.r_[0, d, 0, 0, 0, 0] for d in np.linspace(-3, 3, 61)])
@@ -94,6 +96,18 @@ def test_simulated_arm_stops_at_a_joint_limit_and_at_the_floor():
     axis, kind = sim.supervise()
     assert kind == "floor" and axis == 1
     assert 0.0 <= sim.frame()[2, 3] < 0.01               # stopped at the floor
+
+
+def test_a_simulated_arm_at_rest_outside_its_range_faults_at_its_first_check():
+    """The walk is skipped only at rest after a check that found the pose inside: an
+    arm whose start is outside the range it is given faults without moving."""
+    t = draw_serial_truth(HAYATI, np.random.default_rng(3))
+    clock = FakeClock()
+    sim = SimulatedSerial(t, clock=clock)
+    sim.qm_range = sim.qm_range.copy()
+    sim.qm_range[2, 1] = sim.qm()[2] - 0.1               # joint 3's upper end below it
+    clock.t += 1.0
+    assert sim.supervise() == (2, "joint limit")
 
 
 def test_plan_is_safe_and_counted_from_the_identifiable_set():
