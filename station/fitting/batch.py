@@ -268,11 +268,12 @@ FAR_ABOVE_NOISE = 30.0
 
 
 def _far_above_noise(result, stated) -> bool:
-    """Does some channel's estimated sigma exceed its stated one :data:`FAR_ABOVE_NOISE`
-    times (no stated sigma: False)?"""
+    """Does some channel's residual RMS exceed its stated sigma :data:`FAR_ABOVE_NOISE`
+    times (no stated sigma: False)? (Not the fit's sigma: with the noise stated, the
+    solver's sigma is the stated one, whatever the residual.)"""
     for ch, s in (stated or {}).items():
-        est = (result.sigma or {}).get(ch)
-        if s and est is not None and math.isfinite(est) and est > FAR_ABOVE_NOISE * s:
+        rms = (result.residual_rms or {}).get(ch)
+        if s and rms is not None and math.isfinite(rms) and rms > FAR_ABOVE_NOISE * s:
             return True
     return False
 

@@ -111,3 +111,13 @@ def test_the_grown_start_holds_the_files_fixed_parameters(tmp_path):
     ok = np.array([st.identifiable for st in res.status])
     z = (grown.x - res.x)[ok] / res.std[ok]
     assert np.abs(z).max() < SAME_MINIMUM, np.round(z, 3)
+
+
+def test_far_above_noise_reads_the_residual_not_the_stated_sigma():
+    """With every sigma stated the fit's sigma is the stated one, so the residual is what
+    tells a local minimum (RMS 1.6 mm against 1e-5 m stated) from a fit at the noise."""
+    far = SimpleNamespace(sigma={"distance": 1e-5}, residual_rms={"distance": 1.64e-3})
+    near = SimpleNamespace(sigma={"distance": 1e-5}, residual_rms={"distance": 0.95e-5})
+    assert batch._far_above_noise(far, {"distance": 1e-5})
+    assert not batch._far_above_noise(near, {"distance": 1e-5})
+    assert not batch._far_above_noise(far, None)
