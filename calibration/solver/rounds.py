@@ -12,6 +12,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from scipy import special
 
 from calibration import identifiability as ident
 from calibration.errors import CalibrationError
@@ -47,15 +48,14 @@ class Algorithm2(Weighting, Stepping):
     the error weighting from :class:`Weighting`, the iteration from
     :class:`Stepping`."""
 
-    def __init__(self, model: MeasurementModel, opt: SolverOptions, callback,
-                 unit_start: bool = False):
+    def __init__(self, model: MeasurementModel, opt: SolverOptions, callback, start=None):
         self.model, self.opt, self.callback = model, opt, callback
-        # a restart (solve): the first step damped as at unit weights
-        self.unit_start, self.moved = unit_start, False
         self.lam = model.default_damping if opt.damping is None else float(opt.damping)
         self.names = tuple(model.names)
         self.x0 = np.array(model.x0, dtype=float)
-        self.x = self.x0.copy()
+        # the start values (a restart's: :func:`solve`); x0 stays the model's, the
+        # values a parameter found not identifiable returns to
+        self.x = self.x0.copy() if start is None else np.array(start, dtype=float)
         known = dict(opt.sigma) if opt.sigma else {}
         self.channels = channels = tuple(model.channels)
         unknown = set(known) - set(channels)
@@ -276,40 +276,93 @@ def solve(model: MeasurementModel, options: SolverOptions | None = None,
     """
     opt = options or SolverOptions()
     t_start = time.perf_counter()
-    res, chi2_dof = _solve(model, opt, callback, t_start)
-    if not (chi2_dof > RESTART_CHI2):
+    res, run = _solve(model, opt, callback, t_start)
+    why = _restart_reason(res, run)
+    if why is None:
         return res
-    # known sigma and a converged fit that does not explain the readings by their
-    # stated noise: a local minimum the first steps led to, or a model or data that
-    # do not fit. Once more from the start, the first step damped as the report's
-    # first iteration damps it (L = I); the lower of the two minima is the result.
-    try:
-        alt, _ = _solve(model, opt, callback, t_start, unit_start=True)
-    except CalibrationError:
-        alt = None
-    first = f"{chi2_dof:.3g} times the stated noise's chi-square per degree of freedom"
-    if alt is not None and alt.converged and alt.cost < res.cost * (1 - RESTART_GAIN):
-        return replace(alt, nfev=res.nfev + alt.nfev, wall_time=time.perf_counter() - t_start,
-                       message=f"{alt.message}; restarted with the first step damped as at "
-                       f"unit weights: the first fit ended in a local minimum ({first})")
-    return replace(res, nfev=res.nfev + (alt.nfev if alt is not None else 0),
-                   wall_time=time.perf_counter() - t_start,
-                   message=f"{res.message}; a restart with the first step damped as at unit "
-                   f"weights ended no lower ({first})")
+    # every sigma known (a trace states its sensors' noise) and a fit that does not
+    # explain the readings by it: a local minimum the first steps led to (with the
+    # weights 1/sigma, lambda damps nothing), or a model or data that do not fit.
+    # Once more as the report's Algorithm 2 runs without a stated noise (L = I at
+    # the first iteration, then the pooled sigma of eq. 51), and with the stated
+    # sigma from where that ends; the lower of the two minima is the result.
+    alt, spent, failed = _restarted(model, opt, callback, t_start, res)
+    nfev = res.nfev + spent[0] + (alt.nfev if alt is not None else 0)
+    its = res.iterations + spent[1] + (alt.iterations if alt is not None else 0)
+    if alt is not None and alt.converged and (not res.converged
+                                              or alt.cost < res.cost * (1 - RESTART_GAIN)):
+        # (iterations and history: the last fit's; nfev: every fit's)
+        return replace(alt, nfev=nfev, wall_time=time.perf_counter() - t_start,
+                       message=f"{alt.message} after a restart: the first fit {why}; the "
+                       "same fit without a stated noise ended lower, and the fit with it went "
+                       f"on from there ({its} iterations, {nfev} evaluations in all)")
+    ended = (f"failed ({failed})" if failed else "did not converge"
+             if alt is not None and not alt.converged else "ended no lower")
+    return replace(res, nfev=nfev, wall_time=time.perf_counter() - t_start,
+                   message=f"{res.message}; it {why}, and a restart as without a stated "
+                   f"noise {ended} ({its} iterations, {nfev} evaluations in all)")
 
 
-#: a fit with every sigma known that converges with a chi-square per degree of
-#: freedom above this (its residual RMS three times the stated noise) is run once
-#: more from the start with its first step damped as at unit weights (:func:`solve`)
-RESTART_CHI2 = 9.0
+#: a fit with every sigma known that does not converge, or converges with a
+#: chi-square whose upper-tail probability at the stated noise is below this (where
+#: the station's gate refuses a channel's residual, calibration.quality.CHI2_ALPHA),
+#: is restarted (:func:`solve`)
+RESTART_ALPHA = 1e-3
 #: the restart's minimum replaces the first where its cost is lower by this fraction
 RESTART_GAIN = 1e-6
 
 
-def _solve(model, opt, callback, t_start, unit_start=False):
-    """One run of :func:`solve`: ``(result, chi-square per degree of freedom)``, the
-    latter NaN unless every sigma is known, the errors weighted and the run converged."""
-    run = Algorithm2(model, opt, callback, unit_start)
+def _restart_reason(res, run) -> str | None:
+    """Why the fit ``res`` of ``run`` is restarted (:func:`solve`), or None."""
+    opt = run.opt
+    if not (run.all_known and opt.sigma and opt.weight_errors):
+        return None
+    if not res.converged:
+        return "did not converge"
+    # per channel, as the gate judges (its share of the degrees of freedom here)
+    r, rows = res.residual, run.rows
+    rss = np.bincount(run.row_channel, weights=r * r, minlength=len(run.channels))
+    for ch, nc, rc in zip(run.channels, run.channel_count.tolist(), rss.tolist()):
+        dof = nc - run.n_active * nc / rows
+        chi2 = rc / float(run.known[ch]) ** 2
+        if dof > 0.5 and special.chdtrc(dof, chi2) < RESTART_ALPHA:  # (False for NaN)
+            return (f"ended at chi-square {chi2:.4g} on {dof:.4g} degrees of freedom at "
+                    f"{ch}'s stated noise ({chi2 / dof:.3g} per degree)")
+    return None
+
+
+#: what may end a restart without ending the calibration: the first fit is kept
+_RESTART_ERRORS = (CalibrationError, np.linalg.LinAlgError, ArithmeticError, ValueError)
+
+
+def _restarted(model, opt, callback, t_start, first):
+    """The restart of :func:`solve`: ``(result or None, (evaluations, iterations) of
+    the fit before it, why it failed or "")``: the fit with the stated sigma from
+    where the fit without it ends, where that ends lower at the stated noise than
+    ``first``."""
+    try:
+        pooled = _solve(model, replace(opt, sigma=None), callback, t_start)[0]
+    except _RESTART_ERRORS as e:
+        return None, (0, 0), str(e) or type(e).__name__
+    spent = (pooled.nfev, pooled.iterations)
+    if not (pooled.converged and np.all(np.isfinite(pooled.x))):
+        return None, spent, "" if pooled.converged else "it did not converge"
+    if first.converged:
+        # where it ends no lower at the stated noise, the fit from there would not either
+        s = np.array([opt.sigma[ch] for ch in model.channels])[np.asarray(model.row_channel)]
+        rs = pooled.residual / s
+        if not 0.5 * float(rs @ rs) < first.cost * (1 - RESTART_GAIN):
+            return None, spent, ""
+    try:
+        return _solve(model, opt, callback, t_start, start=pooled.x)[0], spent, ""
+    except _RESTART_ERRORS as e:
+        return None, spent, str(e) or type(e).__name__
+
+
+def _solve(model, opt, callback, t_start, start=None):
+    """One run of :func:`solve` (from ``start``, default the model's x0): ``(result,
+    run)``."""
+    run = Algorithm2(model, opt, callback, start)
     run.initial_status()
     converged, message = False, ""
     early = run.can_reweight() and run.mode == "pooled"
@@ -326,8 +379,4 @@ def _solve(model, opt, callback, t_start, unit_start=False):
         changed = run.reweight() or changed
         if not changed:
             break
-    res = make_result(run, converged, message, t_start, rounds)
-    dof = run.rows - run.n_active
-    chi2_dof = (2.0 * res.cost / dof if converged and run.all_known and opt.weight_errors
-                and dof > 0 else math.nan)
-    return res, chi2_dof
+    return make_result(run, converged, message, t_start, rounds), run
