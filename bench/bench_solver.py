@@ -42,7 +42,7 @@ counts, the median is shown beside it. BLAS runs single-threaded (the
 ``*_NUM_THREADS`` variables are set to 1 before numpy loads; ``--blas-threads``
 to change). The bench fails (exit 1) if a scipy run on the problem ours solves
 does not converge to our optimum, or if ours ends in a spurious minimum (a sum of
-squares above 1.5 times the truth's): then that problem has no ratio (a time to a
+squares, weighted by ours' final sigma per channel, above 1.5 times the truth's): then that problem has no ratio (a time to a
 wrong answer is no time to the answer), and a scipy run that reached the truth's
 minimum there is not counted as failing.
 
