@@ -5,6 +5,7 @@ position to compute every sensor value. Time is ``time.monotonic()``.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import threading
 import time
@@ -77,6 +78,23 @@ class SimAxis:
 
     def now(self) -> float:
         return self._clock()
+
+    def travel(self, ta: float, tb: float) -> float:
+        """The distance travelled between clock times ``ta`` and ``tb``, every move's
+        part counted (a move out and back between them is its whole length, not the
+        net displacement); moves older than :data:`HISTORY_S` are forgotten."""
+        with self._lock:
+            total, t_next = 0.0, math.inf
+            current = (self._t0, self._start, self._target, self._v, self._a)
+            for t0, start, target, v, a in itertools.chain((current,), reversed(self._past)):
+                if t_next <= ta:          # this move and those before it ended before ta
+                    break
+                lo, hi = max(ta, t0), min(tb, t_next)
+                if hi > lo:
+                    total += abs(_profile(start, target, v, a, hi - t0)
+                                 - _profile(start, target, v, a, lo - t0))
+                t_next = t0
+            return total
 
     def end_time(self) -> float:
         """Clock time at which the move under way ends (or ended)."""

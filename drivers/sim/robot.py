@@ -237,12 +237,15 @@ class SimulatedAgebot:
             t0, q0, X = self._checked
             t1 = self.axes[0].now()
             q1 = np.array([a.position_at(t1) for a in self.axes])
-            if np.max(np.abs(q1 - q0)) < 1e-9:     # no motion: the pose checked last holds
+            t_end = min(t1, max(max(a.end_time() for a in self.axes), t0))
+            # the path's length, not the net displacement (a move out past a limit and
+            # back between two checks is walked too)
+            path = max(a.travel(t0, t_end) for a in self.axes)
+            if path < 1e-9:     # no motion: the pose checked last holds
                 self._checked = (t1, q1, X)
                 return None
-            t_end = min(t1, max(max(a.end_time() for a in self.axes), t0))
             # displacement over time is not uniform (acceleration): twice the steps
-            n = max(1, 2 * int(np.ceil(np.max(np.abs(q1 - q0)) / SUPERVISE_STEP)))
+            n = max(1, 2 * int(np.ceil(path / SUPERVISE_STEP)))
             for t in np.linspace(t0, t_end, n + 1)[1:]:
                 q = np.array([a.position_at(t) for a in self.axes])
                 try:

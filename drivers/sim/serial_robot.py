@@ -120,7 +120,10 @@ class SimulatedSerial(SimulatedAgebot):
                 # inside (the station polls the statusword at rest): nothing to walk
                 self._checked = (t1, q1, True)
                 return None
-            n = max(1, 2 * int(np.ceil(np.max(np.abs(q1 - q0)) / SUPERVISE_STEP)))
+            # (the path's length, not the net displacement: a move out past a limit
+            # and back between two checks is walked too)
+            path = max(a.travel(t0, t_end) for a in self.axes)
+            n = max(1, 2 * int(np.ceil(path / SUPERVISE_STEP)))
             ts = np.linspace(t0, t_end, n + 1)[1:]
             Q = np.array([[a.position_at(t) for a in self.axes] for t in ts])
             z = self.model.frames(Q, self._xi)[:, 2, 3]

@@ -98,3 +98,33 @@ def test_limits_in_the_station_config():
     with pytest.raises(ConfigError, match="envelope.qm_max"):
         parse_station_config({**base, "envelope": {"qm_min": [5.0] * 3, "qm_max": [1.0, 2.0, 3.0]}})
     assert load_station_config(FIX / "stations" / "sim-pm.toml").envelope.qm_range is not None
+
+
+def test_a_move_out_past_the_stroke_and_back_between_two_checks_is_caught():
+    """The walk samples the path, not the net displacement: out past the rail's stroke
+    and commanded back before the next check is a hit (the net move is nil)."""
+    robot, clock = _robot([[1900, 2100], [-1000, 6000], [-1000, 6000]])
+    home = robot.qm()
+    assert robot.supervise() is None
+    robot.move_to((2150.0, home[1], home[2]))
+    clock.t += 10.0                                      # there, beyond the stroke's 2100
+    robot.move_to(home)                                  # and back, unchecked
+    clock.t += 10.0
+    assert np.allclose(robot.qm(), home)
+    axis, kind = robot.supervise()
+    assert kind == "stroke" and axis == 0
+
+
+def test_the_axis_travel_counts_every_move():
+    from drivers.sim.axis import SimAxis
+
+    t = [0.0]
+    ax = SimAxis(0.0, 1.0, 10.0, clock=lambda: t[0])
+    ax.command(2.0)
+    t[0] = 1.0                                            # 0.95 of the way
+    mid = ax.position()
+    ax.command(0.0)
+    t[0] = 10.0
+    assert ax.position() == 0.0
+    assert ax.travel(0.0, 10.0) == pytest.approx(2 * mid)
+    assert ax.travel(0.0, 1.0) == pytest.approx(mid) and ax.travel(5.0, 10.0) == 0.0

@@ -110,6 +110,22 @@ def test_a_simulated_arm_at_rest_outside_its_range_faults_at_its_first_check():
     assert sim.supervise() == (2, "joint limit")
 
 
+def test_a_move_out_past_a_joint_limit_and_back_between_two_checks_is_caught():
+    t = draw_serial_truth(HAYATI, np.random.default_rng(3))
+    clock = FakeClock()
+    sim = SimulatedSerial(t, clock=clock)
+    q0 = sim.qm()
+    assert sim.supervise() is None
+    q = q0.copy()
+    q[5] = 3.3                                           # beyond joint 6's limit 3.1
+    sim.move_to(q)
+    clock.t += 100.0
+    sim.move_to(q0)                                      # and back, unchecked
+    clock.t += 100.0
+    assert np.allclose(sim.qm(), q0)
+    assert sim.supervise() == (5, "joint limit")
+
+
 def test_plan_is_safe_and_counted_from_the_identifiable_set():
     robot = load_robot_file(HAYATI)
     from calibration.robots import get_robot
