@@ -286,7 +286,7 @@ def solve(model: MeasurementModel, options: SolverOptions | None = None,
     # Once more as the report's Algorithm 2 runs without a stated noise (L = I at
     # the first iteration, then the pooled sigma of eq. 51), and with the stated
     # sigma from where that ends; the lower of the two minima is the result.
-    alt, spent, failed = _restarted(model, opt, callback, t_start, res)
+    alt, spent, failed = _restarted(model, opt, callback, t_start, res, run)
     nfev = res.nfev + spent[0] + (alt.nfev if alt is not None else 0)
     its = res.iterations + spent[1] + (alt.iterations if alt is not None else 0)
     if alt is not None and alt.converged and (not res.converged
@@ -335,11 +335,11 @@ def _restart_reason(res, run) -> str | None:
 _RESTART_ERRORS = (CalibrationError, np.linalg.LinAlgError, ArithmeticError, ValueError)
 
 
-def _restarted(model, opt, callback, t_start, first):
+def _restarted(model, opt, callback, t_start, first, run):
     """The restart of :func:`solve`: ``(result or None, (evaluations, iterations) of
     the fit before it, why it failed or "")``: the fit with the stated sigma from
     where the fit without it ends, where that ends lower at the stated noise than
-    ``first``."""
+    ``first`` (the result of ``run``)."""
     try:
         pooled = _solve(model, replace(opt, sigma=None), callback, t_start)[0]
     except _RESTART_ERRORS as e:
@@ -348,10 +348,10 @@ def _restarted(model, opt, callback, t_start, first):
     if not (pooled.converged and np.all(np.isfinite(pooled.x))):
         return None, spent, "" if pooled.converged else "it did not converge"
     if first.converged:
-        # where it ends no lower at the stated noise, the fit from there would not either
-        s = np.array([opt.sigma[ch] for ch in model.channels])[np.asarray(model.row_channel)]
-        rs = pooled.residual / s
-        if not 0.5 * float(rs @ rs) < first.cost * (1 - RESTART_GAIN):
+        # where it ends no lower at the stated noise, the fit from there would not
+        # either (its cost weighed as the first fit's: make_result)
+        r = pooled.residual
+        if not 0.5 * float(r @ (run.row_weights(run.known) * r)) < first.cost * (1 - RESTART_GAIN):
             return None, spent, ""
     try:
         return _solve(model, opt, callback, t_start, start=pooled.x)[0], spent, ""
