@@ -48,14 +48,13 @@ class Algorithm2(Weighting, Stepping):
     the error weighting from :class:`Weighting`, the iteration from
     :class:`Stepping`."""
 
-    def __init__(self, model: MeasurementModel, opt: SolverOptions, callback, start=None):
+    def __init__(self, model: MeasurementModel, opt: SolverOptions, callback,
+                 other_path: bool = False):
         self.model, self.opt, self.callback = model, opt, callback
         self.lam = model.default_damping if opt.damping is None else float(opt.damping)
         self.names = tuple(model.names)
         self.x0 = np.array(model.x0, dtype=float)
-        # the start values (a restart's: :func:`solve`); x0 stays the model's, the
-        # values a parameter found not identifiable returns to
-        self.x = self.x0.copy() if start is None else np.array(start, dtype=float)
+        self.x = self.x0.copy()
         known = dict(opt.sigma) if opt.sigma else {}
         self.channels = channels = tuple(model.channels)
         unknown = set(known) - set(channels)
@@ -68,8 +67,26 @@ class Algorithm2(Weighting, Stepping):
         self.known = known
         self.all_known = set(known) == set(channels)
         # weighting mode: 'known' (trace sigma), 'pooled' (eq. 51 during the
-        # iteration), 'channel' (per-channel sigma fixed from the last solution)
-        self.mode = "known" if self.all_known else "pooled"
+        # iteration), 'channel' (per-channel sigma fixed from the last solution).
+        # Where every sigma is stated and the same for every channel, the first round
+        # is pooled all the same (L = I at the first iteration, then eq. 51's one
+        # sigma, as the report's Algorithm 2 runs; the stated weights are its weights
+        # times a constant, the same minimum), and the stated sigma weigh the rows from
+        # its solution on (:meth:`~calibration.solver.weighting.Weighting.reweight`):
+        # weighted by 1/sigma from the first step, lambda damps nothing (a stated
+        # 1e-5 m puts the scaled matrix's singular values near 1e5), and undamped
+        # Gauss-Newton steps from a far start led into local minima and long swings
+        # the pooled round's damping avoids (AGEBOT's robot file, sm-distance, noise
+        # stated, 45 and 100 poses, seeds 1-8: 348 evaluations and three restarts
+        # against 234 and none; docs/methods.md). Stated sigmas that differ between
+        # channels weigh the rows from the first step: one sigma for a distance in
+        # metres and a tilt in radians led sm-distance-tilt into local minima more
+        # often (17 restarts in 150 Monte Carlo runs against 9). ``other_path``: the
+        # other of the two (the restart's, :func:`solve`).
+        uniform = len(set(known.values())) == 1
+        self.pooled_first = (self.all_known and bool(opt.weight_errors)
+                             and uniform != bool(other_path))
+        self.mode = ("known" if self.all_known and not self.pooled_first else "pooled")
         self.r, self.W = model.evaluate(self.x)
         self.nfev = 1
         self.rows = len(self.r)
@@ -79,7 +96,7 @@ class Algorithm2(Weighting, Stepping):
         self.row_channel = np.asarray(model.row_channel, dtype=np.intp)
         self.channel_count = np.bincount(self.row_channel, minlength=len(channels))
         self.ch0 = channels[self.row_channel[0]] if self.rows else None
-        self.sigma = (dict(known) if self.all_known else dict.fromkeys(channels, 1.0))
+        self.sigma = dict(known) if self.mode == "known" else dict.fromkeys(channels, 1.0)
         self._g_sigma = None  # the sigma dict self.g was made from
         self._set_weights()
         fixed = opt.fixed
@@ -273,6 +290,10 @@ def solve(model: MeasurementModel, options: SolverOptions | None = None,
     prediction. Iterating the pooled round further would only refine a
     solution the per-channel round then moves by O(std) anyway. Where the
     channel sigmas turn out to agree, the pooled round simply resumes.
+    Where every sigma is stated and the same for every channel the first round
+    is pooled too, and the stated sigma weigh the rows from its solution on
+    (:class:`Algorithm2`); a fit that then does not explain its readings by the
+    stated noise is run once more on the other path.
     """
     opt = options or SolverOptions()
     t_start = time.perf_counter()
@@ -281,26 +302,27 @@ def solve(model: MeasurementModel, options: SolverOptions | None = None,
     if why is None:
         return res
     # every sigma known (a trace states its sensors' noise) and a fit that does not
-    # explain the readings by it: a local minimum the first steps led to (with the
-    # weights 1/sigma, lambda damps nothing), or a model or data that do not fit.
-    # Once more as the report's Algorithm 2 runs without a stated noise (L = I at
-    # the first iteration, then the pooled sigma of eq. 51), and with the stated
-    # sigma from where that ends; the lower of the two minima is the result.
-    alt, spent, failed = _restarted(model, opt, callback, t_start, res, run)
-    nfev = res.nfev + spent[0] + (alt.nfev if alt is not None else 0)
-    its = res.iterations + spent[1] + (alt.iterations if alt is not None else 0)
+    # explain the readings by it: a local minimum the first path led to, or a model or
+    # data that do not fit. Once more on the other path (a first round pooled, or
+    # weighted by the stated sigma from the first step: Algorithm2); the lower of the
+    # two minima is the result.
+    alt, failed = _restarted(model, opt, callback, t_start)
+    nfev = res.nfev + (alt.nfev if alt is not None else 0)
+    its = res.iterations + (alt.iterations if alt is not None else 0)
+    other = ("weighted by the stated noise from its first step" if run.pooled_first
+             else "with its first round pooled, as without a stated noise")
     if alt is not None and alt.converged and (not res.converged
                                               or alt.cost < res.cost * (1 - RESTART_GAIN)):
         # (iterations and history: the last fit's; nfev: every fit's)
         return replace(alt, nfev=nfev, wall_time=time.perf_counter() - t_start,
                        message=f"{alt.message} after a restart: the first fit {why}; the "
-                       "same fit without a stated noise ended lower, and the fit with it went "
-                       f"on from there ({its} iterations, {nfev} evaluations in all)")
+                       f"same fit {other} ended lower ({its} iterations, {nfev} "
+                       "evaluations in all)")
     ended = (f"failed ({failed})" if failed else "did not converge"
              if alt is not None and not alt.converged else "ended no lower")
     return replace(res, nfev=nfev, wall_time=time.perf_counter() - t_start,
-                   message=f"{res.message}; it {why}, and a restart as without a stated "
-                   f"noise {ended} ({its} iterations, {nfev} evaluations in all)")
+                   message=f"{res.message}; it {why}, and a restart {other} {ended} "
+                   f"({its} iterations, {nfev} evaluations in all)")
 
 
 #: a fit with every sigma known that does not converge, or converges with a
@@ -335,37 +357,23 @@ def _restart_reason(res, run) -> str | None:
 _RESTART_ERRORS = (CalibrationError, np.linalg.LinAlgError, ArithmeticError, ValueError)
 
 
-def _restarted(model, opt, callback, t_start, first, run):
-    """The restart of :func:`solve`: ``(result or None, (evaluations, iterations) of
-    the fit before it, why it failed or "")``: the fit with the stated sigma from
-    where the fit without it ends, where that ends lower at the stated noise than
-    ``first`` (the result of ``run``)."""
+def _restarted(model, opt, callback, t_start):
+    """The restart of :func:`solve`: ``(result or None, why it failed or "")``, the
+    fit on the other path (:class:`Algorithm2`)."""
     try:
-        pooled = _solve(model, replace(opt, sigma=None), callback, t_start)[0]
+        return _solve(model, opt, callback, t_start, other_path=True)[0], ""
     except _RESTART_ERRORS as e:
-        return None, (0, 0), str(e) or type(e).__name__
-    spent = (pooled.nfev, pooled.iterations)
-    if not (pooled.converged and np.all(np.isfinite(pooled.x))):
-        return None, spent, "" if pooled.converged else "it did not converge"
-    if first.converged:
-        # where it ends no lower at the stated noise, the fit from there would not
-        # either (its cost weighed as the first fit's: make_result)
-        r = pooled.residual
-        if not 0.5 * float(r @ (run.row_weights(run.known) * r)) < first.cost * (1 - RESTART_GAIN):
-            return None, spent, ""
-    try:
-        return _solve(model, opt, callback, t_start, start=pooled.x)[0], spent, ""
-    except _RESTART_ERRORS as e:
-        return None, spent, str(e) or type(e).__name__
+        return None, str(e) or type(e).__name__
 
 
-def _solve(model, opt, callback, t_start, start=None):
-    """One run of :func:`solve` (from ``start``, default the model's x0): ``(result,
+def _solve(model, opt, callback, t_start, other_path=False):
+    """One run of :func:`solve` (``other_path``: see :class:`Algorithm2`): ``(result,
     run)``."""
-    run = Algorithm2(model, opt, callback, start)
+    run = Algorithm2(model, opt, callback, other_path)
     run.initial_status()
     converged, message = False, ""
-    early = run.can_reweight() and run.mode == "pooled"
+    # (a pooled round the stated sigma follow with the same minimum runs to the end)
+    early = run.can_reweight() and run.mode == "pooled" and not run.stated_uniform()
     rounds = 0
     while rounds < 6:
         converged, message = run.iterate(early=early and rounds < 5)

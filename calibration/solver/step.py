@@ -316,6 +316,33 @@ def clearly_identifiable(F: Scaled, rank_tol: float, norms, floor: float):
     return None
 
 
+class Restated:
+    """The variance (eq. 52) and condition number of an iteration at other weights
+    than those it stepped with, formed when first read: the pooled round of a fit
+    whose stated sigma weigh its channels otherwise (``WA`` its active columns,
+    ``g`` the stated weights' square roots per row, ``h`` its column scaling,
+    ``idx``/``n`` as :class:`Iteration`'s variance)."""
+
+    __slots__ = ("WA", "_out", "g", "h", "idx", "n")
+
+    def __init__(self, WA, g, h, idx, n):
+        self.WA, self.g, self.h, self.idx, self.n = WA, g, h, idx, n
+        self._out = None
+
+    def _formed(self):
+        if self._out is None:
+            A = (self.WA * self.h) * self.g[:, None]
+            sv = np.linalg.svd(A, compute_uv=False)
+            v = self.h * self.h * np.diag(np.linalg.pinv(A.T @ A))
+            if self.idx is not None:
+                full = np.full(self.n, np.nan)
+                full[self.idx] = v
+                v = full
+            self._out = (v, cond_of(sv))
+            self.WA = None  # (the matrix is not kept once read)
+        return self._out
+
+
 class Iteration:
     """One iteration's record (the data behind the report's figures); read-only.
 
@@ -348,7 +375,10 @@ class Iteration:
     @property
     def variance(self) -> np.ndarray:
         v = self._var
-        if isinstance(v, tuple):
+        if isinstance(v, Restated):
+            v = v._formed()[0]
+            object.__setattr__(self, "_var", v)
+        elif isinstance(v, tuple):
             factor, h, vs, idx, n = v
             if vs.ndim == 2:  # R^-1 of the iteration: its squared row norms
                 vs = row_norms2(vs)
@@ -363,7 +393,10 @@ class Iteration:
     @property
     def condition_number(self) -> float:
         c = self._cond
-        if isinstance(c, np.ndarray):
+        if isinstance(c, Restated):
+            c = c._formed()[1]
+            object.__setattr__(self, "_cond", c)
+        elif isinstance(c, np.ndarray):
             c = cond_of(gesvd(c, compute_uv=0)[1])
             object.__setattr__(self, "_cond", c)
         return c
@@ -404,17 +437,29 @@ class Stepping:
     def _record(self, F, step, cost):
         """History entry: variance of the estimate at this iteration (eq. 52,
         from the factored scaled, weighted matrix) and its condition number."""
-        if self.mode == "pooled" or not self.opt.weight_errors:
-            g = F.g
-            g0 = g if isinstance(g, float) else g[0]
-            factor = float(g0 * g0 * self.sigma[self.ch0] ** 2)
+        idx = None if self.all_active else self.active_idx
+        # the pooled round of a fit whose every sigma is stated records at the stated
+        # sigma (the noise its variance is stated at), as its later rounds do
+        stated = self.mode == "pooled" and self.all_known and self.opt.weight_errors
+        if stated and not self.stated_uniform():  # other weights: formed when read
+            WA = F.W if idx is None else F.W.take(idx, axis=1)
+            var = cond = Restated(WA, 1.0 / np.array([self.known[ch] for ch in self.channels],
+                                                     dtype=float)[self.row_channel],
+                                  F.h, idx, len(self.active))
         else:
-            factor = 1.0
-        # the scaled variance, or the R^-1 whose squared row norms it is (formed when read)
-        v = F.Rinv if F.vs is None and F.Rinv is not None else F.variance_scaled()
-        var = (factor, F.h, v, None if self.all_active else self.active_idx, len(self.active))
-        it = Iteration(self.x.copy(), var, F.R if F._sv is None else F.cond, step, cost,
-                       dict(self.sigma))
+            if self.mode == "pooled" or not self.opt.weight_errors:
+                g = F.g
+                g0 = g if isinstance(g, float) else g[0]
+                s0 = (self.known if stated else self.sigma)[self.ch0]
+                factor = float(g0 * g0 * s0 ** 2)
+            else:
+                factor = 1.0
+            # the scaled variance, or the R^-1 whose squared row norms it is (formed when read)
+            v = F.Rinv if F.vs is None and F.Rinv is not None else F.variance_scaled()
+            var = (factor, F.h, v, idx, len(self.active))
+            cond = F.R if F._sv is None else F.cond
+        it = Iteration(self.x.copy(), var, cond, step, cost,
+                       dict(self.known if stated else self.sigma))
         self.history.append(it)
         if self.callback is not None:
             self.callback(self.k, it)

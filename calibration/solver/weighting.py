@@ -173,17 +173,35 @@ class Weighting:
         return not exact and any(abs(sigma[ch] / old[ch] - 1) > SIGMA_CHANGE for ch in sigma)
 
     def can_reweight(self) -> bool:
-        return not (self.mode == "known" or not self.opt.weight_errors or len(self.channels) < 2)
+        if self.mode == "known" or not self.opt.weight_errors:
+            return False
+        # every sigma stated: the pooled round is followed by the stated weights
+        return self.all_known or len(self.channels) > 1
+
+    def stated_uniform(self) -> bool:
+        """Every sigma stated, and the same for every channel: the stated weights
+        are the pooled round's times a constant (the same minimum)."""
+        return self.all_known and len(set(self.known.values())) == 1
 
     def channels_differ(self) -> bool:
         """Would :meth:`reweight` change the weights materially now?"""
+        if self.all_known:
+            return self.can_reweight() and not self.stated_uniform()
         return self.can_reweight() and self._sigma_changed(
             self.channel_sigma(self.r_sol, self.n_active), self.sigma)
 
     def reweight(self) -> bool:
-        """Per-channel weights at the solution; True if they changed materially."""
+        """Per-channel weights at the solution; True if they changed materially
+        (a new round is needed). Where every sigma is stated: the stated weights
+        from here on, and a new round only where they weigh the channels otherwise
+        than the pooled round's one sigma did."""
         if not self.can_reweight():
             return False
+        if self.all_known:
+            self.sigma, self.mode = dict(self.known), "known"
+            self.next_factor = None  # made with the pooled weights
+            self._set_weights()
+            return not self.stated_uniform()
         sigma = self.channel_sigma(self.r_sol, self.n_active)
         old = self.sigma
         self.sigma, self.mode = sigma, "channel"

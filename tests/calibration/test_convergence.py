@@ -201,23 +201,41 @@ def _distance_100(noise):
 
 
 @pytest.mark.parametrize("noise", [None, 1e-4])
-def test_a_local_minimum_far_above_the_stated_noise_is_left_by_a_restart(noise, monkeypatch):
+def test_a_stated_noise_weighs_the_rows_from_the_pooled_solution_on(noise, monkeypatch):
+    """Weighted by the stated sigma from the first step, this fit ends in a local
+    minimum (residual RMS 1.6 mm, 16 times the stated noise). Its first round pooled,
+    as the report's Algorithm 2 runs (L = I, then eq. 51's one sigma), it reaches
+    the truth with no restart, and its statistics are those of the stated sigma.
+    Where the first fit misses (here the two paths swapped), the restart runs the
+    other and keeps the lower minimum."""
     from calibration.solver import rounds
 
     model = _distance_100(noise)
     opts = SolverOptions(sigma={"distance": 1e-4})
     res = solve(model, opts)
-    assert res.converged and "after a restart" in res.message, res.message
+    assert res.converged and "restart" not in res.message, res.message
+    assert res.sigma == {"distance": 1e-4} and res.sigma_known
     rms = float(np.sqrt(np.mean(res.residual ** 2)))
     assert rms < (1e-12 if noise is None else 2e-4), rms
     active = np.array([s.identifiable for s in res.status])
     err = np.abs(res.x - SM.true)[active]
     assert np.all(err < (1e-9 if noise is None else 5 * res.std[active])), err
-    # without the restart: the local minimum, which the station's gate would refuse
-    monkeypatch.setattr(rounds, "RESTART_ALPHA", 0.0)
-    first = solve(model, opts)
+    # the covariance at the stated sigma (eq. 52), not at the pooled round's
+    W = model.evaluate(res.x)[1][:, active]
+    cov = 1e-4 ** 2 * np.linalg.inv(W.T @ W)
+    np.testing.assert_allclose(res.std[active], np.sqrt(np.diag(cov)), rtol=1e-6)
+    # weighted by the stated sigma from the first step: the local minimum
+    first = rounds._solve(model, opts, None, 0.0, other_path=True)[0]
     assert first.converged and np.sqrt(np.mean(first.residual ** 2)) > 1e-3
-    assert res.nfev > first.nfev and "restart" not in first.message
+    # the paths swapped: the first fit misses, and the restart's minimum is kept
+    orig = rounds._solve
+    monkeypatch.setattr(rounds, "_solve", lambda m, o, cb, t, other_path=False:
+                        orig(m, o, cb, t, not other_path))
+    swapped = solve(model, opts)
+    assert swapped.converged and "after a restart: the first fit ended at chi-square" in \
+        swapped.message, swapped.message
+    np.testing.assert_allclose(swapped.x, res.x, rtol=0, atol=1e-9)
+    assert swapped.nfev == first.nfev + res.nfev
 
 
 def test_a_fit_that_explains_its_readings_is_not_restarted():
