@@ -95,12 +95,12 @@ class Scaled:
     tall, the same quantities come from an SVD with the singular values below
     ``1e-15 s_max`` cut (a pseudo-inverse), as the normal equations would."""
 
-    __slots__ = ("R", "Rc", "Rinv", "W", "_sv", "cost", "g", "h", "n", "rinv2", "sigma", "svd",
-                 "vs")
+    __slots__ = ("R", "Rc", "Rinv", "W", "_sv", "cost", "g", "h", "n", "r", "rinv2", "sigma",
+                 "svd", "vs")
 
     def __init__(self, W, sigma, WA, h, g, r):
         rows, n = WA.shape
-        self.W, self.sigma, self.h, self.g, self.n = W, sigma, h, g, n
+        self.W, self.sigma, self.h, self.g, self.n, self.r = W, sigma, h, g, n, r
         scalar = isinstance(g, float)
         self.svd = self.Rinv = self.vs = self._sv = None
         self.rinv2 = math.inf  # ||R^-1||_F^2 (>= 1 / s_min^2) where known
@@ -316,31 +316,20 @@ def clearly_identifiable(F: Scaled, rank_tol: float, norms, floor: float):
     return None
 
 
-class Restated:
-    """The variance (eq. 52) and condition number of an iteration at other weights
-    than those it stepped with, formed when first read: the pooled round of a fit
-    whose stated sigma weigh its channels otherwise (``WA`` its active columns,
-    ``g`` the stated weights' square roots per row, ``h`` its column scaling,
-    ``idx``/``n`` as :class:`Iteration`'s variance)."""
-
-    __slots__ = ("WA", "_out", "g", "h", "idx", "n")
-
-    def __init__(self, WA, g, h, idx, n):
-        self.WA, self.g, self.h, self.idx, self.n = WA, g, h, idx, n
-        self._out = None
-
-    def _formed(self):
-        if self._out is None:
-            A = (self.WA * self.h) * self.g[:, None]
-            sv = np.linalg.svd(A, compute_uv=False)
-            v = self.h * self.h * np.diag(np.linalg.pinv(A.T @ A))
-            if self.idx is not None:
-                full = np.full(self.n, np.nan)
-                full[self.idx] = v
-                v = full
-            self._out = (v, cond_of(sv))
-            self.WA = None  # (the matrix is not kept once read)
-        return self._out
+def at_weights(WA, g, h, idx, n):
+    """``(variance, condition number)`` of an iteration at other weights than those it
+    stepped with (eq. 52; the pooled round of a fit whose stated sigma weigh its
+    channels otherwise): ``WA`` its active columns, ``g`` the stated weights' square
+    roots per row, ``h`` its column scaling, ``idx``/``n`` as :class:`Iteration`'s
+    variance."""
+    A = (WA * h) * g[:, None]
+    sv = np.linalg.svd(A, compute_uv=False)
+    v = h * h * np.diag(np.linalg.pinv(A.T @ A))
+    if idx is not None:
+        full = np.full(n, np.nan)
+        full[idx] = v
+        v = full
+    return v, cond_of(sv)
 
 
 class Iteration:
@@ -375,10 +364,7 @@ class Iteration:
     @property
     def variance(self) -> np.ndarray:
         v = self._var
-        if isinstance(v, Restated):
-            v = v._formed()[0]
-            object.__setattr__(self, "_var", v)
-        elif isinstance(v, tuple):
+        if isinstance(v, tuple):
             factor, h, vs, idx, n = v
             if vs.ndim == 2:  # R^-1 of the iteration: its squared row norms
                 vs = row_norms2(vs)
@@ -393,10 +379,7 @@ class Iteration:
     @property
     def condition_number(self) -> float:
         c = self._cond
-        if isinstance(c, Restated):
-            c = c._formed()[1]
-            object.__setattr__(self, "_cond", c)
-        elif isinstance(c, np.ndarray):
+        if isinstance(c, np.ndarray):
             c = cond_of(gesvd(c, compute_uv=0)[1])
             object.__setattr__(self, "_cond", c)
         return c
@@ -439,19 +422,23 @@ class Stepping:
         from the factored scaled, weighted matrix) and its condition number."""
         idx = None if self.all_active else self.active_idx
         # the pooled round of a fit whose every sigma is stated records at the stated
-        # sigma (the noise its variance is stated at), as its later rounds do
+        # sigma (the noise its variance and cost are stated at), as its later rounds do
         stated = self.mode == "pooled" and self.all_known and self.opt.weight_errors
-        if stated and not self.stated_uniform():  # other weights: formed when read
-            WA = F.W if idx is None else F.W.take(idx, axis=1)
-            var = cond = Restated(WA, 1.0 / np.array([self.known[ch] for ch in self.channels],
-                                                     dtype=float)[self.row_channel],
-                                  F.h, idx, len(self.active))
+        if stated and not self.stated_uniform():  # other weights (the restart's path)
+            gk = 1.0 / np.array([self.known[ch] for ch in self.channels],
+                                dtype=float)[self.row_channel]
+            var, cond = at_weights(F.W if idx is None else F.W.take(idx, axis=1), gk, F.h,
+                                   idx, len(self.active))
+            rk = F.r * gk
+            cost = 0.5 * float(rk @ rk)
         else:
             if self.mode == "pooled" or not self.opt.weight_errors:
                 g = F.g
                 g0 = g if isinstance(g, float) else g[0]
                 s0 = (self.known if stated else self.sigma)[self.ch0]
                 factor = float(g0 * g0 * s0 ** 2)
+                if stated:  # 0.5 r^T r g0^2 -> 0.5 r^T r / sigma^2
+                    cost = cost / factor
             else:
                 factor = 1.0
             # the scaled variance, or the R^-1 whose squared row norms it is (formed when read)

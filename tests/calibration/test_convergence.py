@@ -224,6 +224,16 @@ def test_a_stated_noise_weighs_the_rows_from_the_pooled_solution_on(noise, monke
     W = model.evaluate(res.x)[1][:, active]
     cov = 1e-4 ** 2 * np.linalg.inv(W.T @ W)
     np.testing.assert_allclose(res.std[active], np.sqrt(np.diag(cov)), rtol=1e-6)
+    # and so is every iteration's record, the pooled round's too: the first at x0
+    assert all(h.sigma == {"distance": 1e-4} for h in res.history)
+    r0, W0 = model.evaluate(model.x0)
+    h0 = res.history[0]
+    on = np.isfinite(h0.variance)
+    np.testing.assert_allclose(h0.variance[on], 1e-4 ** 2 * np.diag(np.linalg.inv(
+        W0[:, on].T @ W0[:, on])), rtol=1e-6)
+    assert h0.cost == pytest.approx(0.5 * float(r0 @ r0) / 1e-4 ** 2, rel=1e-12)
+    Wn = W0[:, on] / np.linalg.norm(W0[:, on], axis=0)
+    assert h0.condition_number == pytest.approx(np.linalg.cond(Wn), rel=1e-8)
     # weighted by the stated sigma from the first step: the local minimum
     first = rounds._solve(model, opts, None, 0.0, other_path=True)[0]
     assert first.converged and np.sqrt(np.mean(first.residual ** 2)) > 1e-3

@@ -382,6 +382,7 @@ def test_known_sigma_per_channel():
     np.testing.assert_allclose(res.x, x, rtol=1e-9)
     np.testing.assert_allclose(res.covariance, cov, rtol=1e-8)
     assert all(h.sigma == sig for h in res.history)
+    assert res.rounds == 1  # sigmas that differ: weighted from the first step, one round
     # the other path (the restart's where these weights from the first step miss): a
     # pooled first round, the stated weights from its solution on; the same minimum,
     # and every record at the stated sigma (the pooled round's variance and condition
@@ -398,6 +399,8 @@ def test_known_sigma_per_channel():
         assert h.sigma == sig
         np.testing.assert_allclose(h.variance, np.diag(cov), rtol=1e-8)
         assert h.condition_number == pytest.approx(cond, rel=1e-10)
+    r0 = model.evaluate(model.x0)[0] / np.array([1e-3, 3e-2])[ch]
+    assert other.history[0].cost == pytest.approx(0.5 * float(r0 @ r0), rel=1e-12)
     # one channel known, the other estimated
     part = solve(model, SolverOptions(sigma={"distance": 1e-3}))
     assert part.sigma["distance"] == 1e-3 and not part.sigma_known
