@@ -83,9 +83,8 @@ class Algorithm2(Weighting, Stepping):
         # metres and a tilt in radians led sm-distance-tilt into local minima more
         # often (17 restarts in 150 Monte Carlo runs against 9). ``other_path``: the
         # other of the two (the restart's, :func:`solve`).
-        uniform = len(set(known.values())) == 1
         self.pooled_first = (self.all_known and bool(opt.weight_errors)
-                             and uniform != bool(other_path))
+                             and self.stated_uniform() != bool(other_path))
         self.mode = ("known" if self.all_known and not self.pooled_first else "pooled")
         self.r, self.W = model.evaluate(self.x)
         self.nfev = 1

@@ -316,22 +316,6 @@ def clearly_identifiable(F: Scaled, rank_tol: float, norms, floor: float):
     return None
 
 
-def at_weights(WA, g, h, idx, n):
-    """``(variance, condition number)`` of an iteration at other weights than those it
-    stepped with (eq. 52; the pooled round of a fit whose stated sigma weigh its
-    channels otherwise): ``WA`` its active columns, ``g`` the stated weights' square
-    roots per row, ``h`` its column scaling, ``idx``/``n`` as :class:`Iteration`'s
-    variance."""
-    A = (WA * h) * g[:, None]
-    sv = np.linalg.svd(A, compute_uv=False)
-    v = h * h * np.diag(np.linalg.pinv(A.T @ A))
-    if idx is not None:
-        full = np.full(n, np.nan)
-        full[idx] = v
-        v = full
-    return v, cond_of(sv)
-
-
 class Iteration:
     """One iteration's record (the data behind the report's figures); read-only.
 
@@ -424,28 +408,24 @@ class Stepping:
         # the pooled round of a fit whose every sigma is stated records at the stated
         # sigma (the noise its variance and cost are stated at), as its later rounds do
         stated = self.mode == "pooled" and self.all_known and self.opt.weight_errors
-        if stated and not self.stated_uniform():  # other weights (the restart's path)
-            gk = 1.0 / np.array([self.known[ch] for ch in self.channels],
-                                dtype=float)[self.row_channel]
-            var, cond = at_weights(F.W if idx is None else F.W.take(idx, axis=1), gk, F.h,
-                                   idx, len(self.active))
-            rk = F.r * gk
-            cost = 0.5 * float(rk @ rk)
+        if stated and not self.stated_uniform():
+            # weights other than the round's (the restart's path): the same iteration
+            # factored at the stated weights
+            F = Scaled(F.W, self.known, F.W if idx is None else F.W.take(idx, axis=1), F.h,
+                       self.sqrt_weights(self.known), F.r)
+            factor, cost = 1.0, F.cost
+        elif self.mode == "pooled" or not self.opt.weight_errors:
+            g = F.g
+            g0 = g if isinstance(g, float) else g[0]
+            factor = float(g0 * g0 * (self.known if stated else self.sigma)[self.ch0] ** 2)
+            if stated:  # 0.5 r^T r g0^2 -> 0.5 r^T r / sigma^2
+                cost = cost / factor
         else:
-            if self.mode == "pooled" or not self.opt.weight_errors:
-                g = F.g
-                g0 = g if isinstance(g, float) else g[0]
-                s0 = (self.known if stated else self.sigma)[self.ch0]
-                factor = float(g0 * g0 * s0 ** 2)
-                if stated:  # 0.5 r^T r g0^2 -> 0.5 r^T r / sigma^2
-                    cost = cost / factor
-            else:
-                factor = 1.0
-            # the scaled variance, or the R^-1 whose squared row norms it is (formed when read)
-            v = F.Rinv if F.vs is None and F.Rinv is not None else F.variance_scaled()
-            var = (factor, F.h, v, idx, len(self.active))
-            cond = F.R if F._sv is None else F.cond
-        it = Iteration(self.x.copy(), var, cond, step, cost,
+            factor = 1.0
+        # the scaled variance, or the R^-1 whose squared row norms it is (formed when read)
+        v = F.Rinv if F.vs is None and F.Rinv is not None else F.variance_scaled()
+        var = (factor, F.h, v, idx, len(self.active))
+        it = Iteration(self.x.copy(), var, F.R if F._sv is None else F.cond, step, cost,
                        dict(self.known if stated else self.sigma))
         self.history.append(it)
         if self.callback is not None:

@@ -162,12 +162,16 @@ class Weighting:
         elif self.mode == "pooled":
             self.g = 1.0 / float(self.sigma[self.channels[0]])
         elif self._g_sigma is not self.sigma:
-            vals = [self.sigma[ch] for ch in self.channels]
-            if all(v == vals[0] for v in vals):  # one sigma for every row (one channel)
-                self.g = 1.0 / float(vals[0])
-            else:
-                self.g = (1.0 / np.array(vals, dtype=float))[self.row_channel]
+            self.g = self.sqrt_weights(self.sigma)
             self._g_sigma = self.sigma
+
+    def sqrt_weights(self, sigma):
+        """``sqrt(L)`` for ``sigma`` (channel -> sigma): a float where every channel's
+        sigma is the same (one channel), else per row."""
+        vals = [sigma[ch] for ch in self.channels]
+        if all(v == vals[0] for v in vals):  # one sigma for every row (one channel)
+            return 1.0 / float(vals[0])
+        return (1.0 / np.array(vals, dtype=float))[self.row_channel]
     def _sigma_changed(self, sigma, old) -> bool:
         exact = all(v <= ROUNDOFF_SIGMA for v in sigma.values())
         return not exact and any(abs(sigma[ch] / old[ch] - 1) > SIGMA_CHANGE for ch in sigma)
