@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibration import identifiability as ident
-from calibration.solver.step import Iteration, geqrf, gesvd, masks, trtri
+from calibration.solver.step import Iteration, condition_of, geqrf, gesvd, masks, trtri
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,9 @@ class CalibrationResult:
                    that sigma's own uncertainty
                    (:meth:`~calibration.solver.weighting.Weighting.covariance_sigma`).
     residual_rms:  channel -> RMS of the final residual.
-    condition_number: of the final scaled, weighted observation matrix.
+    condition_number: of the final scaled, weighted observation matrix (formed
+                   when first read, from the last iteration's triangle where it
+                   was made there: most callers of the solver never read it).
     history:       list of :class:`Iteration`.
     """
 
@@ -52,13 +54,22 @@ class CalibrationResult:
     sigma_known: bool
     residual_rms: dict
     residual: np.ndarray
-    condition_number: float
+    # the condition number, or the (n, n) triangle whose it is (:attr:`condition_number`)
+    _condition: object = field(repr=False)
     cost: float
     history: tuple[Iteration, ...] = field(repr=False)
     n_rows: int = 0
     wall_time: float = 0.0
     sigma_dof: dict = field(default_factory=dict)
     rounds: int = 0
+
+    @property
+    def condition_number(self) -> float:
+        c = self._condition
+        if isinstance(c, np.ndarray):
+            c = condition_of(c)
+            object.__setattr__(self, "_condition", c)
+        return c
 
     @property
     def n_identifiable(self) -> int:
@@ -107,7 +118,7 @@ def make_result(run, converged: bool, message: str, t_start: float,
         covariance_names=tuple(nm for nm, a in zip(names, active) if a),
         status=tuple(status), converged=converged, message=message, iterations=run.k,
         nfev=run.nfev, sigma=sigma, sigma_known=run.all_known, residual_rms=rms,
-        residual=r, condition_number=cond, cost=0.5 * float(r @ (w_cov * r)),
+        residual=r, _condition=cond, cost=0.5 * float(r @ (w_cov * r)),
         history=tuple(run.history), n_rows=rows, wall_time=time.perf_counter() - t_start,
         sigma_dof=dof, rounds=rounds)
 
@@ -127,7 +138,10 @@ def _covariance(run, sigma, w, need_cond=True, need_cov=True):
     differ from ``G W_R H`` by a column scaling only); else a QR of ``G W_R H``.
     Either way ``H (R^T R)^-1 H``. Where the normal matrix is so
     ill-conditioned that a pseudo-inverse would cut singular values it is that
-    pseudo-inverse, as eq. 52 reads. ``need_cond`` False: the condition number
+    pseudo-inverse, as eq. 52 reads. The condition number is returned as the
+    last iteration's triangle where that QR serves and its singular values were
+    not needed to choose (:func:`~calibration.solver.step.condition_of` forms
+    it). ``need_cond`` False: the condition number
     is not asked for (the second value is then NaN where it was not needed to
     choose between the two); ``need_cov`` False: only the condition number is
     asked for (the covariance returned may then be None)."""
@@ -146,9 +160,9 @@ def _covariance(run, sigma, w, need_cond=True, need_cov=True):
         if c:
             h = F.h
             spread = float(h.max() / h.min()) if scale else 1.0
-            if (F.cond * spread) ** 2 < _PINV_SAFE:  # w = c g^2: G W_R H = sqrt(c) A
+            if F.cond_below(math.sqrt(_PINV_SAFE) / spread):  # w = c g^2: G W_R H = sqrt(c) A
                 Rh = F.Rinv * h[:, None]
-                return (Rh @ Rh.T) * (1.0 / c), F.cond
+                return (Rh @ Rh.T) * (1.0 / c), F.cond_or_triangle
     norms = np.sqrt(np.einsum("ij,ij->j", WA, WA))
     h = 1.0 / norms if scale else np.ones(n)
     if n and rows > n and norms.min() > 0:

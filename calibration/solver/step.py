@@ -70,6 +70,11 @@ def cond_of(sv) -> float:
     return s0 / smin if smin > 0 else math.inf
 
 
+def condition_of(c) -> float:
+    """A condition number, or the triangle whose it is (:attr:`Scaled.cond_or_triangle`)."""
+    return cond_of(gesvd(c, compute_uv=0)[1]) if isinstance(c, np.ndarray) else c
+
+
 def masks(n: int):
     """Per column count ``n`` (cached, Fortran order): the 0/1 mask of the upper
     triangle of an ``(n, n + 1)`` block (its last column, ``Q^T b``, kept whole)
@@ -95,8 +100,8 @@ class Scaled:
     tall, the same quantities come from an SVD with the singular values below
     ``1e-15 s_max`` cut (a pseudo-inverse), as the normal equations would."""
 
-    __slots__ = ("R", "Rc", "Rinv", "W", "_sv", "cost", "g", "h", "n", "r", "rinv2", "sigma",
-                 "svd", "vs")
+    __slots__ = ("R", "Rc", "Rinv", "W", "_sv", "cost", "g", "h", "n", "r", "rf2", "rinv2",
+                 "sigma", "svd", "vs")
 
     def __init__(self, W, sigma, WA, h, g, r):
         rows, n = WA.shape
@@ -104,6 +109,7 @@ class Scaled:
         scalar = isinstance(g, float)
         self.svd = self.Rinv = self.vs = self._sv = None
         self.rinv2 = math.inf  # ||R^-1||_F^2 (>= 1 / s_min^2) where known
+        self.rf2 = math.inf  # ||R||_F^2 (>= s_max^2) where that is
         if rows <= n:
             A = WA * (h * g) if scalar else (WA * h) * g[:, None]
             b = r * g
@@ -131,10 +137,10 @@ class Scaled:
         Rinv, info = trtri(R)
         if info == 0:
             rf, vf = R.ravel(order="K"), Rinv.ravel(order="K")
-            bound = float(rf @ rf) * float(vf @ vf)
-            if bound < 1e24:  # also False for NaN
+            rf2, rinv2 = float(rf @ rf), float(vf @ vf)
+            if rf2 * rinv2 < 1e24:  # also False for NaN
                 self.Rinv = Rinv  # (the variance, its row norms, when first asked for)
-                self.rinv2 = float(vf @ vf)
+                self.rf2, self.rinv2 = rf2, rinv2
                 return
         sv, info = gesvd(R, compute_uv=0)[1::2]
         svl = sv.tolist()
@@ -164,6 +170,19 @@ class Scaled:
     @property
     def cond(self) -> float:
         return cond_of(self.sv)
+
+    def cond_below(self, limit: float) -> bool:
+        """Is the condition number below ``limit``? From the bound
+        ``||R||_F ||R^-1||_F`` where that decides, without the singular values."""
+        if self.rf2 * self.rinv2 < limit * limit:
+            return True
+        return self.cond < limit
+
+    @property
+    def cond_or_triangle(self):
+        """The condition number where the singular values are known, else the
+        triangle ``R`` whose it is (:func:`condition_of` forms it when read)."""
+        return self.R if self._sv is None and self.R is not None else self.cond
 
     def step(self, lam2):
         """Scaled damped step ``z`` (``d_R = h z``) for ``lambda^2 = lam2``."""
@@ -364,7 +383,7 @@ class Iteration:
     def condition_number(self) -> float:
         c = self._cond
         if isinstance(c, np.ndarray):
-            c = cond_of(gesvd(c, compute_uv=0)[1])
+            c = condition_of(c)
             object.__setattr__(self, "_cond", c)
         return c
 
@@ -425,7 +444,7 @@ class Stepping:
         # the scaled variance, or the R^-1 whose squared row norms it is (formed when read)
         v = F.Rinv if F.vs is None and F.Rinv is not None else F.variance_scaled()
         var = (factor, F.h, v, idx, len(self.active))
-        it = Iteration(self.x.copy(), var, F.R if F._sv is None else F.cond, step, cost,
+        it = Iteration(self.x.copy(), var, F.cond_or_triangle, step, cost,
                        dict(self.known if stated else self.sigma))
         self.history.append(it)
         if self.callback is not None:

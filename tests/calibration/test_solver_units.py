@@ -966,3 +966,27 @@ def test_settles_only_on_fast_contraction_and_a_predicted_step_below_epsilon():
     assert not settles(1e-6, [1e-1, 1e-3], 1e-10)  # next ~ 1e-9
     assert not settles(2e-5, [1e0, 1e-1], 1e-10)  # above sqrt(epsilon)
     assert not settles(2e-7, [1e-1, 0.0], 1e-10)
+
+
+def test_the_condition_number_is_judged_and_reported_as_the_singular_values_give_it():
+    """``Scaled.cond_below`` decides as the condition number does (from the bound
+    ||R||_F ||R^-1||_F where that decides, else the singular values), and a result
+    whose condition number was deferred to the last iteration's triangle reports the
+    singular values' ratio when read, through pickling and ``replace`` alike."""
+    rng = np.random.default_rng(3)
+    for k in range(40):
+        A = rng.normal(size=(30, 6)) * np.logspace(0, rng.uniform(0, 9), 6)
+        F = Scaled(A, None, A, np.ones(6), 1.0, rng.normal(size=30))
+        cond = np.linalg.cond(A)
+        for limit in (cond * 0.999, cond * 1.001, cond * 3, math.sqrt(6) * cond * 1.01):
+            assert F.cond_below(limit) == (cond < limit), (k, limit / cond)
+    import pickle
+
+    A = rng.normal(size=(40, 5)) * np.array([1.0, 10.0, 1e3, 0.1, 5.0])
+    model = Linear(A, A @ np.arange(1.0, 6.0) + 1e-3 * rng.normal(size=40))
+    res = solve(model)
+    assert isinstance(res._condition, np.ndarray)  # not formed by the solve itself
+    H = 1.0 / np.linalg.norm(A, axis=0)
+    expect = np.linalg.cond(A * H)
+    for r in (pickle.loads(pickle.dumps(res)), replace(res, nfev=1), res):
+        assert r.condition_number == pytest.approx(expect, rel=1e-9)
