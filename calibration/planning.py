@@ -83,13 +83,17 @@ def order_for_travel(qm: np.ndarray, start=None, scale=None) -> np.ndarray:
     s = np.ptp(qm, axis=0) if scale is None else np.asarray(scale, dtype=float)
     s = np.where(s > 0, s, 1.0)
     z = qm / s
-    left = list(range(len(z)))
+    n = len(z)
     cur = z[0] if start is None else np.asarray(start, dtype=float) / s
-    order = []
-    while left:
-        d = [np.max(np.abs(z[i] - cur)) for i in left]
-        i = left.pop(int(np.argmin(d)))
-        order.append(i)
+    taken = np.zeros(n, dtype=bool)
+    order = np.empty(n, dtype=np.intp)
+    for k in range(n):
+        # the nearest pose not yet visited (the first of equals, in index order)
+        d = np.max(np.abs(z - cur), axis=1)
+        d[taken] = np.inf
+        i = int(np.argmin(d))
+        order[k] = i
+        taken[i] = True
         cur = z[i]
-    return np.array(order)
+    return order
 

@@ -167,3 +167,31 @@ def test_design_on_a_robot_file_arm_keeps_its_fixed_parameters():
     ratio = np.median([dz.geometric_mean_std(s_opt) / dz.geometric_mean_std(
         dz.cramer_rao(info, rng.choice(info.size, 45, replace=False))) for _ in range(15)])
     assert ratio < 0.95
+
+
+def test_the_travel_order_is_the_greedy_nearest_neighbour():
+    """``calibration.planning.order_for_travel`` visits, from the start (or the first
+    pose), the nearest pose not yet visited in scaled actuator space (max norm), the
+    first of equals in index order: against that rule written out pose by pose, with
+    ties (rounded poses) and without, from a start and from the first pose."""
+    from calibration.planning import order_for_travel
+
+    rng = np.random.default_rng(7)
+    for t in range(60):
+        n = int(rng.integers(1, 40))
+        qm = rng.normal(size=(n, 4)) * [0.1, 1.0, 2.0, 3.0]
+        if t % 3 == 0:
+            qm = np.round(qm, 1)  # equal distances
+        start = None if t % 2 else rng.normal(size=4)
+        s = np.ptp(qm, axis=0)
+        s = np.where(s > 0, s, 1.0)
+        cur = qm[0] / s if start is None else start / s
+        left, expect = list(range(n)), []
+        while left:
+            d = [float(np.max(np.abs(qm[i] / s - cur))) for i in left]
+            i = left.pop(d.index(min(d)))
+            expect.append(i)
+            cur = qm[i] / s
+        got = order_for_travel(qm, start)
+        assert got.tolist() == expect, t
+        assert sorted(got.tolist()) == list(range(n))
