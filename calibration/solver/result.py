@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibration import identifiability as ident
-from calibration.solver.step import Iteration, condition_of, geqrf, gesvd, masks, trtri
+from calibration.solver.step import Iteration, formed_condition, geqrf, gesvd, masks, trtri
 
 
 @dataclass(frozen=True)
@@ -65,11 +65,7 @@ class CalibrationResult:
 
     @property
     def condition_number(self) -> float:
-        c = self._condition
-        if isinstance(c, np.ndarray):
-            c = condition_of(c)
-            object.__setattr__(self, "_condition", c)
-        return c
+        return formed_condition(self, "_condition")
 
     @property
     def n_identifiable(self) -> int:
@@ -140,7 +136,7 @@ def _covariance(run, sigma, w, need_cond=True, need_cov=True):
     ill-conditioned that a pseudo-inverse would cut singular values it is that
     pseudo-inverse, as eq. 52 reads. The condition number is returned as the
     last iteration's triangle where that QR serves and its singular values were
-    not needed to choose (:func:`~calibration.solver.step.condition_of` forms
+    not needed to choose (:func:`~calibration.solver.step.formed_condition` forms
     it). ``need_cond`` False: the condition number
     is not asked for (the second value is then NaN where it was not needed to
     choose between the two); ``need_cov`` False: only the condition number is

@@ -70,9 +70,16 @@ def cond_of(sv) -> float:
     return s0 / smin if smin > 0 else math.inf
 
 
-def condition_of(c) -> float:
-    """A condition number, or the triangle whose it is (:attr:`Scaled.cond_or_triangle`)."""
-    return cond_of(gesvd(c, compute_uv=0)[1]) if isinstance(c, np.ndarray) else c
+def formed_condition(record, name: str) -> float:
+    """The condition number held in ``record``'s attribute ``name``: a number, or the
+    triangle whose it is (:attr:`Scaled.cond_or_triangle`), formed from its singular
+    values on this first read and kept in its place (``record`` read-only, as
+    :class:`Iteration` and :class:`~calibration.solver.result.CalibrationResult`)."""
+    c = getattr(record, name)
+    if isinstance(c, np.ndarray):
+        c = cond_of(gesvd(c, compute_uv=0)[1])
+        object.__setattr__(record, name, c)
+    return c
 
 
 def masks(n: int):
@@ -181,7 +188,7 @@ class Scaled:
     @property
     def cond_or_triangle(self):
         """The condition number where the singular values are known, else the
-        triangle ``R`` whose it is (:func:`condition_of` forms it when read)."""
+        triangle ``R`` whose it is (:func:`formed_condition` forms it when read)."""
         return self.R if self._sv is None and self.R is not None else self.cond
 
     def step(self, lam2):
@@ -381,11 +388,7 @@ class Iteration:
 
     @property
     def condition_number(self) -> float:
-        c = self._cond
-        if isinstance(c, np.ndarray):
-            c = condition_of(c)
-            object.__setattr__(self, "_cond", c)
-        return c
+        return formed_condition(self, "_cond")
 
     def __setattr__(self, name, value):
         raise AttributeError(f"cannot assign to field {name!r} (Iteration is read-only)")

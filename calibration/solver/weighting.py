@@ -172,6 +172,7 @@ class Weighting:
         if all(v == vals[0] for v in vals):  # one sigma for every row (one channel)
             return 1.0 / float(vals[0])
         return (1.0 / np.array(vals, dtype=float))[self.row_channel]
+
     def _sigma_changed(self, sigma, old) -> bool:
         exact = all(v <= ROUNDOFF_SIGMA for v in sigma.values())
         return not exact and any(abs(sigma[ch] / old[ch] - 1) > SIGMA_CHANGE for ch in sigma)
