@@ -13,22 +13,29 @@ devices' noise (distance 1e-5 m, tilt 1.7e-4 rad per reading), one seed per
 session for the arm, the simulator's noise and the plan.
 
 Targets (issue 16): RMS of error/std in 0.9-1.1, share within 2 std in 92-98 %.
+Every check is at ``ALPHA`` = 0.1 % (bands widened by 3.5 standard errors per method,
+3 pooled), over 8 + 8 AGEBOT and 5 + 4 UR5-like sessions: an honest std fails the whole
+test about 0.3 % of the time (seeded simulation of the whitened errors, t on the
+sessions' dof), one 20 % optimistic a third of the time (AGEBOT) to 42 % (UR5). At 1 %
+over 4 + 4 and 3 + 2 sessions an honest std failed 2.6-2.9 % of runs (a CI run's
+sm-distance-tilt seed 9700 gave d2 38.6 on 14 where 16 reruns gave 4.8-30.8, mean
+13.6) for the same power.
 How a pool can show them: the errors of one session are strongly correlated (one
 data set: an AGEBOT session's 14 parameters hold about 2-3 independent values), so
-their raw RMS over 4-8 sessions scatters far more than independent errors would.
+their raw RMS over a few sessions scatters far more than independent errors would.
 Each session's errors are therefore whitened by its reported correlation
 (``SessionScore.whitened``, ``d2 = z^T corr^-1 z``): for an honest std they are
 independent unit errors whatever the correlation. Asserted, per method (band
-widened by 3 of their exact standard errors) and pooled (by 2): the sum of d2
-inside its two-sided 99 % interval (``d2_interval``: chi-square with the
+widened by 3.5 of their exact standard errors) and pooled (by 3): the sum of d2
+inside its two-sided 99.9 % interval (``d2_interval``: chi-square with the
 estimated sigma's degrees of freedom), the whitened RMS and share within 2 in the
 band. Per parameter, its raw RMS over the sessions (sessions are independent)
-below what an honest std exceeds with probability 1 % (Bonferroni; ``rms_bound``: each
-error Student's t on its session's sigma dof, 2.6-3.0 std for 2-3 sessions at 20-38 dof;
+below what an honest std exceeds with probability ``ALPHA`` (Bonferroni; ``rms_bound``: each
+error Student's t on its session's sigma dof;
 the chi-square bound taken before, 2.5-2.8, failed an honest pool of the UR5-like
 sessions several times in ten): how a bias shows that one session's bound cannot see (the
 draw-wire zero's 4 std of issue 16). The raw RMS with the sessions' scatter as
-its standard error, and the worst single error below its 1 % bound (Student's t
+its standard error, and the worst single error below its ``ALPHA`` bound (Student's t
 at the fewest degrees of freedom), are asserted too, the raw coverage printed.
 
 The seeds are consecutive and used nowhere else. A session may end in a named
@@ -55,14 +62,14 @@ from station.simulation.session_scores import d2_interval, rms_bound, summary
 ROOT = Path(__file__).resolve().parents[2]
 UR5 = str(ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml")
 BAND_RMS, BAND_COVERAGE = (0.9, 1.1), (0.92, 0.98)
-ALPHA = 0.01
+ALPHA = 0.001
 COVERAGE = 0.9545      # of 2 std, for a normal error
 
 # (robot, method, fit poses, held out, first seed, sessions)
-AGEBOT_PARTS = [("agebot-sm", "sm-distance-tilt", 24, 4, 9700, 4),
-                ("agebot-sm", "sm-distance", 30, 4, 9720, 4)]
-UR5_PARTS = [(UR5, "sm-distance-tilt", 40, 4, 8720, 3),
-             (UR5, "sm-distance", 60, 4, 8740, 2)]
+AGEBOT_PARTS = [("agebot-sm", "sm-distance-tilt", 24, 4, 9700, 8),
+                ("agebot-sm", "sm-distance", 30, 4, 9720, 8)]
+UR5_PARTS = [(UR5, "sm-distance-tilt", 40, 4, 8720, 5),
+             (UR5, "sm-distance", 60, 4, 8740, 4)]
 
 
 def _run_part(tmp_path, robot, method, count, validation, first, sessions):
@@ -83,7 +90,7 @@ def _run_part(tmp_path, robot, method, count, validation, first, sessions):
 def _figures(label, s) -> str:
     lo, hi = d2_interval(s["d2_k"], s["d2_dof"], ALPHA)
     return (f"{label}: {s['completed']} sessions, {s['n_errors']} errors; d2 sum "
-            f"{s['d2_sum']:.1f} (honest 99 %: {lo:.1f}-{hi:.1f}), whitened RMS "
+            f"{s['d2_sum']:.1f} (honest {100 * (1 - ALPHA):g} %: {lo:.1f}-{hi:.1f}), whitened RMS "
             f"{s['rms_whitened']:.3f}, within 2 {100 * s['coverage_2std_whitened']:.1f} %; "
             f"raw err/std RMS {s['rms']:.3f} +- {s['rms_se']:.3f}, within 2 std "
             f"{100 * s['coverage_2std']:.1f} +- {100 * s['coverage_2std_se']:.1f} %, worst "
@@ -99,9 +106,9 @@ def _spread(s) -> tuple[float, float]:
 
 
 def _check_whitened(s, line, widen: float) -> None:
-    """The whitened errors (independent for an honest std): d2's sum inside its 99 %
-    interval, their RMS and share within 2 in the issue's band widened by ``widen``
-    of their standard errors (those of as many independent errors: exact here)."""
+    """The whitened errors (independent for an honest std): d2's sum inside its
+    ``1 - ALPHA`` interval, their RMS and share within 2 in the issue's band widened by
+    ``widen`` of their standard errors (those of as many independent errors: exact here)."""
     lo, hi = d2_interval(s["d2_k"], s["d2_dof"], ALPHA)
     assert lo <= s["d2_sum"] <= hi, line
     n = s["n_errors"]
@@ -121,9 +128,9 @@ def _check_pool(tmp_path, parts):
         print(lines[-1])
         print("  d2 per session: " + ", ".join(
             f"{sc.seed} {sc.d2:.1f}/{len(sc.z)} (dof {sc.dof:.0f})" for sc in done))
-        _check_whitened(s, lines[-1], widen=3)
+        _check_whitened(s, lines[-1], widen=3.5)
         # per parameter: its RMS over the sessions (independent across sessions) below
-        # an honest std's 1 % bound (Bonferroni over the parameters): a bias one
+        # an honest std's ALPHA bound (Bonferroni over the parameters): a bias one
         # session's bound cannot see (the draw-wire zero's 4 std of issue 16)
         # (the errors are Student's t where sigma is estimated: rms_bound, not chi-square)
         per = s["rms_per_parameter"]
@@ -138,7 +145,7 @@ def _check_pool(tmp_path, parts):
     s = summary(everything)
     lines.append(_figures("pooled", s))
     print(lines[-1])
-    _check_whitened(s, lines, widen=2)
+    _check_whitened(s, lines, widen=3)
     # the raw errors' figures, with the sessions' scatter as their standard errors
     rms_se, cov_se = _spread(s)
     assert BAND_RMS[0] - 3 * rms_se <= s["rms"] <= BAND_RMS[1] + 3 * rms_se, lines
