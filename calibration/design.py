@@ -138,9 +138,23 @@ def _logdet(M) -> float:
 
 
 def _gains(B: np.ndarray, Minv: np.ndarray) -> np.ndarray:
-    """``log det(I + B_u M^-1 B_u^T)`` for every candidate block ``B_u``."""
-    S = (B @ Minv) @ B.transpose(0, 2, 1)      # B_u M^-1 B_u^T: two products (BLAS)
-    S += np.eye(B.shape[1])
+    """``log det(I + B_u M^-1 B_u^T)`` for every candidate block ``B_u``: written out
+    for blocks of one row (a distance: ``log(1 + b M^-1 b^T)``) and of two (distance
+    and tilt: the 2 x 2 determinant), where a stack of small ``slogdet`` calls cost
+    more than the products."""
+    n, p, k = B.shape
+    rows = B.reshape(n * p, k)
+    BM = rows @ Minv                           # one product for every row (BLAS)
+    if p == 1:
+        s = np.einsum("ij,ij->i", BM, rows)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(s > -1.0, np.log1p(s), -np.inf)
+    S = BM.reshape(n, p, k) @ B.transpose(0, 2, 1)      # B_u M^-1 B_u^T
+    S += np.eye(p)
+    if p == 2:
+        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(det > 0, np.log(det), -np.inf)
     sign, ld = np.linalg.slogdet(S)
     return np.where(sign > 0, ld, -np.inf)
 

@@ -47,27 +47,68 @@ def sample_poses(robot, xi, bounds: np.ndarray, count: int, rng: np.random.Gener
                  accept=None) -> Plan:
     """Draw poses uniformly in ``bounds`` and keep those the IK of the model
     ``xi`` reaches (a planner never sends an unreachable pose) and, if given,
-    ``accept(X, qm)`` approves (e.g. a safety envelope)."""
+    ``accept(X, qm)`` approves (e.g. a safety envelope).
+
+    A robot with ``ik_many`` (the IK of many poses at once) is asked for a batch of
+    draws at a time; the generator is then left exactly where drawing one pose at a
+    time would leave it, so the plan is the same either way."""
     if count < 1:
         raise CalibrationError("the pose count must be at least 1")
     max_draws = max_draws or 200 * count
+    if hasattr(robot, "ik_many"):
+        targets, qms, draws = _sample_batched(robot, xi, bounds, count, rng, max_draws,
+                                              ik_options or {}, accept)
+    else:
+        targets, qms, draws = _sample_one_by_one(robot, xi, bounds, count, rng, max_draws,
+                                                 ik_options or {}, accept)
+    if len(targets) < count:
+        raise CalibrationError(f"only {len(targets)} of {count} poses drawn in the "
+                               f"workspace box are reachable after {draws} draws")
+    return Plan(np.array(targets), np.array(qms), draws)
+
+
+def _sample_one_by_one(robot, xi, bounds, count, rng, max_draws, ik_options, accept):
     targets, qms = [], []
     draws = 0
-    while len(targets) < count:
-        if draws >= max_draws:
-            raise CalibrationError(f"only {len(targets)} of {count} poses drawn in the "
-                                   f"workspace box are reachable after {draws} draws")
+    while len(targets) < count and draws < max_draws:
         X = rng.uniform(bounds[:, 0], bounds[:, 1])
         draws += 1
         try:
-            qm = robot.ik(X, xi, **(ik_options or {}))
+            qm = robot.ik(X, xi, **ik_options)
         except UnreachablePose:
             continue
         if accept is not None and not accept(X, qm):
             continue
         targets.append(X)
         qms.append(qm)
-    return Plan(np.array(targets), np.array(qms), draws)
+    return targets, qms, draws
+
+
+def _sample_batched(robot, xi, bounds, count, rng, max_draws, ik_options, accept):
+    """:func:`_sample_one_by_one` with the IK of a batch of draws at once: the same poses
+    (a batch's rows are the draws one at a time would make, in order), and the
+    generator advanced by exactly the draws used."""
+    targets, qms = [], []
+    draws = 0
+    while len(targets) < count and draws < max_draws:
+        state = rng.bit_generator.state
+        batch = min(max_draws - draws, max(16, 4 * (count - len(targets))))
+        X = rng.uniform(bounds[:, 0], bounds[:, 1], size=(batch, len(bounds)))
+        qm, ok = robot.ik_many(X, xi, **ik_options)
+        used = batch
+        for i in np.flatnonzero(ok):
+            if accept is not None and not accept(X[i], qm[i]):
+                continue
+            targets.append(X[i])
+            qms.append(qm[i])
+            if len(targets) == count:
+                used = int(i) + 1
+                break
+        if used < batch:                   # rewind, then draw only what was used
+            rng.bit_generator.state = state
+            rng.uniform(bounds[:, 0], bounds[:, 1], size=(used, len(bounds)))
+        draws += used
+    return targets, qms, draws
 
 
 def scale_box(bounds: np.ndarray, scale: float, centre=None) -> np.ndarray:

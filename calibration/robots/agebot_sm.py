@@ -154,6 +154,38 @@ class AgebotSM(RobotModel):
                                   f"{np.round(q, 4).tolist()} outside the joint limits")
         return q
 
+    def ik_joints_many(self, X, xi, elbow: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`ik_joints` of every row of ``X (m, 4)`` at once: ``(Q (m, 4), ok (m,))``,
+        ``ok`` False (and ``Q`` meaningless) where that row raises :class:`UnreachablePose`."""
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        x, y, z, phi = X.T
+        L2, L3, L4 = (xi[self.index(n)] for n in ("L2", "L3", "L4"))
+        x0, y0, _ = self.base_offset(xi)
+        px = x - L4 * np.cos(phi) - x0
+        py = y - L4 * np.sin(phi) - y0
+        c3 = (px * px + py * py - L2 * L2 - L3 * L3) / (2 * L2 * L3)
+        ok = (c3 >= -1.0) & (c3 <= 1.0)
+        th3 = np.copysign(np.arccos(np.clip(c3, -1.0, 1.0)), elbow if elbow else 1)
+        psi1 = np.arctan2(py, px) - np.arctan2(L3 * np.sin(th3), L2 + L3 * np.cos(th3))
+        th2 = wrap(psi1 - math.pi / 2)
+        th4 = wrap(phi - math.pi / 2 - th2 - th3)
+        q = np.column_stack([z, th2, th3, th4])
+        lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
+        ok &= np.all((q >= lo) & (q <= hi), axis=1)
+        return q, ok
+
+    def ik_many(self, X, xi, elbow: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`ik` of every row of ``X (m, 4)`` at once (a planner's candidates):
+        ``(Qm (m, 4), ok (m,))``, ``Qm`` NaN where the row is unreachable."""
+        q, ok = self.ik_joints_many(X, xi, 1 if elbow is None else elbow)
+        if elbow is None:                       # elbow -1 where +1 cannot
+            q2, ok2 = self.ik_joints_many(X, xi, -1)
+            other = ~ok & ok2
+            q[other], ok = q2[other], ok | ok2
+        qm = self.chain.actuators(q, xi)
+        qm[~ok] = np.nan
+        return qm, ok
+
     def elbow_of(self, qm, xi) -> int:
         """Elbow of the configuration at actuator values ``qm``: +1 where theta3 >= 0."""
         q = self.chain.joints(np.atleast_2d(qm), xi)[0]

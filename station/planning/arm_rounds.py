@@ -63,12 +63,11 @@ EXPLAIN = 0.2
 #: alike) and which the canonical form turns by pi with L4's sign
 PHYSICAL = ("q2_off", "q3_off", "q4_off", "k1", "k2", "k3", "k4", "L2", "L3", "L4")
 
-#: iterations of a planning refit and of each of its stages: a fit of a few poses
-#: reaches its least squares within ten or twenty and may then crawl for hundreds as
-#: its noise weights, estimated on a few degrees of freedom, wander (a 9-pose refit
-#: took 1000 iterations and 2.5 s, a stage 300, while the arm waited); it is judged
-#: by what it explains (:meth:`ArmRounds.refit`), not by its step tolerance
-PLAN_MAX_ITER = 50
+#: iterations of a planning refit (a few poses: it may crawl for hundreds as its noise
+#: weights wander; judged by what it explains, :meth:`ArmRounds.refit`; of 16 drawn
+#: sessions' refits run to 50, every converged one explained as well by its 20th but
+#: two, by 29 and 33), and of each stage of a grown start (a start for the next stage)
+PLAN_MAX_ITER, STAGE_MAX_ITER = 30, 20
 
 
 class EnvelopeExhausted(StationError):
@@ -97,15 +96,15 @@ class ArmRounds:
 
     def refit(self) -> None:
         """The model fitted to the fit poses measured so far and to the readings where
-        the envelope stopped the arm (:meth:`_stops`), from the start values and
-        from start values grown with the data (:func:`staged_start`): a function of the
+        the envelope stopped the arm (:meth:`_stops`), from the start values and, where
+        that fit does not converge explaining every reading within :data:`EXPLAIN`, from
+        start values grown with the data (:func:`staged_start`): a function of the
         recorded poses alone, so a resumed session plans as the uninterrupted one
         would. Of the fits the gate finds plausible that explain every recorded reading
         within :data:`EXPLAIN` of the envelope's tolerance, or at least as well as the
-        model in use, a converged one before one that is not (few poses), then the one
-        with the least residual;
-        where none does (a fit of few poses can be wild: it predicted -1.3 m for a
-        draw-wire reading 0.02 m, and every move from then on was stopped), planning
+        model in use, a converged one first (few poses), then the least residual; where
+        none does (a fit of few poses can be wild: it predicted -1.3 m for a draw-wire
+        reading 0.02 m, and every move from then on was stopped), planning
         stays with the model it had."""
         s = self.s
         recs = [r for r in s.measured.values() if r.get("use", "fit") == "fit"]
@@ -129,15 +128,16 @@ class ArmRounds:
         fit_method = "sm-distance-tilt" if "tilt" in chans and s.method == "sm-distance" \
             else s.method
         start = told_start(fit_method, s.robot, s.nominal, s.reference_qm, ref.get("tilt"))
-        starts = [start]
-        if len(recs) >= 8:
-            staged = staged_start(fit_method, s.robot, data, start, max_iter=PLAN_MAX_ITER)
-            if staged is not None:
-                starts.append(staged)
+        def starts():    # grown only where the told start's fit is not converged within
+            yield start  # EXPLAIN (where it was, the grown one ended at the same minimum)
+            if len(recs) >= 8 and not (best and not best[0][0] and best[4] <= EXPLAIN):
+                staged = staged_start(fit_method, s.robot, data, start, max_iter=STAGE_MAX_ITER)
+                if staged is not None:
+                    yield staged
         best, why, judge = None, "no fit", None
         # what the model in use leaves unexplained: a refit must do at least as well
         bar = max(EXPLAIN, self._unexplained(self.xi, self.distance_off, data))
-        for x0 in starts:
+        for x0 in starts():
             try:
                 model = build(fit_method, s.robot, data, x0)
                 judge = model if judge is None else judge  # the told start's (the gate's)
@@ -169,13 +169,13 @@ class ArmRounds:
                 continue
             key = (not res.converged, float(np.sum(np.asarray(res.residual) ** 2)))
             if best is None or key < best[0]:
-                best = (key, xi, off, res)
+                best = (key, xi, off, res, worst)
         self.fitted_on = len(recs)
         if best is None:
             s._event("warning", f"model refit on {what} not used ({why}): planning "
                      "stays with the model it had")
             return
-        _, xi, off, res = best
+        _, xi, off, res, _ = best
         self.prev_xi = self.xi
         self.xi, self.distance_off = xi, off
         s._event("info", f"model refitted on {what} ({res.n_identifiable} parameters "

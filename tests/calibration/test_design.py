@@ -195,3 +195,61 @@ def test_the_travel_order_is_the_greedy_nearest_neighbour():
         got = order_for_travel(qm, start)
         assert got.tolist() == expect, t
         assert sorted(got.tolist()) == list(range(n))
+
+
+@pytest.mark.parametrize("rows", [1, 2, 3])
+def test_the_d_gains_are_the_determinants_they_stand_for(rows):
+    """``_gains`` writes out ``log det(I + B M^-1 B^T)`` for blocks of one and two rows:
+    against ``slogdet`` of the matrix itself, a singular or indefinite one included
+    (-inf), and the exchange's choice is the same."""
+    rng = np.random.default_rng(rows)
+    for trial in range(20):
+        B = rng.normal(size=(50, rows, 5))
+        A = rng.normal(size=(12, 5))
+        Minv = np.linalg.inv(A.T @ A)
+        if trial == 0:
+            Minv = -Minv                       # log det of an indefinite I + S: -inf
+        S = np.eye(rows) + B @ Minv @ B.transpose(0, 2, 1)
+        sign, ld = np.linalg.slogdet(S)
+        expect = np.where(sign > 0, ld, -np.inf)
+        got = dz._gains(B, Minv)
+        assert np.array_equal(np.isinf(got), np.isinf(expect)), trial
+        fin = np.isfinite(expect)
+        assert np.allclose(got[fin], expect[fin], rtol=1e-12, atol=1e-12), trial
+
+
+def test_batched_sampling_draws_the_poses_one_at_a_time_would():
+    """``sample_poses`` asks a robot with ``ik_many`` for a batch of draws at once: the same
+    targets, actuator values to rounding, draw count and generator state after as the IK
+    of one pose at a time, with an ``accept`` that refuses some, an elbow asked for, and
+    a box partly out of reach; ``ik_many`` refuses exactly the poses ``ik`` does."""
+    from calibration import planning
+    from calibration.errors import UnreachablePose
+    import calibration.planning as cp
+
+    robot = get_robot("agebot-sm")
+    xi = robot.nominal
+    box = planning.box_array(robot, planning.SM_BOX_7_1, np.r_[robot.base_offset(xi), 0.0])
+    for t in range(12):
+        bounds = planning.scale_box(box, (0.3, 1.0, 2.5)[t % 3])
+        accept = (lambda X, q: q[0] < 0.0) if t % 2 else None
+        opts = {"elbow": -1} if t % 4 == 3 else {}
+        a_rng, b_rng = np.random.default_rng(t), np.random.default_rng(t)
+        a = cp._sample_one_by_one(robot, xi, bounds, 25, a_rng, 5000, opts, accept)
+        b = cp._sample_batched(robot, xi, bounds, 25, b_rng, 5000, opts, accept)
+        assert a[2] == b[2] and np.array_equal(np.array(a[0]), np.array(b[0])), t
+        assert np.allclose(np.array(a[1]), np.array(b[1]), rtol=1e-12, atol=1e-9), t
+        assert a_rng.random() == b_rng.random(), t
+    X = np.random.default_rng(5).uniform(*planning.scale_box(box, 2.5).T, size=(400, 4))
+    qm, ok = robot.ik_many(X, xi)
+    for i in range(len(X)):
+        try:
+            q = robot.ik(X[i], xi)
+        except UnreachablePose:
+            assert not ok[i] and np.all(np.isnan(qm[i])), i
+            continue
+        assert ok[i] and np.allclose(qm[i], q, rtol=1e-12, atol=1e-9), i
+    assert 0 < ok.sum() < len(X)
+    with pytest.raises(CalibrationError, match="reachable after 40 draws"):
+        planning.sample_poses(robot, xi, planning.scale_box(box, 0.0) + 5.0, 3,
+                              np.random.default_rng(0), max_draws=40)
