@@ -35,17 +35,19 @@ def fixed_for_rows(model) -> tuple[str, ...]:
 
 
 def staged_start(method: str, robot, data: MethodData, x, options: dict | None = None,
-                 max_iter: int = 300):
+                 max_iter: int = 300, cuts=None):
     """Start values grown with the data: fits on the first quarter, half and three
     quarters of the poses in their recorded order (a session records from the
-    reference outwards), each from the last, each of at most ``max_iter`` iterations.
-    For a robot so far from its start values that the fit of every pose at once does
-    not converge. None if no stage gave finite values."""
+    reference outwards), or on the first ``cuts`` poses (e.g. where each of a
+    session's rounds ended), each from the last, each of at most ``max_iter``
+    iterations. For a robot so far from its start values that the fit of every pose
+    at once does not converge. None if no stage gave finite values."""
     m = len(data.qm)
     x = np.array(x, dtype=float)
     got = False
-    for frac in (0.25, 0.5, 0.75):
-        k = max(int(m * frac), 2)
+    stages = [max(int(m * frac), 2) for frac in (0.25, 0.5, 0.75)] if cuts is None else \
+        [int(k) for k in cuts if 2 <= int(k) < m]
+    for k in stages:
         sub = dataclasses.replace(data, qm=data.qm[:k],
                                   channels={c: v[:k] for c, v in data.channels.items()})
         try:
