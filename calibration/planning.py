@@ -51,7 +51,8 @@ def sample_poses(robot, xi, bounds: np.ndarray, count: int, rng: np.random.Gener
 
     A robot with ``ik_many`` (the IK of many poses at once) is asked for a batch of
     draws at a time; the generator is then left exactly where drawing one pose at a
-    time would leave it, so the plan is the same either way."""
+    time would leave it: the same poses either way (actuator values to rounding: the
+    batch's IK uses numpy's trigonometry, ``ik`` Python's)."""
     if count < 1:
         raise CalibrationError("the pose count must be at least 1")
     max_draws = max_draws or 200 * count

@@ -198,7 +198,7 @@ def test_the_travel_order_is_the_greedy_nearest_neighbour():
 
 
 @pytest.mark.parametrize("rows", [1, 2, 3])
-def test_the_d_gains_are_the_determinants_they_stand_for(rows):
+def test_the_d_gains_are_the_determinants_they_stand_for(rows, monkeypatch):
     """``_gains`` writes out ``log det(I + B M^-1 B^T)`` for blocks of one and two rows:
     against ``slogdet`` of the matrix itself, a singular or indefinite one included
     (-inf), and the exchange's choice is the same."""
@@ -216,6 +216,15 @@ def test_the_d_gains_are_the_determinants_they_stand_for(rows):
         assert np.array_equal(np.isinf(got), np.isinf(expect)), trial
         fin = np.isfinite(expect)
         assert np.allclose(got[fin], expect[fin], rtol=1e-12, atol=1e-12), trial
+    info = _info(rng.normal(size=(60, rows, 5)) * rng.uniform(0.1, 10, size=5))
+    chosen = dz.d_optimal(info, 8)
+
+    def by_slogdet(B, Minv):
+        sign, ld = np.linalg.slogdet(np.eye(B.shape[1]) + B @ Minv @ B.transpose(0, 2, 1))
+        return np.where(sign > 0, ld, -np.inf)
+
+    monkeypatch.setattr(dz, "_gains", by_slogdet)
+    assert dz.d_optimal(info, 8).tolist() == chosen.tolist()
 
 
 def test_batched_sampling_draws_the_poses_one_at_a_time_would():

@@ -76,7 +76,9 @@ def test_default_runs_are_reproducible_and_a_finished_folder_stays(tmp_path):
     events = [r for r in ta if r["record"] == "event"]
     assert not [e for e in events if e["kind"] == "envelope"]
     assert any(e["kind"] == "warning" and e["message"].startswith(
-        "model refit on 6 poses not used (") for e in events)
+        "model refit on 6 poses not used (") and ("it leaves a recorded reading" in e["message"]
+                                                  or "it moves L3 from" in e["message"])
+               for e in events)
     sim = ta[0]["station"]["simulator"]
     assert sim["seed"] == 20240501 and sim["pose_noise"] is True   # the truth file's
     assert "seed 20240501" in ra.stdout
