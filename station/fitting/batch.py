@@ -313,9 +313,8 @@ def _from_staged_start(trace: Trace, model, opts, callback):
     # drawn arm's 36 poses (CI, seed 9422): by quarters, the 9-pose stage (the scout and
     # half of the middle round) went to a minimum 67 mm RMS from the readings, the gate
     # refused it; grown by rounds (12 poses) the fit reached 0.05 mm and 14 identifiable
-    for cuts in (None, _round_cuts(trace)):
-        if cuts is not None and not cuts:
-            continue
+    rounds = _round_cuts(trace)
+    for cuts in (None,) if rounds is None else (None, rounds):
         start = staged_start(model.method, model.robot, data, x, options, cuts=cuts)
         if start is None:
             continue
@@ -333,13 +332,14 @@ def _from_staged_start(trace: Trace, model, opts, callback):
 def _round_cuts(trace: Trace) -> list[int] | None:
     """How many fit poses (in recorded order) the trace held when each of its session's
     planning rounds but the last ended (the ``plan`` events' ``round`` of each pose);
-    None where the trace has fewer than two rounds."""
+    None where the trace has fewer than two rounds. Only where the round changes
+    matters (a start, never the result): a round is a label here, whatever its type."""
     rounds = {}
     for ev in trace.events:
         if ev.get("kind") == "plan":
             for p in ev.get("poses", ()):
-                if "round" in p and "index" in p:
-                    rounds[p["index"]] = int(p["round"])
+                if isinstance(p, dict) and "round" in p and "index" in p:
+                    rounds[p["index"]] = p["round"]
     got = [rounds.get(p.get("plan_index")) for p in trace.fit_poses]
     if len(set(got) - {None}) < 2:
         return None
