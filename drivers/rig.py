@@ -18,10 +18,22 @@ from drivers.config import StationConfig
 from drivers.drawwire import WORD_ORDER, DrawWire
 from drivers.errors import DeviceError
 from drivers.inclinometer import Inclinometer
-from drivers.snapshot import Snapshot, snapshot_with
+from drivers.snapshot import Snapshot, UnstableReading, snapshot_with
 
 log = logging.getLogger("drivers.rig")
 
+#: times an unstable snapshot is taken again before it is the device's fault
+SETTLE_RETAKES = 3
+#: s of the first wait before a retake (at least the config's settle); each next doubles
+RESETTLE_S = 0.1
+
+
+def retake_waits(settle: float) -> list[float]:
+    """The waits (s) before each retake of an unstable snapshot: ``max(RESETTLE_S,
+    settle)`` doubled each time (0.1, 0.2, 0.4 s at a test settle of 10 ms; 0.5, 1, 2 s
+    at the default 0.5 s)."""
+    first = max(RESETTLE_S, float(settle))
+    return [first * 2 ** k for k in range(SETTLE_RETAKES)]
 
 
 def inclinometer_from_config(cfg) -> Inclinometer:
@@ -125,10 +137,25 @@ class Rig:
         s = self.actuators.read()
         return [s.values[ch] for ch in self.actuators.channels]
 
-    def snapshot(self, **overrides) -> Snapshot:
+    def snapshot(self, on_retake=None, **overrides) -> Snapshot:
         """One checked measurement of the current pose with the configured settle,
-        samples and limits (:func:`drivers.snapshot.snapshot_with`)."""
-        return snapshot_with(self.devices, self.config.snapshot, **overrides)
+        samples and limits (:func:`drivers.snapshot.snapshot_with`). Readings not yet
+        stable (:class:`~drivers.snapshot.UnstableReading`: the arm or a sensor's filter
+        still settling after the move, a streaming sensor's frames queued behind a busy
+        computer) are measured again after a wait, :data:`SETTLE_RETAKES` times at most
+        (:func:`retake_waits`); ``on_retake(error, wait_s)`` is told before each wait.
+        Still unstable after the last: that UnstableReading, the device's fault."""
+        waits = retake_waits(self.config.snapshot.settle)
+        while True:
+            try:
+                return snapshot_with(self.devices, self.config.snapshot, **overrides)
+            except UnstableReading as e:
+                if not waits:
+                    raise
+                wait = waits.pop(0)
+                if on_retake is not None:
+                    on_retake(e, wait)
+                time.sleep(wait)
 
     # -- motion ----------------------------------------------------------------------------
     def move_to(self, qm: Sequence[float], timeout: float | None = None) -> None:
