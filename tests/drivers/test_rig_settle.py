@@ -30,23 +30,27 @@ def test_retake_waits_double_from_the_settle():
 
 @pytest.fixture(scope="module")
 def sim_rig(tmp_path_factory):
-    cfg = fast_config("agebot-sm", tmp_path_factory.mktemp("settle"))
+    """The unseen arm at the fixture's own speed (a long move: 0.7 s)."""
+    cfg = fast_config("agebot-sm", tmp_path_factory.mktemp("settle"), speed=1.0)
     with SimulatorProcess("agebot-sm", truth=str(UNSEEN), config=str(cfg), seed=23) as sim:
         with Rig(sim.station_config()) as rig:
             yield sim, rig
 
 
 def test_a_late_sensor_is_measured_again_once_it_settled(sim_rig):
-    """A fast move (0.19 s) with the inclinometer 0.25 s late, the snapshot at once
-    (the config's settle, 50 ms): still moving, told, measured again; what it keeps is
-    the pose at rest (a snapshot a second later, the lag gone, agrees)."""
+    """A 0.7 s move with the inclinometer 0.5 s late, the snapshot at once (the
+    config's settle, 50 ms; still inside the move should this process run up to 0.4 s
+    late): still moving, told, measured again; what it keeps is the pose at rest (a
+    snapshot a second later, the lag gone, agrees)."""
     sim, rig = sim_rig
     start = np.array(rig.qm())
     told = []
     with sim.control() as ctl:
-        ctl.call(faults={"inclinometer_lag_s": 0.25})
+        ctl.call(faults={"inclinometer_lag_s": 0.5})
     try:
+        t0 = time.monotonic()
         rig.move_to(start + np.array([20.0, 120.0, -100.0, 80.0]))
+        moved = time.monotonic() - t0
         snap = rig.snapshot(on_retake=lambda e, wait: told.append((e, wait)))
         with sim.control() as ctl:
             ctl.call(faults={"inclinometer_lag_s": 0.0})
@@ -56,6 +60,7 @@ def test_a_late_sensor_is_measured_again_once_it_settled(sim_rig):
         with sim.control() as ctl:
             ctl.call(faults={"inclinometer_lag_s": 0.0})
         rig.move_to(start)
+    assert moved > 0.6           # the premise: the lagged frames show the arm moving
     assert told and all(isinstance(e, UnstableReading) and e.channel == "tilt"
                         for e, _ in told)
     assert [w for _, w in told] == retake_waits(rig.config.snapshot.settle)[:len(told)]
@@ -90,7 +95,8 @@ def test_readings_that_never_settle_are_the_devices_fault(monkeypatch):
     rig.actuators, rig.inclinometer, rig.drawwire = Drifting(), None, None
     rig.actuators.open()
     slept, told = [], []
-    monkeypatch.setattr("drivers.rig.time.sleep", slept.append)
+    monkeypatch.setattr("drivers.rig.time", SimpleNamespace(sleep=slept.append,
+                                                            monotonic=time.monotonic))
     with pytest.raises(UnstableReading) as e:
         rig.snapshot(on_retake=lambda err, wait: told.append(wait))
     assert e.value.channel == "tilt" and e.value.kind == "drift"

@@ -84,10 +84,13 @@ def test_pm_fk_session(open_window, qtbot, tmp_path):
         ctl.call(faults={"drive_fault_node": 1})
     qtbot.waitUntil(lambda: ex.fault_box is not None, timeout=TIMEOUT)
     qtbot.mouseClick(ex.fault_box.answer_buttons["skip"], Qt.MouseButton.LeftButton)
-    # (a liveness wait: the rounds take 15 s alone, over a minute on a loaded machine;
-    # the SM wizard waits as long)
-    qtbot.waitUntil(ex.is_complete, timeout=180000)
+    # (a liveness wait: the rounds take 15 s alone; the SM wizard waits as long). A
+    # second question to the operator fails at once, saying what was asked
+    qtbot.waitUntil(lambda: ex.is_complete() or ex.fault_box is not None
+                    or not ex.running, timeout=180000)
+    assert ex.fault_box is None, (ex.fault_box.text(), ex.fault_box.informativeText())
     s = c.session
+    assert ex.is_complete(), (ex.status.text(), [e["message"] for e in s.events[-5:]])
     assert len(s.skipped) == 1 and ex.faults_asked == 1
     assert any(p.round == 1 for p in s.plan_poses)          # the main round was planned
     assert len(s.measured) == len(s.plan_poses) - 1
