@@ -145,7 +145,7 @@ class Rig:
         computer) are measured again after a wait, :data:`SETTLE_RETAKES` times at most
         (:func:`retake_waits`); ``on_retake(error, wait_s)`` is told before each wait.
         Still unstable after the last: that UnstableReading, the device's fault."""
-        waits = retake_waits(self.config.snapshot.settle)
+        waits = retake_waits(overrides.get("settle", self.config.snapshot.settle))
         while True:
             try:
                 return snapshot_with(self.devices, self.config.snapshot, **overrides)

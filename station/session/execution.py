@@ -144,9 +144,8 @@ class ExecutionLoop:
                     return False
                 if self.touching:
                     self._touch(pose)
-                snap = rig.snapshot(on_retake=lambda e, wait, i=pose.index: self._event(
-                    "info", f"pose {i}: {describe_error(e, self.units)}; still settling "
-                    f"after the move, measured again in {wait:g} s", plan_index=i))
+                snap = rig.snapshot(on_retake=self._settling(f"pose {pose.index}",
+                                                              plan_index=pose.index))
                 beyond = plausibility.range_problems(
                     self.config, {k: snap.mean.get(k) for k in self.inclinometer_channels},
                     f"at pose {pose.index}")

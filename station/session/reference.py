@@ -72,7 +72,7 @@ class ReferenceStep:
             found = plausibility.check_reference(self)   # a mis-configured device stops here
             if rig.drawwire is not None:
                 rig.zero_drawwire()
-            return found, rig.snapshot()
+            return found, rig.snapshot(on_retake=self._settling("the reference step"))
 
         found, snap = self._reference_retried("the reference step", capture)
         qm = np.array([snap.mean[f"qm{i + 1}"] for i in range(self.robot.n_actuators)])
@@ -122,7 +122,8 @@ class ReferenceStep:
             """Back at the reference, read the draw-wire; zero it where it lost its zero.
             A fault anywhere: all of it again (the zero where it is read anew)."""
             self.move_to(target)
-            now = _tare(self.rig.snapshot())
+            now = _tare(self.rig.snapshot(
+                on_retake=self._settling("the return to the reference")))
             if tare is not None:
                 se = math.hypot(tare["std"] / math.sqrt(max(tare["samples"], 1)),
                                 now["std"] / math.sqrt(max(now["samples"], 1)))

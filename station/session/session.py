@@ -55,6 +55,7 @@ from drivers.check import hint_for
 from drivers.config import StationConfig
 from station.fitting.outcome import BatchOutcome
 from station.outputs.params_file import read_params
+from station.outputs.units import describe_error
 from station.outputs.units import from_config as units_from_config
 from station.planning.envelope import limit_violation
 from station.planning.request import MUST_KNOW, PLANE, TOUCH_METHODS, PlanRequest, check_method
@@ -234,6 +235,14 @@ class Session(ReferenceStep, PlanningStep, ExecutionLoop, CalibrationStep, Retri
         self.events.append(rec)
         log.info("%s: %s", kind, message)
         self._notify("event", rec)
+
+    def _settling(self, what: str, **extra):
+        """The ``on_retake`` of :meth:`drivers.rig.Rig.snapshot` for ``what`` (a pose, a
+        reference step): each retake of a snapshot still settling is an ``info`` event."""
+        def told(error, wait: float) -> None:
+            self._event("info", f"{what}: {describe_error(error, self.units)}; still "
+                        f"settling after the move, measured again in {wait:g} s", **extra)
+        return told
 
     def _notify(self, kind: str, payload) -> None:
         if self.observer is not None:

@@ -68,3 +68,14 @@ def screenshot(win, name: str) -> None:
 
 def wait_idle(qtbot, controller, timeout=30000) -> None:
     qtbot.waitUntil(lambda: not controller.jobs.busy, timeout=timeout)
+
+
+def wait_measured(qtbot, page, session, timeout=180000) -> None:
+    """Wait until the Execute ``page`` finished measuring; a question to the operator (a
+    fault dialog nobody in the test answers) or a stopped run fails at once, saying what
+    was asked or why it stopped, instead of waiting out ``timeout`` (a liveness bound)."""
+    qtbot.waitUntil(lambda: page.is_complete() or page.fault_box is not None
+                    or not page.running, timeout=timeout)
+    box = page.fault_box
+    assert box is None, (box.text(), box.informativeText())
+    assert page.is_complete(), (page.status.text(), [e["message"] for e in session.events[-5:]])
