@@ -7,6 +7,14 @@ import pytest
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+# compiled modules cached (__pycache__, git-ignored) even where the environment says
+# not to (PYTHONDONTWRITEBYTECODE, as on the CI image): the suite starts some 230
+# Python processes (app.py commands, simulators, test workers), and without the
+# cache each compiles the project's modules and pytest rewrites each test module again
+# (0.35 s of CPU per `app.py run`); the tests read the same code either way
+if os.environ.pop("PYTHONDONTWRITEBYTECODE", None) is not None:
+    sys.dont_write_bytecode = False
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
@@ -26,6 +34,35 @@ def pytest_xdist_auto_num_workers(config):
         cores = os.cpu_count() or 1
     return min(2 * cores, 16)
 
+
+
+@pytest.hookimpl(trylast=True)     # after `-m`'s deselection: the list that is run
+def pytest_collection_modifyitems(config, items):
+    """Under xdist's ``worksteal`` (pyproject.toml's addopts) each worker is first sent an
+    equal, contiguous share of the collected tests, and a worker that runs out steals
+    from the end of another's share. The tests marked ``heavy`` (whole sessions of 15 s
+    or more on 2 cores) or ``slow`` are dealt round the workers and put first in each share, so
+    that none of them starts late and ends the suite alone on one core while the other
+    idles (the suite's last 20-30 s ran at 60-70 % of the cores: a 32 s SIGKILL resume
+    started when 300 of its 330 s had passed)."""
+    workers = getattr(config, "workerinput", {}).get("workercount", 0)    # on a worker
+    if workers < 2:
+        return
+    def heavy_(it):
+        return any(it.get_closest_marker(m) for m in ("heavy", "slow"))
+
+    heavy = [it for it in items if heavy_(it)]
+    light = [it for it in items if not heavy_(it)]
+    ordered, left, taken = [], len(items), 0
+    for k in range(workers):        # xdist's first split: left // (workers - k) each
+        size = left // (workers - k)
+        first = heavy[k::workers]
+        if len(first) > size:       # a selection of heavy tests alone: leave it be
+            return
+        ordered += first + light[taken:taken + size - len(first)]
+        taken += size - len(first)
+        left -= size
+    items[:] = ordered
 
 
 @pytest.fixture

@@ -57,6 +57,7 @@ def test_plain_residual_reports_honest_std():
     assert np.all((scatter > 0.8) & (scatter < 1.25)), scatter
 
 
+@pytest.mark.heavy
 def test_squared_residual_std_does_not_match_scatter():
     z_sq, *_ = _monte_carlo("squared")
     z_pl, *_ = _monte_carlo("plain")

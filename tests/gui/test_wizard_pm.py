@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from PySide6.QtCore import Qt
 
 from station.gui.pages import PageId
@@ -16,6 +18,7 @@ from tests.gui.test_wizard_sm import TIMEOUT, connect
 from tests.simconfig import quick_config
 
 
+@pytest.mark.heavy
 def test_pm_fk_session(open_window, qtbot, tmp_path):
     folder = tmp_path / "pm"
     win = open_window(config_path=str(quick_config(tmp_path / "station", "agebot-pm", speed=1.0)))

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from PySide6.QtCore import Qt
 
 from calibration.methods.sm_distance_tilt import reframe_nominal
@@ -32,6 +33,7 @@ def connect(qtbot, win, folder, robot, method, count):
     return setup
 
 
+@pytest.mark.heavy
 def test_sm_distance_tilt_session(open_window, qtbot, tmp_path, answers):
     folder = tmp_path / "sm"
     station = str(quick_config(tmp_path / "station", "agebot-sm"))

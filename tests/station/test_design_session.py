@@ -10,6 +10,7 @@ import sys
 
 import pytest
 
+import app
 from station.headless import parse_target
 from calibration.errors import ConfigError
 from tests.simconfig import quick_config
@@ -18,13 +19,17 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 
 
-def _start(out, *extra) -> subprocess.Popen:
-    """``app.py run --simulate`` of the wrist on the tests' quick simulated station,
-    started (each its own simulator on its own ports: independent runs go at once)."""
+def _args(out, *extra) -> list[str]:
+    """``app.py run --simulate`` of the wrist on the tests' quick simulated station (each
+    run its own simulator on its own ports and its own config beside ``out``)."""
     cfg = quick_config(out.parent / f"station-{out.name}", "agebot-pm")
-    return subprocess.Popen([sys.executable, os.path.join(ROOT, "app.py"), "run", "--simulate",
-                             "--robot", "agebot-pm", "--method", "pm-fk", "--config", str(cfg),
-                             "--out", str(out), *extra],
+    return ["run", "--simulate", "--robot", "agebot-pm", "--method", "pm-fk", "--config",
+            str(cfg), "--out", str(out), *extra]
+
+
+def _start(out, *extra) -> subprocess.Popen:
+    """:func:`_args` as a command, started (it runs beside the test)."""
+    return subprocess.Popen([sys.executable, os.path.join(ROOT, "app.py"), *_args(out, *extra)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
 
 
@@ -33,8 +38,14 @@ def _done(proc: subprocess.Popen) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
 
-def _run(out, *extra) -> subprocess.CompletedProcess:
-    return _done(_start(out, *extra))
+def _here(capsys, out, *extra) -> subprocess.CompletedProcess:
+    """:func:`_args` run in this process (app.main), its output captured: for the runs
+    whose report is not read (the ``no_report`` fixture), without a second interpreter
+    and its imports."""
+    capsys.readouterr()
+    rc = app.main(_args(out, *extra))
+    got = capsys.readouterr()
+    return subprocess.CompletedProcess(["app.py", *_args(out, *extra)], rc, got.out, got.err)
 
 
 def _plans(out):
@@ -42,12 +53,14 @@ def _plans(out):
     return [e for e in events if e.get("record") == "event" and e.get("kind") == "plan"]
 
 
-def test_wrist_rounds_are_designed_and_a_target_adds_poses(tmp_path):
-    # the runs that do not need the first one's figures go beside it
-    started = {name: _start(tmp_path / name, *extra) for name, extra in (
-        ("base", ()), ("random", ("--design", "random")), ("far", ("--target-std", "1e-9")))}
-    runs = {name: _done(proc) for name, proc in started.items()}
-    base = runs["base"]
+@pytest.mark.heavy
+def test_wrist_rounds_are_designed_and_a_target_adds_poses(tmp_path, capsys, no_report):
+    # the first run, whose report is read, as a command beside the test; the runs that
+    # do not need its figures meanwhile in this process, without their reports
+    proc = _start(tmp_path / "base")
+    rnd = _here(capsys, tmp_path / "random", "--design", "random")
+    far = _here(capsys, tmp_path / "far", "--target-std", "1e-9")
+    base = _done(proc)
     assert base.returncode == 0, base.stderr
     plans = _plans(tmp_path / "base")
     final = plans[-1]["wrist"]
@@ -60,17 +73,15 @@ def test_wrist_rounds_are_designed_and_a_target_adds_poses(tmp_path):
     n_base = len(plans[-1]["poses"])
 
     goal = pred["rms"] / 2
-    tight = _run(tmp_path / "tight", "--target-std", repr(goal))
+    tight = _here(capsys, tmp_path / "tight", "--target-std", repr(goal))
     assert tight.returncode == 0, tight.stderr
     final_t = _plans(tmp_path / "tight")[-1]
     assert len(final_t["poses"]) > n_base
     assert final_t["wrist"]["design"]["predicted_heldout"]["rms"] <= goal
 
-    rnd = runs["random"]
     assert rnd.returncode == 0, rnd.stderr
     assert all("design" not in p["wrist"] for p in _plans(tmp_path / "random"))
 
-    far = runs["far"]
     assert far.returncode == 2 and "even all" in far.stderr and "Traceback" not in far.stderr
 
 

@@ -86,6 +86,7 @@ def test_a_held_out_reading_6_std_off_is_refused_3_std_is_not(honest, tmp_path):
     assert outcome.quality.passed
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("method", ["sm-distance-tilt", "sm-distance"])
 def test_honest_traces_are_not_refused_for_their_held_out_readings(tmp_path, method):
     """Fifty clean traces of drawn robots, ten poses held out: at most one refused

@@ -59,6 +59,7 @@ def test_a_stale_lock_of_a_killed_run_is_taken_over(tmp_path):
     assert any(f"pid {p.pid}" in m and "no longer running" in m for m in taken), taken
 
 
+@pytest.mark.heavy
 def test_two_headless_sessions_on_one_folder(tmp_path):
     """The second `app.py run` on a folder in use exits with one line naming the first
     one's process; the first finishes with a readable trace."""

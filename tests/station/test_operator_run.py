@@ -8,6 +8,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from tests.simconfig import quick_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -49,6 +51,7 @@ def values(folder):
     return {k: p["value"] for k, p in doc["parameters"].items()}
 
 
+@pytest.mark.heavy
 def test_default_runs_are_reproducible_and_a_finished_folder_stays(tmp_path):
     a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
     # three runs at once (reproducible however the machine's load times them); c with

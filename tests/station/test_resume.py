@@ -159,6 +159,7 @@ SM_POINTS = [(0, True), (1, False), (2, True), (3, False), (4, False), (4, True)
 PM_POINTS = [(0, True), (1, False), (1, True), (3, False), (14, False), (15, True), (-3, False)]
 
 
+@pytest.mark.heavy
 def test_kill_at_key_lines_sm_distance_tilt(tmp_path, no_report):
     """Between the reference and the plan (the case that once gave L2 = -1.25 m),
     mid-line, mid-poses and after the last pose."""
@@ -167,6 +168,7 @@ def test_kill_at_key_lines_sm_distance_tilt(tmp_path, no_report):
     assert n == len(SM_POINTS) and worst < 1e-6
 
 
+@pytest.mark.heavy
 def test_kill_at_key_lines_pm_fk(tmp_path, no_report):
     n, worst = _kill_everywhere(tmp_path, "agebot-pm", "pm-fk",
                                 PlanRequest(count=14, validation=2, seed=2), _pm_known(),

@@ -194,6 +194,7 @@ def _within_family_bound(s, truth, state):
     return z, res
 
 
+@pytest.mark.heavy
 def test_ur5_hayati_session_matches_the_truth_point_to_point(tmp_path):
     truth, files, s, state = _session(tmp_path, HAYATI, seed=8101, count=40)
     # every calibrated parameter within its family bound (3.6-3.9 std for 27) of the truth
@@ -210,6 +211,7 @@ def test_ur5_hayati_session_matches_the_truth_point_to_point(tmp_path):
     assert Path(files["urdf"]).exists() and Path(files["report"]).exists()
 
 
+@pytest.mark.heavy
 def test_robot_file_session_resumes_exactly_after_a_kill(tmp_path, no_report):
     """Killed between the reference and the plan, mid-line and mid-poses, the robot
     file's session resumes to the uninterrupted one's readings and result
@@ -237,6 +239,7 @@ def test_robot_file_session_resumes_exactly_after_a_kill(tmp_path, no_report):
             assert _check_same(case, k, records, x) < 1e-6
 
 
+@pytest.mark.heavy
 def test_a_pose_below_the_real_floor_faults_and_is_skipped(tmp_path, no_report, quick_retries):
     """The engineer's start value puts the arm's base 25 cm higher than it is, so some
     planned poses are below the real floor: the simulated drive faults naming the floor
@@ -310,6 +313,7 @@ def test_cli_run_on_a_ur5_like_arm(tmp_path, robot_file, seed):
     assert (out / "calibrated.urdf").exists()
 
 
+@pytest.mark.heavy
 def test_sm_distance_session_on_a_robot_file(tmp_path, no_report):
     """sm-distance (draw-wire only) on the UR5-like arm: distances from the reference
     point alone calibrate the arm's shape (point to point)."""

@@ -191,6 +191,7 @@ def _poses_in(path: Path) -> int:
         return 0
 
 
+@pytest.mark.heavy
 def test_sigkill_mid_session_resumes_to_the_same_result(tmp_path):
     """A session killed with SIGKILL resumes from its trace (no pose measured twice,
     none lost) and calibrates exactly what the trace holds; with the station's
@@ -370,6 +371,7 @@ def test_a_late_inclinometer_is_measured_again_not_asked_about(tmp_path):
     assert abs(rec["tilt"] - last.mean["tilt"]) < 1e-3
 
 
+@pytest.mark.heavy
 def test_a_flaky_cable_session_completes(tmp_path, quick_retries, no_report):
     """5 % of the frames on every link lost and 5 % corrupted (CAN TPDOs, inclinometer
     frames, Modbus answers): lost TPDOs cost another SYNC, bad frames are dropped by

@@ -39,6 +39,7 @@ def _gear_deviation(truth) -> np.ndarray:
                      for i in range(1, 5)])
 
 
+@pytest.mark.heavy
 def test_a_far_off_arm_completes_inside_the_envelope(tmp_path):
     """Three gear ratios a third off the nominal: planned with the nominal, poses would
     land up to 80 deg outside the box. The session scouts near the reference, refits,
@@ -67,6 +68,7 @@ def test_a_far_off_arm_completes_inside_the_envelope(tmp_path):
                    if e["kind"] in ("info", "warning") and "refit" in e["message"])
 
 
+@pytest.mark.heavy
 def test_a_distance_session_beside_an_inclinometer_is_watched_in_tilt(tmp_path):
     """sm-distance on a drawn arm whose distances alone admit a mirrored model after the
     scout (bench seed 9160: its middle round went 0.27 m and 0.18 rad beyond the box,

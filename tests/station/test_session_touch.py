@@ -96,6 +96,7 @@ def _drop_last_pose_line(path: Path) -> dict:
     return json.loads(lines[k])
 
 
+@pytest.mark.heavy
 def test_sm_self_redundancy_pairs_resume_and_skip_whole(tmp_path):
     cfg = fast_config(tmp_path, "agebot-sm")
     truth = load_truth(UNSEEN)
@@ -166,6 +167,7 @@ def test_sm_self_redundancy_pairs_resume_and_skip_whole(tmp_path):
     assert all(v["unit"] == "m" and v["rms_after"] < 2e-6 for v in val.values())
 
 
+@pytest.mark.heavy
 def test_app_run_simulate_sm_plane_from_the_command_line(tmp_path):
     cfg = fast_config(tmp_path, "agebot-sm")
     out = tmp_path / "run"

@@ -70,6 +70,7 @@ def _table(stdout: str) -> list[str]:
     return [ln for ln in stdout.splitlines() if ln.startswith(("optimal", "random"))]
 
 
+@pytest.mark.heavy
 def test_study_same_figures_on_a_hand_started_scheduler(tmp_path, scheduler):
     args = ["study", "--method", "sm-distance", "--robots", "3", "--seed", "7"]
     local = _app(*args, "--workers", "1", "--out", str(tmp_path / "local"))
