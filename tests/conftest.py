@@ -41,25 +41,31 @@ def pytest_collection_modifyitems(config, items):
     """Under xdist's ``worksteal`` (pyproject.toml's addopts) each worker is first sent an
     equal, contiguous share of the collected tests, and a worker that runs out steals
     from the end of another's share. The tests marked ``heavy`` (whole sessions of 15 s
-    or more on 2 cores) or ``slow`` are dealt round the workers and put first in each share, so
-    that none of them starts late and ends the suite alone on one core while the other
-    idles (the suite's last 20-30 s ran at 60-70 % of the cores: a 32 s SIGKILL resume
-    started when 300 of its 330 s had passed)."""
+    or more on 2 cores) or ``slow`` are dealt round the workers and spread over the first
+    half of each share, a few light tests after each: none of them starts late and ends
+    the suite alone on one core (a 32 s SIGKILL resume began 300 s into a 330 s run),
+    and their waits (moves, kills, timeouts) overlap other workers' computing (with the
+    heavy tests all first, the cores were 75-85 % busy while they ran)."""
     workers = getattr(config, "workerinput", {}).get("workercount", 0)    # on a worker
     if workers < 2:
         return
-    def heavy_(it):
-        return any(it.get_closest_marker(m) for m in ("heavy", "slow"))
 
-    heavy = [it for it in items if heavy_(it)]
-    light = [it for it in items if not heavy_(it)]
+    def is_heavy(item):
+        return any(item.get_closest_marker(m) for m in ("heavy", "slow"))
+
+    heavy = [it for it in items if is_heavy(it)]
+    light = [it for it in items if not is_heavy(it)]
     ordered, left, taken = [], len(items), 0
     for k in range(workers):        # xdist's first split: left // (workers - k) each
         size = left // (workers - k)
         first = heavy[k::workers]
         if len(first) > size:       # a selection of heavy tests alone: leave it be
             return
-        ordered += first + light[taken:taken + size - len(first)]
+        share = light[taken:taken + size - len(first)]
+        gap = (size // 2) // max(1, len(first))      # light tests after each heavy one
+        for j, item in enumerate(first):
+            share.insert(j * (gap + 1), item)
+        ordered += share
         taken += size - len(first)
         left -= size
     items[:] = ordered
