@@ -60,6 +60,42 @@ def test_a_move_inside_the_envelope_is_not_stopped():
     assert all(np.all(a[k] <= PASSIVE_RANGE[k]) for k in PASSIVE_RANGE)
 
 
+
+def test_a_walk_taken_at_once_finds_what_the_walk_point_by_point_finds(monkeypatch):
+    """The walk since the last check is solved at once where it stays inside the
+    envelope (drivers.sim.robot.SimulatedAgebot._walk_at_once), else point by point:
+    over random moves, some out past a limit, the same stops and the same poses as
+    point by point alone."""
+    rng = np.random.default_rng(7)
+    envelope = [[1500, 2600], [900, 2000], [1200, 2400]]
+    both, alone = _robot(envelope), _robot(envelope)
+    monkeypatch.setattr(alone[0], "_walk_at_once", lambda Q, X: None)
+    at_once, walk = [], both[0]._walk_at_once
+
+    def counted(Q, X):
+        poses = walk(Q, X)
+        if poses is not None:
+            at_once.append(len(poses))
+        return poses
+    monkeypatch.setattr(both[0], "_walk_at_once", counted)
+    hits = 0
+    for _ in range(40):
+        target = both[0].qm() + rng.uniform(-500.0, 500.0, 3)
+        for robot, _ in (both, alone):
+            robot.move_to(target)
+        for dt in (rng.uniform(0.02, 0.3), 10.0):   # during the move, then after it
+            seen = []
+            for robot, clock in (both, alone):
+                clock.t += dt
+                seen.append((robot.supervise(), robot.qm(), robot._checked[2]))
+            assert seen[0][0] == seen[1][0]
+            assert np.allclose(seen[0][1], seen[1][1], atol=1e-9)
+            assert np.allclose(seen[0][2], seen[1][2], atol=1e-9)
+            hits += seen[0][0] is not None
+    print("hits", hits, "walks at once", len(at_once), "points", sum(at_once))
+    assert 5 <= hits and len(at_once) >= 20     # both kinds of walk were taken
+
+
 def test_a_too_far_command_faults_with_the_limit_named_over_the_wire(tmp_path):
     cfg = fast_config(tmp_path, "agebot-pm")
     text = cfg.read_text().replace("qm_max = [6000.0, 6000.0, 6000.0]",
