@@ -109,7 +109,10 @@ NAMED = {
 def _env(extra_path: Path) -> dict:
     env = dict(os.environ)
     env.update(PYTHONPATH=str(extra_path), OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
-               QT_QPA_PLATFORM="offscreen", PYTHONDONTWRITEBYTECODE="1")
+               QT_QPA_PLATFORM="offscreen")
+    # (tests/conftest.py caches compiled modules whatever PYTHONDONTWRITEBYTECODE says:
+    # a mutant's files do not change while its tests run, and a named mutant's edit
+    # comes a test run, seconds, after the last compile of the file)
     return env
 
 

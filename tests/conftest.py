@@ -11,7 +11,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 # not to (PYTHONDONTWRITEBYTECODE, as on the CI image): the suite starts some 230
 # Python processes (app.py commands, simulators, test workers), and without the
 # cache each compiles the project's modules and pytest rewrites each test module again
-# (0.35 s of CPU per `app.py run`); the tests read the same code either way
+# (0.35 s of CPU per `app.py run`); a cached module is checked against its source's
+# modification time (whole seconds) and size, as Python always does
 if os.environ.pop("PYTHONDONTWRITEBYTECODE", None) is not None:
     sys.dont_write_bytecode = False
 
@@ -35,7 +36,6 @@ def pytest_xdist_auto_num_workers(config):
     return min(2 * cores, 16)
 
 
-
 @pytest.hookimpl(trylast=True)     # after `-m`'s deselection: the list that is run
 def pytest_collection_modifyitems(config, items):
     """Under xdist's ``worksteal`` (pyproject.toml's addopts) each worker is first sent an
@@ -45,7 +45,8 @@ def pytest_collection_modifyitems(config, items):
     half of each share, a few light tests after each: none of them starts late and ends
     the suite alone on one core (a 32 s SIGKILL resume began 300 s into a 330 s run),
     and their waits (moves, kills, timeouts) overlap other workers' computing (with the
-    heavy tests all first, the cores were 75-85 % busy while they ran)."""
+    heavy tests all first, the cores were 75-85 % busy while they ran). A module whose
+    tests are split so may set up its module-scoped fixtures more than once."""
     workers = getattr(config, "workerinput", {}).get("workercount", 0)    # on a worker
     if workers < 2:
         return
@@ -59,7 +60,7 @@ def pytest_collection_modifyitems(config, items):
     for k in range(workers):        # xdist's first split: left // (workers - k) each
         size = left // (workers - k)
         first = heavy[k::workers]
-        if len(first) > size:       # a selection of heavy tests alone: leave it be
+        if len(first) > size:       # more heavy tests than this share holds: keep the order
             return
         share = light[taken:taken + size - len(first)]
         gap = (size // 2) // max(1, len(first))      # light tests after each heavy one

@@ -4,6 +4,7 @@ target adds poses, and the report puts predicted and achieved side by side."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -38,14 +39,19 @@ def _done(proc: subprocess.Popen) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
 
-def _here(capsys, out, *extra) -> subprocess.CompletedProcess:
+def _here(capsys, caplog, out, *extra) -> subprocess.CompletedProcess:
     """:func:`_args` run in this process (app.main), its output captured: for the runs
     whose report is not read (the ``no_report`` fixture), without a second interpreter
-    and its imports."""
+    and its imports. A traceback the command would print goes to pytest's log capture
+    here, not to the output: one logged with an exception is put in ``stderr``."""
+    args = _args(out, *extra)
     capsys.readouterr()
-    rc = app.main(_args(out, *extra))
+    caplog.clear()
+    rc = app.main(args)
     got = capsys.readouterr()
-    return subprocess.CompletedProcess(["app.py", *_args(out, *extra)], rc, got.out, got.err)
+    logged = "".join(f"Traceback (logged): {r.getMessage()}\n" for r in caplog.records
+                     if r.exc_info)
+    return subprocess.CompletedProcess(["app.py", *args], rc, got.out, got.err + logged)
 
 
 def _plans(out):
@@ -54,12 +60,18 @@ def _plans(out):
 
 
 @pytest.mark.heavy
-def test_wrist_rounds_are_designed_and_a_target_adds_poses(tmp_path, capsys, no_report):
+# a thread of an in-process run that dies fails the test, as its traceback would in a command's stderr
+@pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+def test_wrist_rounds_are_designed_and_a_target_adds_poses(tmp_path, capsys, caplog, no_report,
+                                                           monkeypatch):
     # the first run, whose report is read, as a command beside the test; the runs that
-    # do not need its figures meanwhile in this process, without their reports
+    # do not need its figures meanwhile in this process, without their reports (app.main
+    # quiets pymodbus's logger: restored after the test)
+    pymodbus = logging.getLogger("pymodbus")
+    monkeypatch.setattr(pymodbus, "level", pymodbus.level)
     proc = _start(tmp_path / "base")
-    rnd = _here(capsys, tmp_path / "random", "--design", "random")
-    far = _here(capsys, tmp_path / "far", "--target-std", "1e-9")
+    rnd = _here(capsys, caplog, tmp_path / "random", "--design", "random")
+    far = _here(capsys, caplog, tmp_path / "far", "--target-std", "1e-9")
     base = _done(proc)
     assert base.returncode == 0, base.stderr
     plans = _plans(tmp_path / "base")
@@ -73,13 +85,13 @@ def test_wrist_rounds_are_designed_and_a_target_adds_poses(tmp_path, capsys, no_
     n_base = len(plans[-1]["poses"])
 
     goal = pred["rms"] / 2
-    tight = _here(capsys, tmp_path / "tight", "--target-std", repr(goal))
-    assert tight.returncode == 0, tight.stderr
+    tight = _here(capsys, caplog, tmp_path / "tight", "--target-std", repr(goal))
+    assert tight.returncode == 0 and "Traceback" not in tight.stderr, tight.stderr
     final_t = _plans(tmp_path / "tight")[-1]
     assert len(final_t["poses"]) > n_base
     assert final_t["wrist"]["design"]["predicted_heldout"]["rms"] <= goal
 
-    assert rnd.returncode == 0, rnd.stderr
+    assert rnd.returncode == 0 and "Traceback" not in rnd.stderr, rnd.stderr
     assert all("design" not in p["wrist"] for p in _plans(tmp_path / "random"))
 
     assert far.returncode == 2 and "even all" in far.stderr and "Traceback" not in far.stderr
