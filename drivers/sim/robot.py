@@ -281,9 +281,9 @@ class SimulatedAgebot:
         walk follows on from ``X`` (no step above :data:`WALK_JUMP`: the assembly kept);
         else None, and :meth:`supervise` walks point by point (each from the last),
         which finds and names the first point beyond. A drive's state is read over
-        SDO and answered after this walk: point by point a 300-unit move took 30-45 ms
-        of the simulator's CPU, enough on a loaded machine to miss the station's
-        0.5 s SDO timeout; at once about a tenth of that."""
+        SDO and answered after this walk: point by point a 200-400 unit move took
+        30-45 ms of the simulator's CPU, a share of the station's 0.5 s SDO timeout
+        that grows on a loaded machine; at once about a tenth of that."""
         try:
             Xs = self.model.fk(Q, self._xi, guess=X)
         except CalibrationError:
