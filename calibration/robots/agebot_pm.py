@@ -302,6 +302,22 @@ def envelope_hit(X, xi, qm=None, qm_range=None) -> tuple[str, int, str] | None:
     return None
 
 
+
+def beyond_envelope(X, xi, qm, qm_range=None) -> np.ndarray:
+    """:func:`envelope_hit` for many poses at once, as yes or no: ``(m,)`` True where
+    the pose ``X[i]`` (actuator values ``qm[i]``, both ``(m, 3)``) would hit something
+    (the same comparisons: a rod that cannot reach, a slider outside ``qm_range``, a
+    passive joint outside :data:`PASSIVE_RANGE`). :func:`envelope_hit` names what."""
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    qm = np.asarray(qm, dtype=float).reshape(len(X), 3)
+    bad = ~np.isfinite(qm).all(axis=1)
+    if qm_range is not None:
+        lo, hi = np.asarray(qm_range, dtype=float).T
+        bad |= ((qm < lo) | (qm > hi)).any(axis=1)
+    for name, a in passive_angles(X, xi).items():
+        bad |= (np.asarray(a).reshape(len(X), -1) > PASSIVE_RANGE[name]).any(axis=1)
+    return bad
+
 def envelope_violation(X, xi, qm=None, qm_range=None) -> str | None:
     """:func:`envelope_hit` in words (None: the pose is inside the envelope)."""
     hit = envelope_hit(X, xi, qm, qm_range)

@@ -68,9 +68,9 @@ import numpy as np
 
 from calibration.errors import CalibrationError, ConfigError, UnreachablePose
 from calibration.robots import get_robot
-from calibration.robots.agebot_pm import (PASSIVE_RANGE, envelope_hit,
+from calibration.robots.agebot_pm import (beyond_envelope, envelope_hit,
                                           gravity_tilt,  # noqa: F401 (re-exported: the one tilt convention)
-                                          passive_angles, rot_xyz, sensor_heading)
+                                          rot_xyz, sensor_heading)
 from drivers.sim.axis import SimAxis
 from drivers.sim.faults import FaultPlan
 from drivers.sim.truth import SimTruth
@@ -290,12 +290,7 @@ class SimulatedAgebot:
             return None
         if np.max(np.abs(np.diff(np.vstack([X, Xs]), axis=0))) > WALK_JUMP:
             return None
-        bad = np.zeros(len(Q), dtype=bool)
-        if self.qm_range is not None:
-            bad |= ((Q < self.qm_range[:, 0]) | (Q > self.qm_range[:, 1])).any(axis=1)
-        for name, a in passive_angles(Xs, self._xi).items():
-            bad |= (np.asarray(a).reshape(len(Q), -1) > PASSIVE_RANGE[name]).any(axis=1)
-        return None if bad.any() else Xs
+        return None if beyond_envelope(Xs, self._xi, Q, self.qm_range).any() else Xs
 
     def target_reached(self) -> bool:
         return all(a.target_reached() for a in self.axes)

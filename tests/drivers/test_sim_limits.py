@@ -96,6 +96,21 @@ def test_a_walk_taken_at_once_finds_what_the_walk_point_by_point_finds(monkeypat
     assert 5 <= hits and len(at_once) >= 20     # both kinds of walk were taken
 
 
+
+def test_beyond_envelope_says_what_envelope_hit_says_pose_by_pose():
+    """The at-once check (calibration.robots.agebot_pm.beyond_envelope) and the one
+    that names what is hit agree on every pose, inside and beyond."""
+    from calibration.robots.agebot_pm import AgebotPM, beyond_envelope
+
+    robot, _ = _robot()
+    xi, rng = robot.xi, np.random.default_rng(3)
+    X = rng.uniform(-0.6, 0.6, (400, 3))
+    qm = AgebotPM().ik_actuators(X, xi, strict=False)
+    qm_range = [[1500, 2600], [900, 2000], [1200, 2400]]
+    got = beyond_envelope(X, xi, qm, qm_range)
+    want = [envelope_hit(x, xi, q, qm_range) is not None for x, q in zip(X, qm)]
+    assert got.tolist() == want and 20 < sum(want) < 380
+
 def test_a_too_far_command_faults_with_the_limit_named_over_the_wire(tmp_path):
     cfg = fast_config(tmp_path, "agebot-pm")
     text = cfg.read_text().replace("qm_max = [6000.0, 6000.0, 6000.0]",
