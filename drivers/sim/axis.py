@@ -142,6 +142,12 @@ class SimAxis:
     def target(self) -> float:
         return self._target
 
+    def profile_ratio(self) -> tuple[float, float]:
+        """The move under way's (or the last one's) velocity and acceleration as
+        fractions of the axis's defaults: ``(1, 1)`` for a move at the configured profile."""
+        with self._lock:
+            return self._v / self.velocity, self._a / self.acceleration
+
     def target_reached(self) -> bool:
         with self._lock:
             return self._clock() - self._t0 >= self._duration()

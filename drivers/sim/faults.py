@@ -7,6 +7,7 @@ each simulated device consults it where the fault would happen on the wire.
 """
 from __future__ import annotations
 
+import math
 import random
 import threading
 from dataclasses import dataclass, field, fields
@@ -30,6 +31,14 @@ class FaultPlan:
                       answer (a lost answer: the client times out); counts down to 0.
     drawwire_answer_first: how many requests are answered before those (counts down
                       first): a lost answer at an exact request, e.g. in mid-snapshot.
+    glitch_qm:        actuator values of a pose whose readings are disturbed while the
+                      arm rests there, reached at the configured motion profile (a cable
+                      brushing the wire, a knock on the sensor: a measurement again,
+                      approached slower, reads the pose as it is); empty: none.
+    glitch_distance_m: what the draw-wire then reads more (m).
+    glitch_tilt_deg:  what the inclinometer's pitch (the arm's tilt) then reads more (deg).
+    glitch_persists:  the disturbance is there however the pose is approached (the wire
+                      rubbing on an edge there): measuring again confirms it.
     seed:             seed of the fault random generator.
     """
 
@@ -44,6 +53,10 @@ class FaultPlan:
     inclinometer_lag_s: float = 0.0
     drawwire_unanswered: int = 0
     drawwire_answer_first: int = 0
+    glitch_qm: list[float] = field(default_factory=list)
+    glitch_distance_m: float = 0.0
+    glitch_tilt_deg: float = 0.0
+    glitch_persists: bool = False
     seed: int | None = None
 
     def __post_init__(self):
@@ -85,7 +98,8 @@ class FaultPlan:
         self.update(drop_prob=0.0, corrupt_prob=0.0, late_s=0.0, silent_nodes=set(),
                     drive_fault_node=0, modbus_exception=0, inclinometer_silent=False,
                     drawwire_down=False, inclinometer_lag_s=0.0, drawwire_unanswered=0,
-                    drawwire_answer_first=0)
+                    drawwire_answer_first=0, glitch_qm=[], glitch_distance_m=0.0,
+                    glitch_tilt_deg=0.0, glitch_persists=False)
 
     def as_dict(self) -> dict:
         return {f.name: (sorted(getattr(self, f.name)) if f.name == "silent_nodes"
@@ -100,8 +114,10 @@ RANGES = {"drop_prob": ("probability", 0.0, 1.0), "corrupt_prob": ("probability"
           "inclinometer_lag_s": ("seconds", 0.0, MAX_DELAY_S),
           "drive_fault_node": ("node", 0, 127), "modbus_exception": ("code", 0, 255),
           "drawwire_unanswered": ("count", 0, 10 ** 9),
-          "drawwire_answer_first": ("count", 0, 10 ** 9)}
-FLAGS = ("inclinometer_silent", "drawwire_down")
+          "drawwire_answer_first": ("count", 0, 10 ** 9),
+          "glitch_distance_m": ("metres", -1.0, 1.0),
+          "glitch_tilt_deg": ("degrees", -90.0, 90.0)}
+FLAGS = ("inclinometer_silent", "drawwire_down", "glitch_persists")
 
 
 def checked(key: str, value):
@@ -119,12 +135,20 @@ def checked(key: str, value):
                for n in nodes):
             raise bad("a list of node ids (1..127)")
         return set(nodes)
+    if key == "glitch_qm":
+        if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):
+            raise bad("a list of actuator values")
+        qm = list(value)
+        if any(isinstance(q, bool) or not isinstance(q, (int, float)) or not math.isfinite(q)
+               for q in qm):
+            raise bad("a list of actuator values")
+        return [float(q) for q in qm]
     if key in FLAGS:
         if not isinstance(value, bool):
             raise bad("true or false")
         return value
     kind, lo, hi = RANGES[key]
-    if kind in ("probability", "seconds"):
+    if kind in ("probability", "seconds", "metres", "degrees"):
         if isinstance(value, bool) or not isinstance(value, (int, float)) \
                 or not lo <= value <= hi:       # NaN fails too
             raise bad(f"a number of {kind} from {lo:g} to {hi:g}")

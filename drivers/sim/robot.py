@@ -82,6 +82,12 @@ HOME = {"agebot-sm": (1.2, 1.4, 0.0, 0.0), "agebot-pm": (0.0, 0.0, 0.0)}
 VELOCITY = {"agebot-sm": (50.0, 200.0, 200.0, 200.0), "agebot-pm": (3000.0,) * 3}
 ACCELERATION = {"agebot-sm": (400.0, 2000.0, 2000.0, 2000.0), "agebot-pm": (30000.0,) * 3}
 SUPERVISE_STEP = 20.0      # actuator units between two checks of the PM's envelope
+#: a move's velocity and acceleration within this relative difference of the axis's
+#: defaults is at the configured profile (the drives take them in whole increments)
+PROFILE_RTOL = 1e-3
+#: actuator units: the arm is at the fault plan's ``glitch_qm`` where every axis's target
+#: is this close (the drives take targets in whole increments)
+GLITCH_QM = 1e-4
 #: the largest change of orientation (rad) between two points of a walk taken at once
 #: (:meth:`SimulatedAgebot._walk_at_once`); larger, the assembly may have flipped
 WALK_JUMP = 0.1
@@ -112,10 +118,13 @@ class SimulatedAgebot:
     velocity, acceleration: per-axis defaults of the axes (actuator units/s, /s^2).
     clock:   time source of the axes (tests may pass a fake one).
     pose_noise: the noise of a reading taken at rest is a function of the seed, the
-             channel and the axes' targets (the same pose reads the same values, whenever
-             and however often it is visited); readings while moving keep drawing from
-             the generator. For tests that compare a resumed session with an
-             uninterrupted one reading by reading.
+             channel, the axes' targets and how the axes came there (:meth:`approach`):
+             the same pose reached at the configured motion profile reads the same
+             values, whenever and however often it is visited (for tests that compare a
+             resumed session with an uninterrupted one reading by reading), and reached
+             with another profile (the station's slower approach when it measures a
+             reading again) a draw of its own, as a real sensor's next reading would be;
+             readings while moving keep drawing from the generator.
     qm_range: PM slider stroke ``(3, 2)`` (actuator units), or None (no stroke limit).
     """
 
@@ -210,12 +219,24 @@ class SimulatedAgebot:
             return 0.0 if size is None else np.zeros(size)
         if self.pose_noise and self.target_reached():
             pose = tuple(round(a.target, 9) for a in self.axes)
-            digest = hashlib.blake2b(repr((self._seed, channel, key, pose)).encode(),
+            how = self.approach()
+            digest = hashlib.blake2b(repr((self._seed, channel, key, pose)
+                                          + (() if how is None else (how,))).encode(),
                                      digest_size=8).digest()
             return np.random.default_rng(int.from_bytes(digest, "little")).normal(0.0, sigma,
                                                                                   size)
         with self._lock:
             return self._rng.normal(0.0, sigma, size)
+
+    def approach(self) -> tuple | None:
+        """How the axes came to where they are: None at the configured motion profile
+        (every axis's last move at its default velocity and acceleration, to the
+        rounding of the drives' integer increments), else each axis's velocity and
+        acceleration as fractions of its defaults (rounded to 1e-3)."""
+        ratios = [r for a in self.axes for r in a.profile_ratio()]
+        if all(abs(r - 1.0) <= PROFILE_RTOL for r in ratios):
+            return None
+        return tuple(round(r, 3) for r in ratios)
 
     # -- motion ------------------------------------------------------------------------------
     def move_to(self, qm, velocity=None, acceleration=None) -> None:
@@ -326,7 +347,8 @@ class SimulatedAgebot:
         roll, pitch, yaw = self.inclinometer_angles()
         sm = self.model.name == "agebot-sm"
         roll += self._noise("roll")
-        pitch += self._noise("tilt" if sm else "pitch")
+        pitch += self._noise("tilt" if sm else "pitch") + math.radians(
+            self.glitch(self.faults.glitch_tilt_deg))
         if not sm:
             yaw += self._noise("yaw")
         return tuple(_wrap_deg(math.degrees(a)) for a in (roll, pitch, yaw))
@@ -345,9 +367,22 @@ class SimulatedAgebot:
             return self._anchor.copy()
 
     def drawwire_length(self) -> float:
-        """Cable length from the anchor, m: ``|p - anchor| + noise('distance')``."""
+        """Cable length from the anchor, m: ``|p - anchor| + noise('distance')`` (and a
+        disturbance: :meth:`glitch`)."""
         d = float(np.linalg.norm(self.ee_position() - self.anchor))
-        return d + float(self._noise("distance"))
+        return d + float(self._noise("distance")) + self.glitch(self.faults.glitch_distance_m)
+
+    def glitch(self, offset: float) -> float:
+        """``offset`` while the arm rests at the fault plan's ``glitch_qm`` reached at the
+        configured profile (:meth:`approach`; any way with ``glitch_persists``), else 0:
+        a reading disturbed at one pose."""
+        f = self.faults
+        at = f.glitch_qm
+        if not offset or len(at) != len(self.axes) or not self.target_reached() \
+                or not (f.glitch_persists or self.approach() is None):
+            return 0.0
+        near = all(abs(a.target - q) <= GLITCH_QM for a, q in zip(self.axes, at))
+        return float(offset) if near else 0.0
 
     def plane_residual(self) -> float:
         """``a x + b y + c z + 1`` of the truth's sm-plane plane at the end effector

@@ -156,7 +156,8 @@ class SimulatedSerial(SimulatedAgebot):
         roll, pitch, yaw = self.inclinometer_angles()
         ch = {c: (c if self.truth.sigma(c) else "tilt") for c in ("roll", "pitch")}
         roll += self._noise(ch["roll"], key="roll")
-        pitch += self._noise(ch["pitch"], key="pitch")
+        pitch += self._noise(ch["pitch"], key="pitch") + np.radians(
+            self.glitch(self.faults.glitch_tilt_deg))
         return tuple(float(np.degrees((a + np.pi) % (2 * np.pi) - np.pi))
                      for a in (roll, pitch, yaw))
 
