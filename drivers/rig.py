@@ -168,11 +168,20 @@ class Rig:
     def start_move(self, qm: Sequence[float]) -> None:
         """Start a move of every actuator to ``qm`` and return at once (the drives
         acknowledged the set-point); :meth:`wait_moved` waits for target reached."""
+        self._movable().move_to(qm, timeout=self.config.canopen.sdo_timeout * 4)
+
+    def slower(self, factor: float):
+        """A block whose moves run at ``factor`` of the drives' profile velocity
+        (:meth:`drivers.canopen_drives.CanopenActuators.slower`)."""
+        return self._movable().slower(factor)
+
+    def _movable(self) -> CanopenActuators:
+        """The drives; DeviceError where the station only reads encoders."""
         if not self.can_move:
             raise DeviceError("the actuators are read-only encoders (canopen.mode = "
                               "\"cia406\"): move the robot with its own controller",
                               device=self.actuators.name)
-        self.actuators.move_to(qm, timeout=self.config.canopen.sdo_timeout * 4)
+        return self.actuators
 
     def wait_moved(self, timeout: float | None = None) -> None:
         """Wait until every drive reports target reached."""

@@ -112,6 +112,45 @@ def test_enable_move_wait_read_cycle(drives, sim):
     drives.wait_target_reached(timeout=10)
 
 
+def test_a_block_of_slower_moves_writes_the_profile_and_back(sim):
+    """``CanopenActuators.slower(f)``: inside, every drive's profile velocity is f times
+    its own and its acceleration f**2 times (the same profile, stretched in time), read
+    back over SDO; after, even after an error inside, the drive's own values again. A
+    drive with no profile to slow down (0x6081 reads 0) is named."""
+    vel, acc = [4.0, 2.0, 3.0, 1.0], [20.0, 10.0, 12.0, 8.0]
+    with CanopenActuators.from_endpoint(sim.endpoint, RES, timeout=1.0) as plain:
+        before = [(plain.sdo_read(n, 0x6081), plain.sdo_read(n, 0x6083)) for n in NODES]
+    drv = CanopenActuators.from_endpoint(sim.endpoint, RES, timeout=1.0, velocity=vel,
+                                         acceleration=acc)
+    with drv:
+        drv.enable()
+        own = [(drv.sdo_read(n, 0x6081), drv.sdo_read(n, 0x6083)) for n in NODES]
+        assert own == [(round(v * RES), round(a * RES)) for v, a in zip(vel, acc)]
+        with pytest.raises(RuntimeError, match="inside"):
+            with drv.slower(0.5):
+                assert [(drv.sdo_read(n, 0x6081), drv.sdo_read(n, 0x6083)) for n in NODES] \
+                    == [(round(v * RES / 2), round(a * RES / 4)) for v, a in zip(vel, acc)]
+                drv.move_to([0.25, 0.0, -0.25, 0.5])
+                drv.wait_target_reached(timeout=10)
+                raise RuntimeError("inside")
+        assert [(drv.sdo_read(n, 0x6081), drv.sdo_read(n, 0x6083)) for n in NODES] == own
+        assert [sim.call("position", i) for i in range(4)] == pytest.approx(
+            [0.25, 0.0, -0.25, 0.5], abs=1e-9)
+        drv.move_to(START)
+        drv.wait_target_reached(timeout=10)
+        drv.sdo_write(NODES[1], 0x6081, 0)
+        with pytest.raises(DeviceError, match="no profile to slow down") as e:
+            with drv.slower(0.5):
+                pass
+        assert e.value.device == drv.node_name(NODES[1])
+        with pytest.raises(ValueError):
+            with drv.slower(1.5):
+                pass
+        for n, (v, a) in zip(NODES, before):     # the module's other tests: as they were
+            drv.sdo_write(n, 0x6081, v)
+            drv.sdo_write(n, 0x6083, a)
+
+
 def test_move_after_a_master_died_mid_handshake(drives, sim):
     """A master killed between 'new set-point' (controlword bit 4 up) and taking it down
     leaves the acknowledge set; the next master's move must still start (a fresh rising
