@@ -249,6 +249,12 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
         validate=validate, fixed=opts.fixed)
     if exclude:
         quality.excluded = [{"pose": int(k), "reason": str(v)} for k, v in sorted(exclude.items())]
+    if trace.remeasured:
+        chains = [[p["index"] for p in trace.readings_of(p["index"])]
+                  for p in trace.current_poses if p["index"] in set(trace.remeasured.values())]
+        quality.check("remeasured", True, "measured again at the robot (a flagged reading; the "
+                      "newest is used): " + ", ".join(" -> ".join(f"pose {i}" for i in c)
+                                                      for c in chains), readings=chains)
     outcome = scale_uncertainty(BatchOutcome(trace, model, result, model.x0, None, quality,
                                              validation))
     if not quality.passed:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import math
 import os
 import warnings
 from dataclasses import dataclass, field
@@ -17,15 +16,16 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.errors import CalibrationError, ConfigError, TraceFormatError
+from calibration.errors import CalibrationError, TraceFormatError
 from calibration.methods import METHODS, MethodData, extra_params
 from calibration.methods.sm_distance import ZEROS   # the reference's ``zero`` (added field)
 from calibration.methods.sm_markers import points_array
-from calibration.robots import ROBOTS, get_robot
+from calibration.robots import get_robot
 from drivers.robot_file import spec_from_source
+from station.recording.trace_checks import (  # noqa: F401 (FORMAT, VERSION, COMPONENTS: here too)
+    COMPONENTS, FORMAT, VERSION, check_header, check_method_needs, check_pose_channels,
+    check_remeasure, check_vector)
 
-FORMAT = "calstation-trace"
-VERSION = 1
 RECORDS = ("header", "reference", "pose", "event")
 ROLES = ("base-origin", "reference-point")
 # channel -> (shape per pose, methods); shape None = scalar
@@ -36,7 +36,6 @@ CHANNELS = {
     "tilt": None,  # phi (agebot-sm); [roll, pitch] for pm-tilt and robot files
     "orientation": 3,
 }
-COMPONENTS = ("alpha", "beta", "gamma")
 
 
 class TruncatedLineWarning(UserWarning):
@@ -57,6 +56,10 @@ class Trace:
     poses: list[dict] = field(default_factory=list)
     events: list[dict] = field(default_factory=list)
     truncated_tail: bool = False
+    #: pose index -> the index of the pose record that measured that pose again
+    #: (its ``remeasure_of``): a reading measured again stays in ``poses`` (the report
+    #: shows it) and is neither fitted nor held out: a pose's newest reading is the one used
+    remeasured: dict = field(default_factory=dict)
 
     _model: object = field(default=None, repr=False, compare=False)
 
@@ -88,21 +91,36 @@ class Trace:
         return np.concatenate([xi, tail])
 
     @property
+    def current_poses(self) -> list[dict]:
+        """Every pose's newest reading (:attr:`remeasured` ones left out)."""
+        return [p for p in self.poses if p["index"] not in self.remeasured]
+
+    @property
     def fit_poses(self) -> list[dict]:
-        """The poses to calibrate with (``use`` absent or ``"fit"``)."""
-        return [p for p in self.poses if p.get("use", "fit") == "fit"]
+        """The poses to calibrate with (``use`` absent or ``"fit"``; newest readings)."""
+        return [p for p in self.current_poses if p.get("use", "fit") == "fit"]
 
     @property
     def validation_poses(self) -> list[dict]:
-        """Held-out poses (``use = "validation"``): checked, never fitted."""
-        return [p for p in self.poses if p.get("use") == "validation"]
+        """Held-out poses (``use = "validation"``; newest readings): checked, never fitted."""
+        return [p for p in self.current_poses if p.get("use") == "validation"]
+
+    def readings_of(self, index: int) -> list[dict]:
+        """Every reading of the pose whose newest reading is pose ``index``, the first
+        first (one where it was not measured again)."""
+        earlier = {new: old for old, new in self.remeasured.items()}
+        by_index = {p["index"]: p for p in self.poses}
+        out = [by_index[index]]
+        while out[0]["index"] in earlier:
+            out.insert(0, by_index[earlier[out[0]["index"]]])
+        return out
 
     def method_data(self, method: str | None = None, use: str = "fit") -> MethodData:
         """Arrays for :func:`calibration.methods.build` of the ``use`` poses
         (``"fit"``, ``"validation"`` or ``"all"``)."""
         method = method or self.method
         poses = {"fit": self.fit_poses, "validation": self.validation_poses,
-                 "all": self.poses}[use]
+                 "all": self.current_poses}[use]
         if not poses:
             raise CalibrationError(f"{self.path}: the trace has no {use} poses" if use != "fit"
                                    else f"{self.path}: the trace has no poses to fit")
@@ -149,33 +167,6 @@ class Trace:
 
 
 # -- reading ------------------------------------------------------------------------
-# Largest magnitude a number of a trace may have (actuator values in encoder counts
-# stay far below; 1e300 would overflow the model's arithmetic).
-MAX_MAGNITUDE = 1e12
-# Plausible readings: a distance in metres (a draw-wire is zeroed at the reference,
-# so a reading below -1 cm is a wrong scale, sign or Modbus word order), angles in rad.
-DISTANCE_RANGE = (-0.01, 100.0)
-MAX_ANGLE = 4 * math.pi
-
-
-def _num(v) -> bool:
-    """A finite JSON number of sane magnitude (an integer like 10**400 is refused,
-    not overflowed)."""
-    if not isinstance(v, (int, float)) or isinstance(v, bool):
-        return False
-    try:
-        return math.isfinite(v) and abs(v) <= MAX_MAGNITUDE
-    except OverflowError:
-        return False
-
-
-def _check_vector(v, n, what, fail):
-    if not isinstance(v, list) or len(v) != n:
-        fail(f"{what} must be a list of {n} numbers")
-    for x in v:
-        if not _num(x):
-            fail(f"{what} has a value that is not a finite number of sane magnitude: {_short(x)}")
-
 
 def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -> Trace:
     """Parse and validate a trace file (see module doc)."""
@@ -220,7 +211,7 @@ def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -
         if lineno == 1:
             if kind != "header":
                 fail("the first line must be the header record")
-            head = _check_header(rec, fail, method_override)
+            head = check_header(rec, fail, method_override)
             model = head.pop("_model")
             trace = Trace(path, head, _model=model)
             n_act = trace._model.n_actuators
@@ -233,7 +224,7 @@ def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -
             continue
         if "qm" not in rec:
             fail(f"{kind} record has no 'qm'")
-        _check_vector(rec["qm"], n_act, "qm", fail)
+        check_vector(rec["qm"], n_act, "qm", fail)
         if kind == "reference":
             # a later reference before the poses replaces the earlier (a recapture)
             if trace.poses:
@@ -249,127 +240,15 @@ def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -
         if not isinstance(idx, int) or isinstance(idx, bool) or idx <= last_index:
             fail(f"pose index must be an integer greater than {last_index}, not {idx!r}")
         last_index = idx
-        _check_pose_channels(rec, trace, fail)
+        check_pose_channels(rec, trace, fail)
         if "group" in rec and (not isinstance(rec["group"], int) or isinstance(rec["group"], bool)):
             fail(f"group must be an integer, not {rec['group']!r}")
         if rec.get("use", "fit") not in ("fit", "validation"):
             fail(f"use must be 'fit' or 'validation', not {rec['use']!r}")
+        if "remeasure_of" in rec:
+            check_remeasure(rec, trace, fail)
         trace.poses.append(rec)
     if trace is None:
         raise TraceFormatError("the trace is empty (no header)", file=path, line=1)
-    _check_method_needs(trace)
+    check_method_needs(trace)
     return trace
-
-
-def _check_header(rec, fail, method_override):
-    if rec.get("format") != FORMAT:
-        fail(f"format must be {FORMAT!r}, not {rec.get('format')!r}")
-    if rec.get("version") != VERSION:
-        fail(f"unsupported trace version {rec.get('version')!r} (this reader knows version {VERSION})")
-    robot = rec.get("robot")
-    if "robot_file" in rec:
-        try:
-            model = get_robot(spec_from_source(rec["robot_file"], "robot_file"))
-        except ConfigError as e:
-            fail(str(e))
-        if model.name != robot:
-            fail(f"robot {robot!r} is not the robot file's name {model.name!r}")
-    elif robot not in ROBOTS:
-        fail(f"unknown robot {robot!r} (known: {', '.join(ROBOTS)}, or a trace with robot_file)")
-    else:
-        model = get_robot(robot)
-    method = method_override or rec.get("method")
-    if not isinstance(method, str) or method not in METHODS:
-        fail(f"unknown method {method!r} (known: {', '.join(METHODS)})")
-    if METHODS[method].kind != model.kind:
-        fail(f"method {method} needs a {METHODS[method].kind} robot; {robot} is a {model.kind} one")
-    rec = dict(rec, method=method, _model=model)
-    nominal = rec.get("nominal", {})
-    if not isinstance(nominal, dict):
-        fail("nominal must be an object: parameter name -> value")
-    markers = rec.get("markers")
-    if method == "sm-markers":
-        if not isinstance(markers, int) or isinstance(markers, bool) or not 1 <= markers <= 1000:
-            fail(f"markers must be the number of points on the tool (1 to 1000), not "
-                 f"{_short(markers)}")
-    elif markers is not None:
-        fail(f"markers is for sm-markers traces, not {method}")
-    known = set(model.param_names) | set(extra_params(method, model, markers or 0))
-    for k, v in nominal.items():
-        if k not in known:
-            fail(f"nominal: unknown parameter {k!r} for {robot}/{method}")
-        if not _num(v):
-            fail(f"nominal: {k} must be a finite number, not {_short(v)}")
-    sigma = rec.get("sigma")
-    if sigma is not None:
-        if not isinstance(sigma, dict):
-            fail("sigma must be an object: channel -> standard deviation")
-        for k, v in sigma.items():
-            vals = v if isinstance(v, list) else [v]
-            if not vals or not all(_num(x) and x > 0 for x in vals):
-                fail(f"sigma: {k} must be a positive number (or list of them), not {_short(v)}")
-    comps = rec.get("components")
-    if comps is not None:
-        if (not isinstance(comps, list) or not comps or any(c not in COMPONENTS for c in comps)
-                or list(comps) != [c for c in COMPONENTS if c in comps]):
-            fail(f"components must be a non-empty ordered subset of {list(COMPONENTS)}, not {comps!r}")
-    return rec
-
-
-def _check_pose_channels(rec, trace, fail):
-    method = trace.method
-    comps = trace.header.get("components") or list(COMPONENTS)
-    builtin = "robot_file" not in trace.header
-    for ch in METHODS[method].channels:
-        if ch not in rec:
-            fail(f"pose has no {ch!r} reading, which method {method} needs")
-        v = rec[ch]
-        if ch == "pose":
-            _check_vector(v, 4 if builtin else 6, ch, fail)
-        elif ch == "position":
-            _check_vector(v, 3, ch, fail)
-        elif ch == "orientation":
-            _check_vector(v, len(comps) if method == "pm-fk" else 3, ch, fail)
-        elif ch == "markers":
-            n = trace.n_markers
-            if not isinstance(v, list) or len(v) != n:
-                fail(f"markers must be a list of {n} points ([x, y, z] or null)")
-            for p in v:
-                if p is not None:
-                    _check_vector(p, 3, "a point of markers", fail)
-            if all(p is None for p in v):
-                fail("markers: no point seen in this pose")
-            continue
-        elif ch == "tilt" and (method == "pm-tilt" or not builtin):
-            _check_vector(v, 2, "tilt ([roll, pitch])", fail)
-        elif not _num(v):
-            fail(f"{ch} must be a finite number, not {_short(v)}")
-        if ch == "distance" and not DISTANCE_RANGE[0] <= v <= DISTANCE_RANGE[1]:
-            fail(f"distance {v:.6g} m is not a distance the draw-wire can measure (expected "
-                 f"{DISTANCE_RANGE[0]:g} to {DISTANCE_RANGE[1]:g} m): check the device's scale, "
-                 f"sign and Modbus word order")
-        if ch in ("tilt", "orientation"):
-            vals = v if isinstance(v, list) else [v]
-            if any(abs(x) > MAX_ANGLE for x in vals):
-                fail(f"{ch} {_short(v)} is not an angle in radians (|value| > 4 pi): check the "
-                     f"device's unit")
-
-
-def _short(v) -> str:
-    """A value for a message, at most 60 characters."""
-    text = repr(v)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _check_method_needs(trace):
-    mi = METHODS[trace.method]
-    if mi.reference and (trace.reference is None and trace.poses   # a session killed before
-                         or trace.reference is not None           # its reference resumes
-                         and trace.reference.get("role") != mi.reference):
-        raise TraceFormatError(f"method {trace.method} needs a reference record with role "
-                               f"{mi.reference!r} before the poses", file=trace.path)
-    if trace.method == "sm-self-redundancy":
-        for p in trace.poses:
-            if "group" not in p:
-                raise TraceFormatError(f"pose {p['index']} has no 'group' (sm-self-redundancy "
-                                       f"pairs poses at the same x, y)", file=trace.path)

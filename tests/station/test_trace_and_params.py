@@ -186,3 +186,68 @@ def test_pm_tilt_parameter_file_names_the_heading_as_not_identified(tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps(bad))
     with pytest.raises(TraceFormatError, match="not_identified"):
         read_params(tmp_path / "bad.json")
+
+
+def _remeasured(trace_lines, of: int, **change):
+    """``trace_lines`` with pose ``of`` measured again at the end (its readings changed
+    by ``change``): the new record and its index."""
+    poses = [json.loads(ln) for ln in trace_lines if '"record": "pose"' in ln
+             or '"record":"pose"' in ln]
+    old = next(p for p in poses if p["index"] == of)
+    new = dict(old, index=poses[-1]["index"] + 1, remeasure_of=of, **change)
+    return trace_lines + [json.dumps(new)], new
+
+
+def test_a_pose_measured_again_is_fitted_by_its_newest_reading(tmp_path, trace_lines):
+    """A pose record with ``remeasure_of`` (issue 40: a flagged reading measured again at
+    the robot) sets the reading it names aside: the trace keeps both, every calibration
+    takes the newest. A reading 5 mm off, measured again as it is, calibrates as the
+    trace without it."""
+    base = tmp_path / "base.jsonl"
+    write_lines(base, trace_lines)
+    first = read_trace(str(base))
+    k = first.fit_poses[3]["index"]
+    recs = [json.loads(ln) for ln in trace_lines]
+    off = [json.dumps(dict(r, distance=r["distance"] + 0.005)) if r["record"] == "pose"
+           and r["index"] == k else ln for r, ln in zip(recs, trace_lines)]
+    lines, new = _remeasured(off, k, distance=first.fit_poses[3]["distance"])
+    path = tmp_path / "again.jsonl"
+    write_lines(path, lines)
+    tr = read_trace(str(path))
+    assert tr.remeasured == {k: new["index"]} and len(tr.poses) == len(first.poses) + 1
+    assert [p["index"] for p in tr.fit_poses] == [p["index"] for p in first.fit_poses
+                                                   if p["index"] != k] + [new["index"]]
+    assert [p["index"] for p in tr.readings_of(new["index"])] == [k, new["index"]]
+    a, b = calibrate_trace(str(base)), calibrate_trace(str(path))
+    np.testing.assert_allclose(b.result.x, a.result.x, rtol=1e-9, atol=1e-12)
+    # measured a third time: the chain stays whole
+    lines3, third = _remeasured(lines, new["index"])
+    write_lines(path, lines3)
+    tr = read_trace(str(path))
+    assert [p["index"] for p in tr.readings_of(third["index"])] == [k, new["index"],
+                                                                     third["index"]]
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"remeasure_of": 999}, "remeasure_of must be the index of an earlier pose record"),
+    ({"remeasure_of": "3"}, "remeasure_of must be the index of an earlier pose record"),
+    ({"use": "validation"}, "so its use must be 'fit'"),
+    ({"plan_index": 77}, "so its plan_index must be"),
+])
+def test_a_bad_remeasure_of_is_named_with_its_line(tmp_path, trace_lines, change, message):
+    base = tmp_path / "base.jsonl"
+    write_lines(base, trace_lines)
+    k = read_trace(str(base)).fit_poses[2]["index"]
+    lines, new = _remeasured(trace_lines, k)
+    rec = {**new, **change}
+    lines[-1] = json.dumps(rec)
+    path = tmp_path / "bad.jsonl"
+    write_lines(path, lines)
+    with pytest.raises(TraceFormatError, match=message) as e:
+        read_trace(str(path))
+    assert f":{len(lines)}" in str(e.value)
+    # the same reading measured again twice
+    twice = trace_lines + [json.dumps(new), json.dumps(dict(new, index=new["index"] + 1))]
+    write_lines(path, twice)
+    with pytest.raises(TraceFormatError, match=f"pose {k} was measured again already"):
+        read_trace(str(path))
