@@ -32,6 +32,7 @@ import numpy as np
 
 from calibration import identifiability as ident
 from calibration.errors import CalibrationError
+from calibration.ties import first_max
 
 #: relative ridge that keeps the greedy start's information matrix invertible
 RIDGE = 1e-9
@@ -187,7 +188,7 @@ def d_optimal(info: PoseInformation, count: int, *, fixed=(), exchange: bool = T
                     continue
                 gains = _gains(B, np.linalg.inv(M_minus))
                 gains[~free] = -np.inf
-                j = int(np.argmax(gains))
+                j = first_max(gains)       # a near tie: the first (calibration/ties.py)
                 if ld_minus + gains[j] > ld + 1e-10 * max(1.0, abs(ld)):
                     chosen[pos] = j
                     free[i], free[j] = True, False
@@ -255,7 +256,7 @@ def _greedy(info: PoseInformation, start, done):
     while not done(chosen):
         gains = _gains(B, np.linalg.inv(M))
         gains[~free] = -np.inf
-        j = int(np.argmax(gains))
+        j = first_max(gains)
         chosen.append(j)
         free[j] = False
         M = M + B[j].T @ B[j]

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration.errors import CalibrationError, UnreachablePose
+from calibration.ties import first_min
 
 # Workspace boxes of the report, relative to the base offset (x0, y0, z0)
 # (brief section 1), phi +-20 deg; and for 7.5 relative to the chosen origin.
@@ -130,10 +131,11 @@ def order_for_travel(qm: np.ndarray, start=None, scale=None) -> np.ndarray:
     taken = np.zeros(n, dtype=bool)
     order = np.empty(n, dtype=np.intp)
     for k in range(n):
-        # the nearest pose not yet visited (the first of equals, in index order)
+        # the nearest pose not yet visited (the first of equals but for round-off, in
+        # index order: calibration/ties.py)
         d = np.max(np.abs(z - cur), axis=1)
         d[taken] = np.inf
-        i = int(np.argmin(d))
+        i = first_min(d)
         order[k] = i
         taken[i] = True
         cur = z[i]

@@ -39,6 +39,7 @@ from calibration.methods import MethodData, build
 from calibration.robots.agebot_sm import wrap
 from calibration.robots.base import canonical_result
 from calibration.solver import SolverOptions, solve
+from calibration.ties import less, tied
 from station.fitting.gate_checks import implausible
 from station.fitting.pose_count import minimum_count
 from station.fitting.start_values import fixed_for_rows, staged_start, told_start
@@ -162,13 +163,13 @@ class ArmRounds:
                 continue
             xi, off = self._model_of(res.x, fit_method)
             worst = self._unexplained(xi, off, data)
-            if worst > bar:
-                why = (f"{'' if res.converged else res.message + '; '}it leaves a recorded "
-                       f"reading {worst:.2g} x the envelope's tolerance away from its "
-                       "prediction, the model in use less")
+            if worst > bar and not tied(worst, bar):   # as well as the model in use: a tie
+                why = (f"{'' if res.converged else res.message + '; '}it leaves a recorded reading "
+                       f"{worst:.2g} x the envelope's tolerance away from its prediction, the "
+                       "model in use less")
                 continue
             key = (not res.converged, float(np.sum(np.asarray(res.residual) ** 2)))
-            if best is None or key < best[0]:
+            if best is None or less(key, best[0]):   # one minimum from two starts: a tie
                 best = (key, xi, off, res, worst)
         self.fitted_on = len(recs)
         if best is None:
@@ -312,8 +313,7 @@ class ArmRounds:
         return poses
 
     def _design(self) -> dict:
-        """The plan event's design (the prediction for every fit pose measured and
-        planned so far), where the round was designed."""
+        """The plan event's design (what it predicts for every fit pose so far), if any."""
         return {"design": self.design} if self.design else {}
 
     def box_centre(self, scale: float):

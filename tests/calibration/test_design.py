@@ -53,6 +53,29 @@ def test_d_optimal_keeps_fixed_and_counts():
         dz.d_optimal(info, 31)
 
 
+def test_d_optimal_choice_does_not_flip_on_round_off():
+    """Issue 40: candidates that tie in exact arithmetic (each pose and its mirror image,
+    whose rows differ in sign only; the same pose twice) gain the same; with another
+    machine's round-off they differ in the last bits. The choice is the same whatever
+    those bits are: a near tie falls to the first candidate (calibration/ties.py)."""
+    rng = np.random.default_rng(11)
+    flips_without = 0
+    for trial in range(20):
+        half = rng.normal(size=(15, 2, 5)) * rng.uniform(0.1, 10, size=5)
+        blocks = np.concatenate([half, -half, half[:3]])      # mirrors and duplicates
+        info = _info(blocks)
+        chosen = dz.d_optimal(info, 8).tolist()
+        for k in range(5):
+            off = blocks * (1 + 4e-16 * rng.standard_normal(blocks.shape))
+            assert dz.d_optimal(_info(off), 8).tolist() == chosen, (trial, k)
+            # what a plain argmax would do with those bits: the first gain differs
+            gains = dz._gains(_info(off).scaled, np.linalg.inv(
+                dz.RIDGE * np.eye(5)))
+            flips_without += int(np.argmax(gains)) != int(np.argmax(dz._gains(
+                info.scaled, np.linalg.inv(dz.RIDGE * np.eye(5)))))
+    assert flips_without > 0       # the ties are real: round-off alone moves a plain argmax
+
+
 def test_cramer_rao_is_the_least_squares_covariance():
     rng = np.random.default_rng(2)
     info = _info(rng.normal(size=(40, 3, 5)))
@@ -172,8 +195,9 @@ def test_design_on_a_robot_file_arm_keeps_its_fixed_parameters():
 def test_the_travel_order_is_the_greedy_nearest_neighbour():
     """``calibration.planning.order_for_travel`` visits, from the start (or the first
     pose), the nearest pose not yet visited in scaled actuator space (max norm), the
-    first of equals in index order: against that rule written out pose by pose, with
-    ties (rounded poses) and without, from a start and from the first pose."""
+    first of equals (but for round-off: calibration/ties.py) in index order: against that
+    rule written out pose by pose, with ties (rounded poses) and without, from a start and
+    from the first pose; and the same order when every value is off by round-off."""
     from calibration.planning import order_for_travel
 
     rng = np.random.default_rng(7)
@@ -189,12 +213,16 @@ def test_the_travel_order_is_the_greedy_nearest_neighbour():
         left, expect = list(range(n)), []
         while left:
             d = [float(np.max(np.abs(qm[i] / s - cur))) for i in left]
-            i = left.pop(d.index(min(d)))
+            best = min(d)
+            i = left.pop(next(k for k, x in enumerate(d) if x - best <= 1e-9 * max(1.0, best)))
             expect.append(i)
             cur = qm[i] / s
         got = order_for_travel(qm, start)
         assert got.tolist() == expect, t
         assert sorted(got.tolist()) == list(range(n))
+        # another machine's round-off (a few units in the last place): the same order
+        off = qm * (1 + 4e-16 * rng.standard_normal(qm.shape))
+        assert order_for_travel(off, start, scale=s).tolist() == expect, t
 
 
 @pytest.mark.parametrize("rows", [1, 2, 3])

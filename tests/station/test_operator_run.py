@@ -71,17 +71,17 @@ def test_default_runs_are_reproducible_and_a_finished_folder_stays(tmp_path):
     plans = [r for r in ta if r["record"] == "event" and r["kind"] == "plan"]
     assert sorted({p["round"] for ev in plans for p in ev["poses"]}) == [0, 1, 2]
     # where the envelope stops the arm depends on when the watch reads it: the
-    # default run plans no move it stops (its 6-pose refit, unconverged, leaves a
-    # reading 0.61 x the envelope's tolerance from its prediction; run to 50 iterations
-    # it made L3 a third of the nominal's, and planned with that the next pose read
-    # 0.27 m where it predicted 0.05 m: a refit that does not explain the readings, or
-    # that the gate would refuse, is not planned with)
+    # default run plans no move it stops. Its 6-pose refit does not converge (run to 50
+    # iterations it once made L3 a third of the nominal's, and planned with that the
+    # next pose read 0.27 m where it predicted 0.05 m): a refit that does not explain
+    # the readings, or that the gate would refuse, is not planned with. Which of the
+    # two an unconverged fit is depends on the last bits of the arithmetic (the
+    # machine's BLAS kernel), so the reason is not asserted, only that it is not used
     events = [r for r in ta if r["record"] == "event"]
     assert not [e for e in events if e["kind"] == "envelope"]
     assert any(e["kind"] == "warning" and e["message"].startswith(
-        "model refit on 6 poses not used (") and ("it leaves a recorded reading" in e["message"]
-                                                  or "it moves L3 from" in e["message"])
-               for e in events)
+        "model refit on 6 poses not used (") and e["message"].endswith(
+        "planning stays with the model it had") for e in events)
     sim = ta[0]["station"]["simulator"]
     assert sim["seed"] == 20240501 and sim["pose_noise"] is True   # the truth file's
     assert "seed 20240501" in ra.stdout
