@@ -33,13 +33,7 @@ class CalibrationStep:
         (:class:`calibration.solver.Iteration`: live plots)."""
         if accept_poor_fit is None:
             accept_poor_fit = self.accept_poor_fit
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
-        try:
-            trace = read_trace(self.trace_path)
-        finally:
-            self._writer = TraceWriter.resume(self.trace_path)
+        trace = self.read_own_trace()
         if self.method == "sm-self-redundancy":
             self._drop_lone_poses(trace)
             n_fit = len({p["group"] for p in trace.fit_poses})
@@ -65,13 +59,25 @@ class CalibrationStep:
         self._notify("state", "calibrated")
         return self.outcome
 
+    def read_own_trace(self):
+        """The session's trace as recorded so far (:func:`station.recording.trace.read_trace`;
+        the writer closed for the read and resumed)."""
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        try:
+            return read_trace(self.trace_path)
+        finally:
+            self._writer = TraceWriter.resume(self.trace_path)
+
     def _drop_lone_poses(self, trace) -> None:
         """Pairs whose partner was skipped: leave the lone pose out of the calibration."""
         count: dict = {}
-        for p in trace.poses:
+        current = trace.current_poses
+        for p in current:
             key = (p.get("use", "fit"), p["group"])
             count[key] = count.get(key, 0) + 1
-        lone = [p for p in trace.poses if count[(p.get("use", "fit"), p["group"])] < 2]
+        lone = [p for p in current if count[(p.get("use", "fit"), p["group"])] < 2]
         if lone:
             trace.poses[:] = [p for p in trace.poses if p not in lone]
             self._event("warning", "left out of the calibration (their pair partner was not "

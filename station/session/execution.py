@@ -101,19 +101,25 @@ class ExecutionLoop:
             for pose in self.pending:
                 if pose.index in self.skipped:      # its pair partner was skipped meanwhile
                     continue
-                while self._pause.is_set() and not self._abort.is_set():
-                    time.sleep(0.05)
-                if self._abort.is_set():
-                    self._event("abort", "aborted by the operator")
-                    raise SessionAborted("aborted; the trace is intact, resume to continue")
+                self._wait_if_paused()
                 if self._measure(pose):
                     recorded += 1
             if self.pending:      # re-planned meanwhile (an envelope stop)
                 continue
             if not self._plan_next_round():
                 break
+        if not self.finished:     # what the gate flags, measured again while the robot is here
+            recorded += self.confirm_readings()
         self._notify("state", "measured")
         return recorded
+
+    def _wait_if_paused(self) -> None:
+        """Before the next pose: wait while paused; SessionAborted where abort was asked."""
+        while self._pause.is_set() and not self._abort.is_set():
+            time.sleep(0.05)
+        if self._abort.is_set():
+            self._event("abort", "aborted by the operator")
+            raise SessionAborted("aborted; the trace is intact, resume to continue")
 
     def _progress(self, pose: PlannedPose, readings=None, message: str = "") -> Progress:
         """Progress at ``pose``; the wrist's counts are per round (scout, main)."""
@@ -131,7 +137,11 @@ class ExecutionLoop:
             return ("roll", "pitch") if self.method == "sm-distance-tilt" else ()
         return plausibility.INCLINOMETER_AXES.get(self.method, ())
 
-    def _measure(self, pose: PlannedPose) -> bool:
+    def _measure(self, pose: PlannedPose, remeasure_of: int | None = None) -> bool:
+        """Move to ``pose``, measure it and append its record; False where it was not
+        recorded (skipped, or dropped by the kind's watch). ``remeasure_of``: the index
+        of the reading of ``pose`` this one measures again (:mod:`station.session.confirmation`;
+        the gate judges it, not the kind's watch)."""
         rig = self._rig()
         attempt = 0
         while True:
@@ -154,7 +164,9 @@ class ExecutionLoop:
                                resume.DROPPED)
                     return False
                 rec = self._pose_record(pose, snap)
-                if not self.kind.watch(pose, rec):
+                if remeasure_of is not None:
+                    rec["remeasure_of"] = remeasure_of
+                elif not self.kind.watch(pose, rec):
                     return False
                 break
             except TouchFailed as e:

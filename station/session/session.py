@@ -9,7 +9,8 @@ module of its own that :class:`Session` is made of::
     s.connect()                                        # opens the devices (drivers.rig.Rig)
     s.move_to(s.reference_target()[0]); s.capture_reference()   # reference.py
     s.plan()                                           # planning_step.py: eq. 60, IK
-    s.execute()                                        # execution.py (+ retries.py)
+    s.execute()                                        # execution.py (+ retries.py);
+                                                       # flagged readings again: confirmation.py
     s.calibrate(); s.validate(); s.export()            # calibration_step.py
 
 What differs between the robots (the built-in arm, the wrist, a robot file's arm) is
@@ -67,6 +68,7 @@ from station.recording.trace import utc_now
 from station.recording.trace_writer import TraceWriter
 from station.session import device_loss, plausibility
 from station.session.calibration_step import CalibrationStep
+from station.session.confirmation import ConfirmStep
 from station.session.execution import ExecutionLoop
 from station.session.folder import PARAMS, REPORT, TRACE, URDF
 from station.session.planning_step import PlanningStep
@@ -80,7 +82,8 @@ Observer = Callable[[str, object], None]           # (kind, payload): "progress"
 Touch = Callable[["Session", PlannedPose], None]   # brings the tool into contact, then returns
 
 
-class Session(ReferenceStep, PlanningStep, ExecutionLoop, CalibrationStep, Retries):
+class Session(ReferenceStep, PlanningStep, ExecutionLoop, ConfirmStep, CalibrationStep,
+              Retries):
     """One calibration session of one robot with one method, recorded in ``out_dir``.
 
     config:   the station config (endpoints resolved). method: a session method

@@ -76,7 +76,8 @@ def test_a_lost_device_stops_the_session_and_the_resume_finishes_it(
             assert len(again.pending) == 10 - 3
             again.run()
     trace = read_trace(out / "trace.jsonl")
-    idx = sorted(p["plan_index"] for p in trace.poses)
+    # every planned pose measured (a reading the gate flags measured again: its newest)
+    idx = sorted(p["plan_index"] for p in trace.current_poses)
     assert idx == list(range(10)) and again.outcome.result.converged
 
 
@@ -104,7 +105,7 @@ def test_a_killed_simulator_stops_the_session_and_a_new_one_resumes_it(tmp_path,
                      **POOR_FIT_OK) as s:
             s.run()
     trace = read_trace(out / "trace.jsonl")
-    assert sorted(p["plan_index"] for p in trace.poses) == list(range(10))
+    assert sorted(p["plan_index"] for p in trace.current_poses) == list(range(10))
     assert s.outcome.result.converged
 
 
@@ -182,7 +183,7 @@ def test_a_lost_answer_in_the_reference_tare_redoes_the_whole_capture(tmp_path, 
     # two zeros an attempt (the plausibility check's, the capture's), both attempts
     assert state["drawwire_zero_calls"] == 4
     assert trace.reference["samples"] == n and trace.reference["tare"]["samples"] == n
-    assert sorted(p["plan_index"] for p in trace.poses) == list(range(10))
+    assert sorted(p["plan_index"] for p in trace.current_poses) == list(range(10))
     assert s.outcome.result.converged
 
 
@@ -211,7 +212,7 @@ def test_answers_lost_at_the_reference_step_s_first_requests_are_retried(tmp_pat
         "the reference step, attempt 1", "the reference step, attempt 2"], faults
     assert all(f["device"] == "draw-wire" for f in faults)
     assert state["drawwire_zero_calls"] == 2           # the third attempt's two zeros
-    assert len(trace.poses) == 10 and s.outcome.result.converged
+    assert len(trace.current_poses) == 10 and s.outcome.result.converged
 
 
 # the reference step's own retry path is one for every device: the CAN node in the
@@ -242,7 +243,7 @@ def test_a_device_lost_at_the_reference_step_stops_the_session_named(
             assert again.resumed and again.redo().capture_reference
             again.run()
     trace = read_trace(out / "trace.jsonl")
-    assert trace.reference is not None and len(trace.poses) == 10
+    assert trace.reference is not None and len(trace.current_poses) == 10
     assert again.outcome.result.converged
 
 

@@ -89,5 +89,5 @@ def test_two_headless_sessions_on_one_folder(tmp_path):
                 first.kill()
             first.stderr.close()
     trace = read_trace(tmp_path / "run" / "trace.jsonl")
-    idx = [p["plan_index"] for p in trace.poses]
+    idx = [p["plan_index"] for p in trace.current_poses]
     assert len(idx) == len(set(idx)) == 8 + 3 and (tmp_path / "run" / "params.json").exists()

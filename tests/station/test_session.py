@@ -157,7 +157,7 @@ def test_pm_fk_session_recovers_the_unseen_truth(tmp_path):
     assert err < 1.0 and worst < 25.0, (err, worst)
     assert all(v["rms_after"] < 5e-4 for v in s.validation)
     trace = read_trace(s.trace_path)
-    assert len({p["plan_index"] for p in trace.poses}) == len(trace.poses)
+    assert len({p["plan_index"] for p in trace.current_poses}) == len(trace.current_poses)
     # 12 scout poses near home, then boxes grown round by round up to +-20 deg
     assert len(trace.fit_poses) == 24 and len(trace.validation_poses) == 5
     plans = [e for e in trace.events if e["kind"] == "plan"]
@@ -233,8 +233,8 @@ def test_sigkill_mid_session_resumes_to_the_same_result(tmp_path):
         assert whole.returncode == 0, whole.stderr
 
     resumed = read_trace(killed / "trace.jsonl")
-    plan_idx = [p["plan_index"] for p in resumed.poses]
-    # nothing measured twice; app.py run plans the arm in rounds: a 6-pose scout and 6
+    plan_idx = [p["plan_index"] for p in resumed.current_poses]
+    # nothing measured twice (but a flagged reading measured again, remeasure_of); app.py run plans the arm in rounds: a 6-pose scout and 6
     # in 30 % of the box on top of the 35 in the whole box, 7 held out
     assert len(plan_idx) == len(set(plan_idx)) == 35 + 6 + 6 + 7
     assert [p["qm"] for p in resumed.poses[:n_before]] == [p["qm"] for p in partial.poses]
@@ -290,7 +290,7 @@ def test_device_faults_mid_session_are_survived_and_recorded(tmp_path, quick_ret
     assert "fault" in kinds and "retry" in kinds
     faults = [e["message"] for e in trace.events if e["kind"] == "fault"]
     assert any("canopen node 2" in m or "FAULT" in m or "0x8611" in m for m in faults), faults
-    assert len(trace.poses) + len(s.skipped) == 13
+    assert len(trace.current_poses) + len(s.skipped) == 13
     assert s.outcome.result.converged
     quality = read_params(s.out / "params.json")["fit"]["quality"]
     assert quality["accepted"] == (not quality["passed"])

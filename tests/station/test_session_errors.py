@@ -47,7 +47,7 @@ def test_a_full_disk_during_a_session_is_one_line_and_the_trace_resumes(tmp_path
                      accept_poor_fit=True) as again:
             again.run()
     trace = read_trace(out / "trace.jsonl")
-    assert sorted(p["plan_index"] for p in trace.poses) == list(range(10))
+    assert sorted(p["plan_index"] for p in trace.current_poses) == list(range(10))
 
 
 @pytest.mark.parametrize("encoding", ["utf-16", "utf-16-le"])

@@ -70,7 +70,7 @@ def test_sm_plane_session_touches_the_plane_and_recovers_the_unseen_truth(tmp_pa
     kinds = [e["kind"] for e in trace.events]
     assert "fault" in kinds and "retry" in kinds and "skip" not in kinds
     assert len(trace.fit_poses) == 20 and len(trace.validation_poses) == 3
-    assert len({p["plan_index"] for p in trace.poses}) == 23
+    assert len({p["plan_index"] for p in trace.current_poses}) == 23
     # a contact records qm only; the plane the engineer gave is in the header
     assert all("distance" not in p and "tilt" not in p for p in trace.poses)
     assert [trace.header["nominal"][k] for k in PLANE] == list(truth.plane)
@@ -149,10 +149,10 @@ def test_sm_self_redundancy_pairs_resume_and_skip_whole(tmp_path):
     assert sorted(e["plan_index"] for e in skips) == sorted(i for i, g in group.items()
                                                             if g in gone)
     groups: dict[int, list] = {}
-    for p in trace.poses:
+    for p in trace.current_poses:      # a reading measured again: its newest
         groups.setdefault(p["group"], []).append(p)
     assert set(groups) == set(range(14)) - gone and all(len(g) == 2 for g in groups.values())
-    assert len({p["plan_index"] for p in trace.poses}) == len(trace.poses)
+    assert len({p["plan_index"] for p in trace.current_poses}) == len(trace.current_poses)
     assert any(e["kind"] == "resume" for e in trace.events)
     # both poses of every pair touch the same true point (x, y), at phi of both signs
     for g in groups.values():

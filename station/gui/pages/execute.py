@@ -18,14 +18,17 @@ from station.gui.widgets import (BAD_COLOR, OK_COLOR, WARN_COLOR, ReadingsPanel,
 REPEATED_FAULT = 3
 
 EVENT_COLOR = {"fault": BAD_COLOR, "abort": BAD_COLOR, "skip": WARN_COLOR, "retry": WARN_COLOR,
-               "warning": WARN_COLOR}
+               "warning": WARN_COLOR, "remeasure": WARN_COLOR, "remeasure-failed": WARN_COLOR,
+               "confirmed": BAD_COLOR}
 
 
 class ExecutePage(Page):
     title = "Execute"
     subtitle = ("The robot drives to each planned pose, waits until it settles and records "
-                "the readings. Each pose is written to the trace at once: closing the window "
-                "loses none, and opening the same session folder again resumes.")
+                "the readings; a reading the calibration would reject is measured again "
+                "before the robot is released. Each pose is written to the trace at once: "
+                "closing the window loses none, and opening the same session folder again "
+                "resumes.")
 
     def __init__(self, controller, parent=None):
         super().__init__(controller, parent)
