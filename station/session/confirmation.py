@@ -106,9 +106,12 @@ class ConfirmStep:
                     again += 1
 
     def _planned(self, rec: dict):
-        """The planned pose of a pose record (None where it has none: nothing to go back to)."""
+        """The planned pose of a pose record; None where it has none (nothing to go back
+        to) or it is one of a pair (sm-self-redundancy: the second pose touches the mark
+        the first one found, so one alone cannot be measured again)."""
         i = rec.get("plan_index")
-        return next((p for p in self.plan_poses if p.index == i), None)
+        pose = next((p for p in self.plan_poses if p.index == i), None)
+        return None if pose is None or pose.group is not None else pose
 
     def _remeasured(self, trace, plan_index: int) -> int:
         """How often the trace measured plan pose ``plan_index`` again: its readings after
