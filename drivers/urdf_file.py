@@ -20,13 +20,15 @@ import numpy as np
 
 from calibration.errors import ConfigError
 from drivers.config_reader import read_text_file
+from drivers.urdf_checks import check_urdf
 
 MOVABLE = {"revolute": "R", "continuous": "R", "prismatic": "P"}
 
 
 def is_urdf(robot: str) -> bool:
-    """Whether a ``--robot`` value names a URDF file."""
-    return str(robot).lower().endswith((".urdf", ".xml"))
+    """Whether a ``--robot`` value names a URDF file (a xacro file too: read as one, it is
+    refused naming what to run first, :func:`drivers.urdf_checks.check_urdf`)."""
+    return str(robot).lower().endswith((".urdf", ".xml", ".xacro"))
 
 
 def _nested(T) -> tuple:
@@ -89,6 +91,7 @@ def parse_urdf(text: str, source: str, base_link: str | None, tip_link: str | No
         line, col = e.position
         raise ConfigError(f"not valid XML at line {line}, column {col + 1}: "
                           f"{str(e).split(':')[0]}", source=source) from None
+    check_urdf(text, source)          # the URDF specification's rules, before yourdfpy reads it
     import yourdfpy
 
     log = logging.getLogger("yourdfpy")
@@ -110,7 +113,7 @@ def parse_urdf(text: str, source: str, base_link: str | None, tip_link: str | No
     for j in urdf.robot.joints:
         by_child[j.child] = j
     chain, link = [], tip_link
-    while link != base_link:
+    while link != base_link:          # a tree (check_urdf): the walk ends
         j = by_child.get(link)
         if j is None:
             raise ConfigError(f"tip link {tip_link!r} is not below base link {base_link!r} in "
