@@ -28,10 +28,8 @@ signs).
 """
 from __future__ import annotations
 
-import csv
 import hashlib
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,14 +40,9 @@ from calibration.methods.sm_markers import marker_names, register, scale_and_mir
 from calibration.robots import get_robot
 from calibration.robots.serial import rpy_of
 from drivers.urdf_file import load_urdf
-from station.recording.csv_columns import ANGLE, LENGTH, open_csv
+from station.recording.csv_columns import ANGLE, LENGTH
+from station.recording.marker_csv import MarkerReader
 
-USES = ("fit", "validation")
-_POINT = (re.compile(r"^m(\d+)_([xyz])$"), re.compile(r"^([xyz])(\d+)$"))
-# A joint value beyond the URDF's limit by at most this share of the joint's range
-# (and at least LIMIT_SLACK_MIN) is an encoder at its end stop: a warning.
-LIMIT_SLACK = 0.05
-LIMIT_SLACK_MIN = {"R": math.radians(1.0), "P": 0.002}
 # The readings must follow the robot: after the best placement of the instrument's
 # frame and the points, their median distance from the nominal robot's prediction is
 # at most this share of the points' RMS spread (a nominal robot is off by millimetres;
@@ -64,197 +57,6 @@ class Imported:
     warnings: list
 
 
-def _point_column(c: str):
-    m = _POINT[0].match(c)
-    if m:
-        return int(m.group(1)), m.group(2)
-    m = _POINT[1].match(c)
-    if m:
-        return int(m.group(2)), m.group(1)
-    return None
-
-
-def _fmt(v: float) -> str:
-    return f"{v:.6g}"
-
-
-class _Reader:
-    """Reads the CSV files of one import (shared column layout checks)."""
-
-    def __init__(self, robot, spec, length_unit, angle_unit, jmap, ignore):
-        self.robot, self.spec, self.jmap = robot, spec, jmap
-        self.lu, self.au = LENGTH[length_unit], ANGLE[angle_unit]
-        self.units = (length_unit, angle_unit)
-        self.ignore = set(ignore)
-        self.n_points = None
-        self.warnings: list[str] = []
-
-    def joint_unit(self, kind: str) -> float:
-        return self.au if kind == "R" else self.lu
-
-    def layout(self, head: list[str], src: str):
-        """Columns -> ``(joint_cols, point_cols, use_col)``; errors name the column."""
-        names = self.spec.joint_names
-        n = len(names)
-        joint_cols: dict[str, int] = {}
-        points: dict[int, dict[str, int]] = {}
-        use = None
-        mapped = set(self.jmap.terms) if self.jmap else set()
-        wanted_from_map = self.jmap.columns if self.jmap else set()
-        own = {}
-        for i, nm in enumerate(names, start=1):
-            if nm not in mapped:
-                own[nm] = i
-                own[f"qm{i}"] = i
-        seen_own: dict[int, str] = {}
-        for ci, c in enumerate(head):
-            if c in self.ignore:
-                continue
-            if c == "use":
-                use = ci
-                continue
-            pc = _point_column(c)
-            if pc is not None:
-                j, a = pc
-                if j < 1:
-                    raise ConfigError(f"column {c!r}: points are numbered from 1",
-                                      source=f"{src}:1")
-                points.setdefault(j, {})[a] = ci
-                continue
-            if c in wanted_from_map:
-                joint_cols[c] = ci
-                continue
-            if c in own:
-                i = own[c]
-                if i in seen_own:
-                    raise ConfigError(f"columns {seen_own[i]!r} and {c!r} are both joint {i} "
-                                      f"({names[i - 1]})", source=f"{src}:1")
-                seen_own[i] = c
-                joint_cols[c] = ci
-                continue
-            hint = (f"joints: {', '.join(names)} (or qm1..qm{n})" +
-                    (f", the joint map's columns {', '.join(sorted(wanted_from_map))}"
-                     if self.jmap else ""))
-            raise ConfigError(f"column {c!r} is not one sm-markers reads ({hint}; points "
-                              f"m1_x, m1_y, m1_z ... or x1, y1, z1 ...; use); --ignore-columns "
-                              f"skips the instrument's other columns", source=f"{src}:1")
-        for i, nm in enumerate(names, start=1):
-            if nm in mapped:
-                continue
-            if i not in seen_own:
-                raise ConfigError(f"missing the column of joint {nm!r} (or qm{i}): the chain "
-                                  f"{self.spec.base_link} -> {self.spec.tip_link} has joints "
-                                  f"{', '.join(names)}", source=f"{src}:1")
-        for c in sorted(wanted_from_map):
-            if c not in joint_cols:
-                raise ConfigError(f"missing the column {c!r} that the joint map reads",
-                                  source=f"{src}:1")
-        if not points:
-            raise ConfigError("no point columns (m1_x, m1_y, m1_z ... or x1, y1, z1 ...)",
-                              source=f"{src}:1")
-        count = max(points)
-        for j in range(1, count + 1):
-            miss = [a for a in "xyz" if a not in points.get(j, {})]
-            if miss:
-                raise ConfigError(f"point {j} has no column for {', '.join(miss)} (points "
-                                  f"1..{count} need x, y and z each)", source=f"{src}:1")
-        if self.n_points is None:
-            self.n_points = count
-        elif count != self.n_points:
-            raise ConfigError(f"{count} points, where the first file has {self.n_points}",
-                              source=f"{src}:1")
-        return joint_cols, points, use
-
-    def read(self, path: str, default_use: str, poses: list) -> bytes:
-        raw, head, rows = open_csv(path)
-        if len(set(head)) != len(head):
-            dup = sorted({c for c in head if head.count(c) > 1})
-            raise ConfigError(f"column {dup[0]!r} is named twice", source=f"{path}:1")
-        joint_cols, points, use_col = self.layout(head, path)
-        names = self.spec.joint_names
-        lineno = 1
-        try:
-            for lineno, row in enumerate(rows, start=2):
-                if not any(v.strip() for v in row):
-                    continue
-                poses.append(self._row(row, head, path, lineno, joint_cols, points, use_col,
-                                       default_use, names, len(poses)))
-        except csv.Error as e:
-            raise ConfigError(f"not a CSV row: {e}", source=f"{path}:{lineno}") from None
-        return raw
-
-    def _row(self, row, head, path, lineno, joint_cols, points, use_col, default_use, names,
-             index):
-        where = f"{path}:{lineno}"
-        if len(row) != len(head):
-            raise ConfigError(f"{len(row)} values for {len(head)} columns", source=where)
-
-        def num(ci):
-            v = row[ci].strip()
-            try:
-                x = float(v)
-            except ValueError:
-                raise ConfigError(f"column {head[ci]}: {v[:40]!r} is not a number",
-                                  source=where) from None
-            if not math.isfinite(x) or "_" in v:
-                raise ConfigError(f"column {head[ci]}: {v[:40]!r} is not a finite number",
-                                  source=where)
-            return x
-
-        use = row[use_col].strip() if use_col is not None else ""
-        use = use or default_use
-        if use not in USES:
-            raise ConfigError(f"column use: {use[:40]!r} is not one of {', '.join(USES)}",
-                              source=where)
-        given = {c: num(ci) for c, ci in joint_cols.items()}
-        qm = []
-        for i, (nm, jt) in enumerate(zip(names, self.spec.joints), start=1):
-            if self.jmap and nm in self.jmap.terms:
-                v, col = self.jmap.value(nm, given), f"{nm} (joint map)"
-            else:
-                col = next(c for c in (nm, f"qm{i}") if c in given)
-                v = given[col]
-            qm.append(self._limit(v * self.joint_unit(jt.kind), jt, col, where, index))
-        pts = []
-        for j in range(1, self.n_points + 1):
-            cells = [row[points[j][a]].strip() for a in "xyz"]
-            if not any(cells):
-                pts.append(None)
-                continue
-            if not all(cells):
-                raise ConfigError(f"point {j}: some of its x, y, z cells are empty (leave all "
-                                  f"three empty where the point was not seen)", source=where)
-            pts.append([num(points[j][a]) * self.lu for a in "xyz"])
-        if all(p is None for p in pts):
-            raise ConfigError("no point seen in this row", source=where)
-        rec = {"index": index, "qm": qm, "markers": pts}
-        if use == "validation":
-            rec["use"] = "validation"
-        return rec
-
-    def _limit(self, v: float, jt, col: str, where: str, index: int) -> float:
-        lo, hi = jt.limits
-        if jt.continuous or lo <= v <= hi:
-            return v
-        unit = "rad" if jt.kind == "R" else "m"
-        beyond = lo - v if v < lo else v - hi
-        slack = max(LIMIT_SLACK * (hi - lo), LIMIT_SLACK_MIN[jt.kind])
-        side = "lower" if v < lo else "upper"
-        if beyond <= slack:
-            self.warnings.append(f"pose {index} ({where}): {jt.name} {_fmt(v)} {unit} is "
-                                 f"{_fmt(beyond)} {unit} beyond its {side} limit "
-                                 f"{_fmt(hi if v > hi else lo)} {unit} (the URDF's); kept")
-            return v
-        unit_hint = ("are the joint values in degrees? (--angle-unit deg)" if jt.kind == "R" and
-                     self.au == 1.0 and abs(v) > 2 * math.pi else
-                     "are the joint values in mm? (--length-unit mm)" if jt.kind == "P" and
-                     self.lu == 1.0 and abs(v) > 10 * max(abs(lo), abs(hi), 0.1) else
-                     "check the column's unit, sign and zero (--joint-map)")
-        raise ConfigError(f"column {col}: {_fmt(v)} {unit} is far outside the joint's limits "
-                          f"[{_fmt(lo)}, {_fmt(hi)}] {unit} of the URDF: {unit_hint}",
-                          source=where)
-
-
 def import_markers(csv_path, robot_path, *, base_link, tip_link, length_unit="m",
                    angle_unit="rad", sigma=None, validation=None, ignore=(),
                    joint_map=None) -> Imported:
@@ -267,7 +69,7 @@ def import_markers(csv_path, robot_path, *, base_link, tip_link, length_unit="m"
         raise ConfigError(f"units must be {'/'.join(LENGTH)} and {'/'.join(ANGLE)}, not "
                           f"{length_unit!r}, {angle_unit!r}", source=str(csv_path))
     jmap = load_joint_map(joint_map, spec.joint_names) if joint_map else None
-    reader = _Reader(robot, spec, length_unit, angle_unit, jmap, ignore)
+    reader = MarkerReader(robot, spec, length_unit, angle_unit, jmap, ignore)
     poses: list = []
     files = [(str(csv_path), "fit")] + ([(str(validation), "validation")] if validation else [])
     digests = {}
@@ -277,12 +79,11 @@ def import_markers(csv_path, robot_path, *, base_link, tip_link, length_unit="m"
         if len(poses) == before:
             raise ConfigError("no poses (one row per pose after the header)", source=path)
         digests[path] = hashlib.sha256(raw).hexdigest()
+    check_pose_set(poses, reader.lines, str(csv_path))
     fit = [p for p in poses if p.get("use", "fit") == "fit"]
-    if not fit:
-        raise ConfigError("no fit rows (every row is held out)", source=str(csv_path))
-    qm = np.array([p["qm"] for p in fit])
-    pts = np.array([[[math.nan] * 3 if c is None else c for c in p["markers"]] for p in fit])
-    nominal = start_values(robot, qm, pts, str(csv_path))
+    held = [p for p in poses if p.get("use") == "validation"]
+    nominal = start_values(robot, *_arrays(_spread(fit)), str(csv_path),
+                           held=(*_arrays(_spread(held)), str(validation)) if held else None)
     imported = {"file": Path(str(csv_path)).name, "sha256": digests[str(csv_path)]}
     if validation:
         imported["validation"] = {"file": Path(str(validation)).name,
@@ -298,13 +99,74 @@ def import_markers(csv_path, robot_path, *, base_link, tip_link, length_unit="m"
                           "joints": list(spec.joint_names)}}
     if sigma:
         header["sigma"] = sigma
-    return Imported(header, poses, reader.warnings)
+    return Imported(header, poses, reader.warnings + reader.limit_warnings())
 
 
-def start_values(robot, qm, pts, where: str) -> dict:
+#: the fewest fit poses an import takes (the instrument's frame needs three)
+MIN_FIT_POSES = 3
+
+
+#: poses the start values and the import's checks are made from at most (spread over the
+#: rows in their order: 100 000 rows imported in 32 s, two thirds of it registering them)
+START_POSES = 2000
+
+
+def _spread(poses: list) -> list:
+    """At most :data:`START_POSES` of ``poses``, spread over them in order."""
+    if len(poses) <= START_POSES:
+        return poses
+    return [poses[int(k)] for k in np.linspace(0, len(poses) - 1, START_POSES)]
+
+
+def _arrays(poses) -> tuple[np.ndarray, np.ndarray]:
+    """``(qm (n, N), points (n, M, 3))`` of pose records, nan where a point is not seen."""
+    qm = np.array([p["qm"] for p in poses], dtype=float)
+    pts = np.array([[[math.nan] * 3 if c is None else c for c in p["markers"]] for p in poses],
+                   dtype=float)
+    return qm, pts
+
+
+def check_pose_set(poses: list, lines: list[str], where: str) -> None:
+    """What the rows must be as a whole: at least :data:`MIN_FIT_POSES` fit rows, every
+    point seen in a fit row (its place on the tool is learnt there), no row twice (an
+    export written twice would count every pose twice and shrink every std by 0.7), and
+    no held-out row that is a fit row (a held-out pose is one the fit has not seen)."""
+    fit = [k for k, p in enumerate(poses) if p.get("use", "fit") == "fit"]
+    if len(fit) < MIN_FIT_POSES:
+        raise ConfigError(f"{len(fit)} fit pose(s): sm-markers needs poses in at least "
+                          f"{MIN_FIT_POSES} configurations (and eq. 60's count to identify "
+                          "the robot: app.py batch says how many)", source=where)
+    n = len(poses[0]["markers"])
+    for j in range(n):
+        if all(poses[k]["markers"][j] is None for k in fit):
+            seen = next((lines[k] for k, p in enumerate(poses) if p["markers"][j] is not None),
+                        None)
+            raise ConfigError(f"point {j + 1} is never seen in the fit rows" + (
+                f" (only held out, first at {seen})" if seen else "") + ": its place on the "
+                "tool cannot be learnt; --ignore-columns its columns, or fit rows that see it",
+                source=where)
+    first: dict = {}
+    for k, p in enumerate(poses):
+        key = (tuple(p["qm"]), tuple(tuple(c) if c else None for c in p["markers"]))
+        if key in first:
+            a, use = first[key], p.get("use", "fit")
+            both = poses[a].get("use", "fit")
+            what = ("a held-out row is a fit row: a held-out pose must be one the fit has "
+                    "not seen (is --validation the fit file, or an export of the same rows?)"
+                    if use != both else "the same pose twice (every value equal): an export "
+                    "written twice? each row counts as a pose; remove the copies")
+            same = lines[a].rsplit(":", 1)[0] == lines[k].rsplit(":", 1)[0]
+            other = f"line {lines[a].rsplit(':', 1)[1]}" if same else lines[a]
+            raise ConfigError(f"repeats {other}: {what}", source=lines[k])
+        first[key] = k
+
+
+def start_values(robot, qm, pts, where: str, held=None) -> dict:
     """The nominal of the trace: the instrument frame and the points on the tool that
     best explain the fit rows with the robot at its URDF values; refuses readings
-    that a unit, a mirror or a wrong joint column makes inconsistent with the robot."""
+    that a unit, a mirror or a wrong joint column makes inconsistent with the robot,
+    and held-out rows ``held = (qm, points, file)`` in another unit or frame than the
+    fit rows (:func:`check_held_out`)."""
     xi = robot.nominal
     seen = np.all(np.isfinite(pts), axis=2)
     spread = float(np.sqrt(np.mean(np.sum((pts[seen] - pts[seen].mean(axis=0)) ** 2, axis=1))))
@@ -329,12 +191,42 @@ def start_values(robot, qm, pts, where: str) -> dict:
                           f"signs and zeros (--joint-map), that the points are fixed on the "
                           f"tool, and that the URDF describes this robot",
                           source=where)
-    R, t, u, _rms = register(robot, qm, pts, xi)
+    R, t, u, median = register(robot, qm, pts, xi)
+    if held is not None and len(held[0]) >= MIN_FIT_POSES:   # fewer: the gate judges them
+        check_held_out(robot, xi, (R, t, u), max(median, FOLLOW_SHARE * spread), *held)
     roll, pitch, yaw = rpy_of(R[None])[0]
     out = {"base_x": float(t[0]), "base_y": float(t[1]), "base_z": float(t[2]),
            "base_roll": float(roll), "base_pitch": float(pitch), "base_yaw": float(yaw)}
     out.update(zip(marker_names(len(u)), (float(v) for v in u.reshape(-1))))
     return out
+
+
+def check_held_out(robot, xi, placement, bar: float, qm, pts, where: str) -> None:
+    """Held-out rows (three or more) must be in the fit rows' unit and instrument frame:
+    their median distance from where the fit rows' placement ``(R, t, u)`` puts the points
+    at most ``bar`` (the larger of the fit rows' own median and :data:`FOLLOW_SHARE` of their
+    spread); else one line saying which (a unit: they move another distance than the
+    tool; a frame: they are shifted or turned as a whole)."""
+    R, t, u = placement
+    base = np.array(xi, dtype=float)
+    for name in ("base_x", "base_y", "base_z", "base_rx", "base_ry", "base_rz",
+                 "base_roll", "base_pitch", "base_yaw"):
+        base[robot.index(name)] = 0.0
+    T = robot.frames(qm, base)
+    pred = (T[:, None, :3, 3] + np.einsum("sij,kj->ski", T[:, :3, :3], u)) @ R.T + t
+    seen = np.all(np.isfinite(pts), axis=2)
+    d = float(np.median(np.linalg.norm(pts[seen] - pred[seen], axis=1)))
+    if d <= bar:
+        return
+    scale = scale_and_mirror(robot, qm, pts, xi)[0] if len(qm) >= MIN_FIT_POSES else 1.0
+    why = (f"they move {scale:.3g} times as far as the robot's tool: another unit "
+           "(--length-unit applies to both files)" if not 1 / 3 < scale < 3 else
+           "another instrument frame (moved, or another day's calibration of the "
+           "instrument) or another robot")
+    raise ConfigError(f"the held-out rows' points lie {d * 1e3:.4g} mm (median) from where the "
+                      f"fit rows' instrument frame puts them ({bar * 1e3:.3g} mm at most): {why}; "
+                      "held-out rows must be measured in the fit rows' frame and unit",
+                      source=where)
 
 
 def import_markers_command(args) -> str:

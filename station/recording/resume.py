@@ -116,6 +116,22 @@ def unstarted(trace_path: Path) -> bool:
     return True
 
 
+def written_by_a_command(trace_path: Path) -> str | None:
+    """The command that wrote a trace whose header says it was not recorded by a session
+    (``station.generator``: ``app.py trace generate``; ``station.imported_from``: ``app.py
+    trace import``), else None (its first line only is read)."""
+    with open(trace_path, "rb") as f:
+        first = f.readline()
+    try:
+        station = json.loads(first).get("station") or {}
+    except (ValueError, AttributeError):
+        return None               # the trace reader names what is wrong with it
+    if not isinstance(station, dict):
+        return None
+    return ("app.py trace generate" if "generator" in station else
+            "app.py trace import" if "imported_from" in station else None)
+
+
 def recorded_plan(trace) -> tuple[list[PlannedPose], set[int], dict[int, dict]]:
     """What a trace says of its session's plan: the planned poses (``plan`` events, a
     replacing one dropping those before it), the skipped plan indices and the measured

@@ -29,7 +29,7 @@ from calibration.errors import ConfigError
 from calibration.methods import METHODS, check_kind
 from calibration.robots import get_robot
 from drivers.robot_file import load_robot_file
-from station.recording.csv_columns import ANGLE, LENGTH, open_csv, parse_sigma
+from station.recording.csv_columns import ANGLE, LENGTH, not_a_number, open_csv, parse_sigma
 from station.recording.trace_writer import write_trace
 
 # columns each method reads (besides qm and use), and the trace channel they form
@@ -87,7 +87,7 @@ def import_csv(csv_path, robot_path, method: str, *, length_unit="m", angle_unit
             try:
                 x = float(v)
             except ValueError:
-                raise ConfigError(f"column {c}: {v!r} is not a number", source=where) from None
+                raise ConfigError(f"column {c}: {not_a_number(v)}", source=where) from None
             if not math.isfinite(x):
                 raise ConfigError(f"column {c}: {v!r} is not finite", source=where)
             return x

@@ -182,6 +182,11 @@ class Session(ReferenceStep, PlanningStep, ExecutionLoop, ConfirmStep, Calibrati
         return self.out / TRACE
 
     def _load(self) -> None:
+        made = resume.written_by_a_command(self.trace_path)
+        if made is not None:          # nothing of it is touched
+            raise ConfigError(f"this trace was written by `{made}`, not recorded by a station "
+                              "session: it is not resumed (app.py batch calibrates it); choose "
+                              "another folder for the session", source=str(self.trace_path))
         self._writer = TraceWriter.resume(self.trace_path)
         tr = self._writer.trace
         if tr.robot != self.robot.name or tr.method != self.method:

@@ -283,7 +283,9 @@ def test_import_csv_gives_the_same_calibration(tmp_path, method):
 @pytest.mark.parametrize("edit,words", [
     (lambda ls: ls[:2] + [ls[2].replace(ls[2].split(",")[1], "abc", 1)] + ls[3:], ":3: column qm2: 'abc'"),
     (lambda ls: [ls[0].replace("yaw", "jaw")] + ls[1:], ":1: column 'jaw'"),
-    (lambda ls: ls[:3] + [ls[3] + ",1"] + ls[4:], ":4: 12 values for 11 columns"),
+    (lambda ls: ls[:3] + [ls[3] + ",1"] + ls[4:], ":4: a value beyond the 11 columns the "
+                                                  "header names (column 12)"),
+    (lambda ls: ls[:3] + [ls[3].rsplit(",", 1)[0]] + ls[4:], ":4: 10 values for 11 columns"),
     (lambda ls: ls[:2] + ["999," + ls[2].split(",", 1)[1]] + ls[3:], ":3: column qm1: 999.0 is outside"),
 ])
 def test_import_errors_name_the_csv_line(tmp_path, edit, words):
