@@ -144,7 +144,7 @@ def _cmd_params_export(args) -> int:
     from station.outputs.export import export_command
 
     for line in export_command(args):
-        print(line)
+        print(line, file=sys.stderr if line.startswith("warning:") else sys.stdout)
     return 0
 
 

@@ -18,6 +18,8 @@ round-off (rpy of the origins are exact away from pitch = +-pi/2).
 """
 from __future__ import annotations
 
+import hashlib
+
 import json
 import math
 from pathlib import Path
@@ -143,6 +145,29 @@ def _q(s: str) -> str:
 
 
 
+def _replaceable(path, kind: str, own: str | None) -> None:
+    """An existing ``path`` is replaced only by its kind (``"urdf"``: a URDF, ``"robot
+    file"``: a TOML robot file) and never where it is the robot's own description (its
+    sha256 ``own``, the file the calibration started from): a trace, a parameter file, a
+    CSV or the robot's own URDF would be lost (``params export P --urdf TRACE.jsonl``
+    replaced the only copy of the measurements)."""
+    p = Path(path)
+    if not p.is_file():
+        return
+    raw = p.read_bytes()
+    head = raw[:4096].decode("utf-8", "replace").lstrip("\ufeff \t\r\n")
+    looks = ("<robot" in head and head.startswith(("<?xml", "<robot", "<!--"))
+             if kind == "urdf" else head.startswith(("#", "[", "name")))
+    if not looks:
+        raise ConfigError(f"cannot write the {'URDF' if kind == 'urdf' else kind} {path}: it "
+                          f"exists and is not a {'URDF' if kind == 'urdf' else 'robot file'} "
+                          "(it would be lost): choose another file name")
+    if own is not None and hashlib.sha256(raw).hexdigest() == own:
+        raise ConfigError(f"cannot write the calibrated {'URDF' if kind == 'urdf' else kind} "
+                          f"{path}: it is the robot's own description, the one this calibration "
+                          "started from (keep it: write the calibration beside it)")
+
+
 def export_command(args) -> list[str]:
     """``app.py params export FILE [--urdf OUT] [--robot-file OUT]``: check the
     parameter file (checksum), build the calibrated model, write each output
@@ -156,6 +181,10 @@ def export_command(args) -> list[str]:
                   inputs=(args.file,))
     doc = read_params(args.file)
     check_usable(doc, args.file)
+    own = (doc.get("robot_file") or {}).get("sha256")
+    for path, kind in ((args.urdf, "urdf"), (args.robot_file, "robot file")):
+        if path is not None:
+            _replaceable(path, kind, own)
     robot, xi = calibrated_model(doc, args.file)
     outs = []
     urdf_robot = hasattr(robot, "calibrated_origins")
@@ -177,6 +206,11 @@ def export_command(args) -> list[str]:
 
         parse_robot_file(outs[-1][1], f"the calibrated robot file {args.robot_file}")
     lines, written = [], []
+    q = (doc.get("fit") or {}).get("quality") or {}
+    if q.get("passed") is False:
+        failed = "; ".join(c["message"] for c in q.get("checks", ()) if not c.get("ok"))
+        lines.append(f"warning: this calibration failed the fit-quality gate and was kept with "
+                     f"--accept-poor-fit ({failed[:300]}): the exported model carries that")
     try:
         for path, text, what in outs:
             write_atomic(path, text.encode("utf-8"))
