@@ -32,6 +32,7 @@ from calibration import quality as q
 from calibration.errors import CalibrationError
 from station.fitting.gate_checks import (check_explains, check_plausibility, check_poses,
                                          check_validation, people)
+from station.fitting.point_check import check_points
 from station.fitting.pose_count import NR_P, parameter_count
 from station.fitting.verdict import FitQualityError, NotConverged, Quality, describe, max_outliers
 
@@ -183,8 +184,9 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
     got = run_gate(trace, model0, result, refit=refit, stated_sigma=stated_sigma,
                    validate=validate, outliers=pre, hold=hold)
     quality, trace1, model1 = got[:3]
-    if quality.passed or len(quality.outliers) >= max_outliers(len(trace.fit_poses)):
-        return got
+    if quality.passed or len(quality.outliers) >= max_outliers(len(trace.fit_poses)) \
+            or any(c["check"] == "points" and not c["ok"] for c in quality.checks):
+        return got          # (a point off the tool is no reading to leave out)
     # least squares may spread a gross reading over every residual: ask a robust fit,
     # started where least squares ended (from the bare start values a robot far from
     # its nominal lands in another minimum, where every reading looks gross)
@@ -366,6 +368,7 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
     check_plausibility(quality, model, result, trace.method, serial)
     if serial:
         check_explains(quality, model, result)
+        check_points(quality, trace, model, result, refit=refit, hold=hold)
     validation = None
     if validate is not None and trace.validation_poses:
         validation = validate(trace, model, result)
