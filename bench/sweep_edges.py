@@ -7,6 +7,7 @@ would destroy inputs, hung devices and silently wrong commands, each run as
     python bench/sweep_edges.py --root /tmp/old     # another checkout (before/after)
     python bench/sweep_edges.py --only out- -v      # cases whose name starts so
     python bench/sweep_edges.py --only data- -v     # the data cases only, ~6 min
+    python bench/sweep_edges.py --only u43- -v      # a URDF's and a CSV's (issue 43)
 
 Each case says what a careful tool does: ``refuse`` (a one-line ``error: ...`` on
 stderr, exit 2), ``ok`` (exit 0) or ``either``. The ``data-`` cases are measurements
@@ -1211,6 +1212,10 @@ def main(argv=None) -> int:
         cs += [c for c in serial_data_cases(root, d) if c.name.startswith(a.only)]
     if "data-urdf-".startswith(a.only) or a.only.startswith("data-urdf-"):
         cs += [c for c in urdf_data_cases(root, d) if c.name.startswith(a.only)]
+    if "u43-".startswith(a.only) or a.only.startswith("u43-"):    # issue 43: URDF and CSV
+        from sweep_urdf_edges import urdf_edge_cases
+
+        cs += [c for c in urdf_edge_cases(root, d, Case) if c.name.startswith(a.only)]
     t0 = time.monotonic()
     results = []
 
