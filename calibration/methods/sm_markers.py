@@ -138,6 +138,19 @@ def _kabsch(A: np.ndarray, B: np.ndarray):
     return R, cb - R @ ca, R_any, cb - R_any @ ca
 
 
+#: the instrument frame's parameters (the base link placed in the instrument's frame)
+FRAME_PARAMS = ("base_x", "base_y", "base_z", "base_rx", "base_ry", "base_rz",
+                "base_roll", "base_pitch", "base_yaw")
+
+
+def tip_frames(robot, qm, xi) -> np.ndarray:
+    """``(m, 4, 4)`` the tip link's frames in the base link's frame for the robot at
+    ``xi`` (its own parameters; the instrument frame's, :data:`FRAME_PARAMS`, left out)."""
+    xi = np.array(xi, dtype=float)
+    xi[[robot.index(name) for name in FRAME_PARAMS]] = 0.0
+    return robot.frames(qm, xi)
+
+
 def register(robot, qm, points, xi, *, iterations: int = 200, tol: float = 1e-12,
              proper: bool = True):
     """Start values of the instrument's frame and the points on the tool for the robot
@@ -148,11 +161,7 @@ def register(robot, qm, points, xi, *, iterations: int = 200, tol: float = 1e-12
     frame, and the median 3D distance of the readings from their prediction (robust
     to a few gross readings, which the fit-quality gate judges). ``proper``
     False lets the placement mirror (``det R = -1``; :func:`mirror_check`)."""
-    xi = np.array(xi, dtype=float)
-    for name in ("base_x", "base_y", "base_z", "base_rx", "base_ry", "base_rz",
-                 "base_roll", "base_pitch", "base_yaw"):
-        xi[robot.index(name)] = 0.0
-    T = robot.frames(qm, xi)
+    T = tip_frames(robot, qm, xi)
     Rt, pt = T[:, :3, :3], T[:, :3, 3]
     pts = np.asarray(points, dtype=float)
     seen = np.all(np.isfinite(pts), axis=2)

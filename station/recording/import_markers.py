@@ -36,7 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from calibration.errors import ConfigError
-from calibration.methods.sm_markers import marker_names, register, scale_and_mirror
+from calibration.methods.sm_markers import (marker_names, register, scale_and_mirror,
+                                           tip_frames)
 from calibration.robots import get_robot
 from calibration.robots.serial import rpy_of
 from drivers.urdf_file import load_urdf
@@ -208,11 +209,7 @@ def check_held_out(robot, xi, placement, bar: float, qm, pts, where: str) -> Non
     spread); else one line saying which (a unit: they move another distance than the
     tool; a frame: they are shifted or turned as a whole)."""
     R, t, u = placement
-    base = np.array(xi, dtype=float)
-    for name in ("base_x", "base_y", "base_z", "base_rx", "base_ry", "base_rz",
-                 "base_roll", "base_pitch", "base_yaw"):
-        base[robot.index(name)] = 0.0
-    T = robot.frames(qm, base)
+    T = tip_frames(robot, qm, xi)
     pred = (T[:, None, :3, 3] + np.einsum("sij,kj->ski", T[:, :3, :3], u)) @ R.T + t
     seen = np.all(np.isfinite(pts), axis=2)
     d = float(np.median(np.linalg.norm(pts[seen] - pred[seen], axis=1)))
