@@ -338,7 +338,13 @@ def clearly_identifiable(F: Scaled, rank_tol: float, norms, floor: float):
     total = sum(dmin) + sum(nl)
     if (total == total and min(dmin) > rank_tol
             and min([a * b for a, b in zip(dmin, nl)]) > floor * (1 + 1e-9) and min(nl) > floor):
-        return d
+        # and together too: the smallest singular value of the unit columns is at
+        # least 1 / ||R_unit^-1||_F (classify's joint check where it is not clearly so)
+        Rinv = F.Rinv
+        if Rinv is not None:
+            cn2 = np.einsum("ij,ij->j", R, R)
+            if float(cn2 @ row_norms2(Rinv)) * rank_tol * rank_tol < 1.0:
+                return d
     return None
 
 

@@ -75,3 +75,49 @@ def test_a_constant_tilt_offset_is_a_frame_rotation():
     x[model.names.index("theta0")] += delta
     assert abs(model.residuals(truth)).max() > 0.9 * delta
     assert abs(model.residuals(x)).max() < 1e-12
+
+
+def _unit(rows: int, seed: int = 0):
+    import numpy as np
+
+    return np.linalg.qr(np.random.default_rng(seed).normal(size=(rows, rows)))[0]
+
+
+def test_a_dependency_a_calibration_bent_keeps_the_nominal_s_set():
+    """Three translations of one link and a fourth along joint i's axis: at the nominal the
+    axis is the first of them exactly and the second of two equal columns goes; a
+    milliradian off (a calibrated URDF read again), the sequential QR would keep the
+    nearly parallel pair and drop the third, at a coefficient of a thousand. The exchange
+    keeps the nominal's set, whose condition stays of order one."""
+    import numpy as np
+
+    from calibration.identifiability import classify
+
+    e = _unit(40)[:, :3]
+    for eps in (0.0, 1e-3, 1e-5):
+        along = e[:, 0] + eps * e[:, 2]  # joint i's axis, eps off joint i+1's x
+        W = np.column_stack([along, e[:, 0], e[:, 1], e[:, 2]]) * [0.3, 2.0, 2.0, 2.0]
+        ok, dep, rdiag, _ = classify(W)
+        assert ok.tolist() == [True, False, True, True], (eps, ok)
+        assert dep.tolist() == [False, True, False, False]
+        kept = W[:, ok] / np.linalg.norm(W[:, ok], axis=0)
+        assert np.linalg.cond(kept) < 10
+        assert rdiag[1] <= 10 * eps + 1e-12  # the one left out: its distance from the kept
+
+
+def test_columns_each_clearly_apart_but_together_dependent_lose_one():
+    """A Kahan triangle: every column at least 0.04 from the span of the earlier ones, the
+    smallest singular value 2e-11. One column goes (the last that takes part), the rest
+    are conditioned as the rank tolerance asks."""
+    import numpy as np
+
+    from calibration.identifiability import classify
+
+    n, c = 100, 0.25
+    s = np.sqrt(1 - c * c)
+    K = np.diag(s ** np.arange(n)) @ (np.triu(-c * np.ones((n, n)), 1) + np.eye(n))
+    W = _unit(300)[:, :n] @ K
+    ok, dep, rdiag, _ = classify(W)
+    assert ok.sum() == n - 1 and dep.sum() == 1
+    kept = W[:, ok] / np.linalg.norm(W[:, ok], axis=0)
+    assert np.linalg.svd(kept, compute_uv=False)[-1] > 1e-8
