@@ -80,6 +80,7 @@ def import_markers(csv_path, robot_path, *, base_link, tip_link, length_unit="m"
         if len(poses) == before:
             raise ConfigError("no poses (one row per pose after the header)", source=path)
         digests[path] = hashlib.sha256(raw).hexdigest()
+    reader.check_prismatic_units(poses, str(csv_path))
     check_pose_set(poses, reader.lines, str(csv_path))
     fit = [p for p in poses if p.get("use", "fit") == "fit"]
     held = [p for p in poses if p.get("use") == "validation"]

@@ -45,6 +45,7 @@ class MarkerReader:
         self.warnings: list[str] = []
         self.lines: list[str] = []       # "file:line" of each pose read
         self.beyond: dict = {}           # (joint, side) -> [count, largest, where, limit, unit]
+        self.columns: dict = {}          # URDF joint -> the column its value was read from
 
     def joint_unit(self, kind: str) -> float:
         return self.au if kind == "R" else self.lu
@@ -180,6 +181,7 @@ class MarkerReader:
             else:
                 col = next(c for c in (nm, f"qm{i}") if c in given)
                 v = given[col]
+            self.columns.setdefault(nm, col)
             qm.append(self._limit(v * self.joint_unit(jt.kind), jt, col, where, index))
         pts = []
         for j in range(1, self.n_points + 1):
@@ -221,6 +223,31 @@ class MarkerReader:
         raise ConfigError(f"column {col}: {_fmt(v)} {unit} is far outside the joint's limits "
                           f"[{_fmt(lo)}, {_fmt(hi)}] {unit} of the URDF: {unit_hint}",
                           source=where)
+
+    def check_prismatic_units(self, poses: list, src: str) -> None:
+        """A prismatic joint's column in metres read in ``--length-unit mm`` (a controller
+        printing its rail in m beside a tracker's mm): its values then move by a
+        thousandth of the URDF's travel. Refused, naming the column and the remedy."""
+        if self.lu == 1.0 or not poses:
+            return
+        for i, (nm, jt) in enumerate(zip(self.spec.joint_names, self.spec.joints)):
+            lo, hi = jt.limits
+            travel = hi - lo
+            if jt.kind != "P" or not (0 < travel < math.inf):
+                continue
+            v = [p["qm"][i] for p in poses]
+            span = max(v) - min(v)
+            as_m = [x / self.lu for x in v]
+            slack = max(LIMIT_SLACK * travel, LIMIT_SLACK_MIN["P"])
+            if (span < 0.01 * travel and max(as_m) - min(as_m) >= 0.05 * travel
+                    and lo - slack <= min(as_m) and max(as_m) <= hi + slack):
+                raise ConfigError(
+                    f"column {self.columns.get(nm, nm)}: the prismatic joint {nm} moves "
+                    f"{span * 1e3:.3g} mm over the poses, {100 * span / travel:.2g} % of "
+                    f"its {_fmt(travel)} m travel in the URDF; its values look like metres "
+                    f"read in {self.units[0]} (--length-unit applies to prismatic joints too): "
+                    f"give it a joint map line with scale = {_fmt(1 / self.lu)} (--joint-map)",
+                    source=src)
 
     def limit_warnings(self) -> list[str]:
         """One warning per joint and side for the values a little beyond the URDF's limit
