@@ -29,6 +29,8 @@ from calibration.errors import CalibrationError
 from calibration.methods.base import RobotMethod
 
 AXES = ("x", "y", "z")
+#: poses evaluated together (:meth:`Markers.evaluate`)
+POSE_BLOCK = 4096
 
 
 def marker_names(count: int) -> tuple[str, ...]:
@@ -100,9 +102,34 @@ class Markers(RobotMethod):
         return T[:, None, :3, 3] + arm, T, psi, arm
 
     def evaluate(self, x):
-        pred, T, psi, arm = self.predict(x)
-        i, k = self.pose_of, self.marker_of
-        r = (self.points[i, k] - pred[i, k]).reshape(-1)
+        """Residuals and Jacobian, :data:`POSE_BLOCK` poses at a time (a block's
+        temporaries, the tip frames and their screws, stay small however many poses:
+        100 000 poses of three points are a 900 000-row matrix, and its temporaries
+        were four times its size)."""
+        x = np.asarray(x, dtype=float)
+        s, n = len(self.pose_of), self.nr + 3 * self.n_markers
+        m = len(self.qm)
+        if m <= POSE_BLOCK:
+            return self._rows(x, 0, m, 0, s)
+        r = np.empty(3 * s)
+        W = np.empty((3 * s, n))
+        ends = np.searchsorted(self.pose_of, np.arange(0, m + POSE_BLOCK, POSE_BLOCK)[1:])
+        lo_s = 0
+        for b, hi_s in enumerate(ends.tolist()):
+            lo = b * POSE_BLOCK
+            r[3 * lo_s:3 * hi_s], W[3 * lo_s:3 * hi_s] = self._rows(
+                x, lo, min(lo + POSE_BLOCK, m), lo_s, hi_s)
+            lo_s = hi_s
+        return r, W
+
+    def _rows(self, x, lo: int, hi: int, lo_s: int, hi_s: int):
+        """The rows of poses ``lo:hi``, whose seen points are ``lo_s:hi_s``."""
+        T, psi = self.robot.spatial_jacobian(self.qm[lo:hi], x[:self.nr])
+        u = x[self.nr:].reshape(self.n_markers, 3)
+        arm = np.einsum("mij,kj->mki", T[:, :3, :3], u)       # R_e u_j
+        pred = T[:, None, :3, 3] + arm
+        i, k = self.pose_of[lo_s:hi_s] - lo, self.marker_of[lo_s:hi_s]
+        r = (self.points[i + lo, k] - pred[i, k]).reshape(-1)
         dp, dw = psi[i, :3, :], psi[i, 3:, :]                    # (s, 3, Nr)
         a = arm[i, k]                                             # (s, 3)
         cross = np.stack([dw[:, 1] * a[:, 2, None] - dw[:, 2] * a[:, 1, None],

@@ -221,3 +221,17 @@ def test_compliance_columns_match_finite_differences():
     for i in range(1, 7):
         j = model.names.index(f"c{i}")
         assert np.linalg.norm(W[:, j] - Jn[:, j]) <= 1e-6 * max(np.linalg.norm(Jn[:, j]), 1.0)
+
+
+def test_the_rows_of_many_poses_are_made_in_blocks_the_same_bit_for_bit(monkeypatch):
+    """100 000 poses of three points are a 900 000-row matrix; evaluated a block of poses
+    at a time, its temporaries stay small. The rows are those of one block, exactly."""
+    import calibration.methods.sm_markers as sm
+
+    rob, x, qm, P = case(seed=5, count=50, unseen=0.3)
+    model = build("sm-markers", rob, MethodData(qm=qm, channels={"markers": P}), x)
+    whole = model.evaluate(x)
+    for block in (1, 7, 49):
+        monkeypatch.setattr(sm, "POSE_BLOCK", block)
+        r, W = model.evaluate(x)
+        assert np.array_equal(r, whole[0]) and np.array_equal(W, whole[1]), block
