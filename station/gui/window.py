@@ -252,13 +252,21 @@ class MainWindow(QMainWindow):
     def closeEvent(self, event) -> None:
         execute = self.pages[PageId.EXECUTE]
         if execute.running and not self.controller.closed:
+            # the robot stops after the current pose while the question is open
+            s = self.controller.session
+            was_paused = bool(s is not None and s.paused)
+            if s is not None and not was_paused:
+                execute.pause()
             answer = QMessageBox.question(
                 self, "Stop measuring?",
-                "Poses are being measured. Stop after the current pose and close? Every "
-                "recorded pose is kept; open the same session folder again to continue.",
+                "Measuring is paused after the current pose. Stop and close? Every "
+                "recorded pose is kept; open the same session folder again to continue. "
+                "(No: measuring goes on.)",
                 QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No,
                 QMessageBox.StandardButton.No)
             if answer != QMessageBox.StandardButton.Yes:
+                if s is not None and not was_paused and execute.running:
+                    execute.resume()
                 event.ignore()
                 return
         if execute.fault_box is not None:

@@ -206,7 +206,7 @@ class FaultQuestion(QObject):
         return req.reply
 
     def answer(self, req: FaultQuestion.Request, reply: str) -> None:
-        if reply not in ("retry", "skip", "abort"):
+        if reply not in ("retry", "skip", "abort", "reconnect"):
             raise ValueError(f"unknown answer {reply!r}")
         req.reply = reply
         req.event.set()

@@ -181,6 +181,10 @@ class ExecutionLoop:
                             f"{describe_error(e, self.units)}",
                             plan_index=pose.index, device=e.device)
                 action = self.fault_policy(pose, e, attempt)
+                if action == "reconnect":     # the devices are gone: connected anew, then on
+                    self._event("abort", f"stopped at pose {pose.index} to connect the "
+                                "devices anew (Retry after they were lost)")
+                    raise SessionAborted(f"stopped to connect the devices anew: {e}") from e
                 if action == "abort":
                     self._event("abort", f"aborted at pose {pose.index} after a fault")
                     raise SessionAborted(f"aborted after a fault: {e}") from e

@@ -20,7 +20,8 @@ from station.outputs.units import describe_error
 from station.recording.planned_pose import PlannedPose
 from station.session import device_loss
 
-FaultPolicy = Callable[[PlannedPose, DeviceError, int], str]   # -> "retry" | "skip" | "abort"
+# -> "retry" | "skip" | "abort" | "reconnect" (abort to connect the lost devices anew)
+FaultPolicy = Callable[[PlannedPose, DeviceError, int], str]
 
 
 def retry_then_skip(retries: int = 3, window: float = 0.0) -> FaultPolicy:

@@ -97,6 +97,8 @@ def test_a_dead_simulator_is_survived(open_window, qtbot, tmp_path, answers):
     box = ex.fault_box
     assert box is not None, ex.status.text()
     said.append(box.informativeText())
+    # issue 44: the simulator, not a drive, and every device, not one
+    assert "simulator's process has stopped" in said[0] and "reset the drive" not in said[0]
     assert _marked(win, PageId.REFERENCE) and _marked(win, PageId.PLAN)
     qtbot.mouseClick(box.answer_buttons["retry"], Qt.MouseButton.LeftButton)
 
@@ -113,7 +115,11 @@ def test_a_dead_simulator_is_survived(open_window, qtbot, tmp_path, answers):
     assert len(s.measured) >= len(s.plan_poses) - 1
     assert _marked(win, PageId.REFERENCE) and _marked(win, PageId.PLAN)
     said.append(ex.status.text())
-    said += [ex.log.item(i).text() for i in range(ex.log.count())]
+    log = [ex.log.item(i).text() for i in range(ex.log.count())]
+    said += log
+    # Retry is not an abort: the log says the devices were connected anew
+    assert any("to connect the devices anew" in t for t in log), log
+    assert not any("after a fault" in t for t in log), log
 
     # dead again while idle: Connect on the setup page connects the same session anew,
     # without asking whether to resume it

@@ -263,11 +263,23 @@ class ExecutePage(Page):
         box.setWindowTitle("Device fault")
         box.setText(f"Pose {pose.index} could not be measured (attempt {request.attempt + 1}).")
         lost = self.controller.devices_lost
-        retry_text = ("Retry: connect the devices anew (the simulator started again), go back "
-                      "to the reference and measure the pose again."
-                      if lost and self.controller.simulate else
-                      "Retry: reset the drive or reconnect the device and measure the pose "
-                      "again.")
+        gone = ""
+        if self.controller.simulate:
+            if lost:
+                gone = ("The simulator's process has stopped: every simulated device is "
+                        "gone, not only the one named below.\n\n")
+                retry_text = ("Retry: start the simulator again, connect its devices, go "
+                              "back to the reference and measure the pose again.")
+            else:
+                retry_text = "Retry: measure the pose again (the simulated device answers again)."
+        elif lost:
+            retry_text = ("Retry: connect the devices anew (check the named device's cable "
+                          "and power first), go back to the reference and measure the pose "
+                          "again.")
+        else:
+            retry_text = ("Retry: measure the pose again (a drive in FAULT is reset by the "
+                          "station; check the named device's cable and power if it comes "
+                          "back).")
         text = error_text(request.error)
         seen = self._faults_seen.setdefault(pose.index, [])
         # the same fault a third time on this pose: the pose, not the device, is at fault
@@ -278,7 +290,7 @@ class ExecutePage(Page):
                 "an obstacle) rather than a flaky device. Skip is suggested."
                 if repeated else "")
         box.setInformativeText(
-            f"{text}\n\n{retry_text}\nSkip: leave this pose out and go "
+            f"{gone}{text}\n\n{retry_text}\nSkip: leave this pose out and go "
             "on.\nAbort: stop here; the recorded poses stay in the trace and you can "
             f"continue later.{hint}")
         retry = box.addButton("&Retry", QMessageBox.ButtonRole.AcceptRole)
@@ -295,7 +307,7 @@ class ExecutePage(Page):
             if answer == "retry" and self.controller.devices_lost:
                 # the session cannot reconnect to devices that are gone: it stops, the
                 # devices are connected anew and measuring goes on from this pose
-                self._restart, answer = True, "abort"
+                self._restart, answer = True, "reconnect"
             self.controller.faults.answer(request, answer)
             self.fault_box = None
 

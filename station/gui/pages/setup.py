@@ -14,7 +14,8 @@ from station.gui.controller import ROBOTS, summarize_folder
 from station.gui.pages.base import Page, error_text
 from station.gui.pages.setup_choices import (DEFAULT_METHOD, METHOD_TEXT,  # noqa: F401
                                              ROBOT_FILES, ROUNDS_TEXT, RobotMethodChoice,
-                                             default_folder, draw_truth_file, robot_model)
+                                             default_folder, draw_truth_file, robot_model,
+                                             sessions_root)
 from station.gui.widgets import BAD_COLOR, OK_COLOR, DeviceTable, note
 from station.planning.request import PlanRequest
 
@@ -44,8 +45,10 @@ class SetupPage(RobotMethodChoice, Page):
             self.robot.addItem(text, key)
         for path in sorted(ROBOT_FILES.glob("*.toml")):
             self.add_robot_file(str(path))
-        browse_robot = QPushButton("Robot fi&le\u2026")
-        browse_robot.setToolTip("any serial arm described by a robot file (docs/robot-files.md)")
+        browse_robot = self.robot_file_button = QPushButton("Robot fi&le\u2026")
+        browse_robot.setProperty("tip", "any serial arm described by a robot file "
+                                        "(docs/robot-files.md)")
+        browse_robot.setToolTip(browse_robot.property("tip"))
         browse_robot.clicked.connect(self.browse_robot_file)
         self.method = QComboBox()
         self.method_text = note("")
@@ -169,11 +172,13 @@ class SetupPage(RobotMethodChoice, Page):
             w.setEnabled(not locked and (w is not self.truth_row and w is not
                                          self.draw_truth_button or self.robot_file))
         self.robot.setEnabled(not locked and not self._robot_fixed)
+        self.robot_file_button.setEnabled(not locked and not self._robot_fixed)
         self.folder_row.setEnabled(not locked)
         self._show_rounds()
         tip = ("Disconnect to change the robot, the method, the folder or the poses"
                if locked else "")
-        for w in (self.robot, self.method, self.folder_row, self.count, self.rounds):
+        for w in (self.robot, self.robot_file_button, self.method, self.folder_row, self.count,
+                  self.rounds):
             w.setToolTip(tip or w.property("tip") or "")
 
     def _robot_from_config(self, path) -> None:
@@ -274,7 +279,8 @@ class SetupPage(RobotMethodChoice, Page):
             s = self.controller.session
             self.missing.setText(f"\u2713 Connected; session folder {s.out}"
                                  + (f" (resumed: {len(s.measured)} poses recorded)"
-                                    if s.resumed else "") + ". Press Next.")
+                                    if s.resumed else "") + ". Press Next. (To change the "
+                                 "robot, the method or the folder: Disconnect first.)")
             self.missing.setStyleSheet(f"color: {OK_COLOR};")
         self.completeChanged.emit()
 
@@ -304,6 +310,14 @@ class SetupPage(RobotMethodChoice, Page):
             self.update_missing()
             return
         folder = Path(self.folder.text().strip()).expanduser()
+        if folder.parent == sessions_root() and not folder.exists():
+            # the wizard's own default place: made on the first Connect on a new machine
+            try:
+                folder.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                self._error = f"The folder {folder.parent} cannot be made: {e.strerror or e}"
+                self.update_missing()
+                return
         current = self.controller.session
         if current is not None and current.out.resolve() == folder.resolve():
             # this session's folder again (its devices were lost): connect anew, no question

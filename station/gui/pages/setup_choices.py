@@ -51,8 +51,13 @@ def draw_truth_file(robot_file: str, folder: Path, seed: int) -> Path:
 ROUNDS_TEXT = "Plan in rounds from the measured poses, and watch every move (recommended)"
 
 
+def sessions_root() -> Path:
+    """Where the wizard proposes session folders (made on the first Connect)."""
+    return Path.home() / "calstation-sessions"
+
+
 def default_folder() -> str:
-    return str(Path.home() / "calstation-sessions" / time.strftime("%Y%m%d-%H%M%S"))
+    return str(sessions_root() / time.strftime("%Y%m%d-%H%M%S"))
 
 
 
