@@ -11,7 +11,7 @@ from PySide6.QtGui import QColor, QFont
 from PySide6.QtWidgets import (QHeaderView, QTableWidget, QTableWidgetItem, QVBoxLayout,
                                QWidget)
 
-from station.outputs.fit_summary import describe_not_identified, not_identified
+from station.outputs.fit_summary import describe_not_identified, not_identified, operator_notes
 from station.gui.plots import ConvergencePlots
 from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, heading, note
 from station.outputs.report_context import IDENT_GROUPS, IDENT_SYMBOL, group_of
@@ -79,6 +79,8 @@ class CalibrationView(QWidget):
         self.validation = _table(0, ["channel", "poses", "RMS before", "RMS after", "change",
                                      "max before", "max after"])
         lay.addWidget(self.validation)
+        self.validation_note = note("")    # why a "before" is n/a, a failed validation
+        lay.addWidget(self.validation_note)
         self.notes = note("", WARN_COLOR)
         lay.addWidget(self.notes)
         self.outcome = None
@@ -92,6 +94,7 @@ class CalibrationView(QWidget):
         self.strip.setColumnCount(0)
         self.params.setRowCount(0)
         self.validation.setRowCount(0)
+        self.validation_note.setText("")
         self.notes.setText("")
         self.outcome = None
 
@@ -120,8 +123,7 @@ class CalibrationView(QWidget):
         self.show_validation(validation or [])
         notes = [describe_not_identified(d) for d in not_identified(outcome)]
         notes += list(getattr(model, "notes", ()) or ())
-        if outcome.trace.method == "sm-distance-tilt":
-            notes.append("theta0, a0 and q1_off refer to the captured base origin.")
+        notes += operator_notes(outcome)
         self.notes.setText("\n".join(f"Note: {n}" for n in notes))
 
     def show_quality(self, quality) -> None:
@@ -220,6 +222,16 @@ class CalibrationView(QWidget):
             t.setItem(0, 0, QTableWidgetItem("no held-out poses in this trace"))
             t.setSpan(0, 0, 1, t.columnCount())
         _fit_height(t)
+        # the reasons beside the table, not in a status bar: why a "before" is n/a
+        said = []
+        for v in validation:
+            for key, lead in (("note", "RMS before n/a"), ("error", "validation failed")):
+                text = v.get(key)
+                if text and (key == "error" or v.get("rms_before") is None):
+                    line = f"{v.get('channel')}: {lead}: {text}"
+                    if line not in said:
+                        said.append(line)
+        self.validation_note.setText("\n".join(said))
 
 
 def validation_rows(outcome) -> list[dict]:

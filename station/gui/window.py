@@ -15,6 +15,7 @@ from PySide6.QtWidgets import (QHBoxLayout, QLabel, QListWidget, QListWidgetItem
                                QMessageBox, QPushButton, QStackedWidget, QVBoxLayout, QWidget)
 
 from station.gui.controller import Controller, summarize_folder
+from station.gui.widgets import WARN_COLOR
 from station.gui.pages import TITLES, PageId
 from station.gui.pages.calibrate import CalibratePage
 from station.gui.pages.execute import ExecutePage
@@ -37,6 +38,10 @@ GUIDE = ("1 Setup: choose the robot (AGEBOT or a robot file) and the method, a s
          "6 Export: the parameter file for the controller and the report.\n\n"
          "Numbers are shown in mm and degrees; u is the actuator unit of qm (the drives' "
          "position unit). More: README.md and docs/ (Help > Documentation).")
+#: session events kept above the page until dismissed (the rest: the status bar, the log)
+NOTICE_KINDS = ("warning", "fault", "lost", "abort", "envelope", "fit-quality", "outlier",
+                "remeasure-failed", "stop")
+MAX_NOTICES = 3
 PREFERRED = (1440, 900)        # the window's size where the screen has room for it
 PAGES = {PageId.SETUP: SetupPage, PageId.REFERENCE: ReferencePage, PageId.PLAN: PlanPage,
          PageId.EXECUTE: ExecutePage, PageId.CALIBRATE: CalibratePage,
@@ -76,7 +81,24 @@ class MainWindow(QMainWindow):
         nav.addWidget(self.busy, 1)
         nav.addWidget(self.back_button)
         nav.addWidget(self.next_button)
+        # what the operator must read (a warning, a fault, a lost zero), kept above the
+        # page until dismissed: the status bar shows only the start of a long line
+        self.notice = QLabel("")
+        self.notice.setObjectName("notice")
+        self.notice.setWordWrap(True)
+        self.notice.setStyleSheet(f"color: {WARN_COLOR}; border: 1px solid {WARN_COLOR}; "
+                                  "padding: 4px;")
+        self.notice.setVisible(False)
+        self.dismiss_button = QPushButton("Dis&miss")
+        self.dismiss_button.setAutoDefault(False)
+        self.dismiss_button.clicked.connect(self.clear_notices)
+        self.dismiss_button.setVisible(False)
+        notices = QHBoxLayout()
+        notices.addWidget(self.notice, 1)
+        notices.addWidget(self.dismiss_button, 0, Qt.AlignmentFlag.AlignTop)
+        self._notices: list[str] = []
         right = QVBoxLayout()
+        right.addLayout(notices)
         right.addWidget(self.stack, 1)
         right.addLayout(nav)
         central = QWidget()
@@ -214,6 +236,7 @@ class MainWindow(QMainWindow):
         setup = self.pages[PageId.SETUP]
 
         def fresh():
+            self.clear_notices()
             setup.devices.clear_devices()
             setup.folder.setText(default_folder())
             setup.update_missing()
@@ -233,7 +256,20 @@ class MainWindow(QMainWindow):
         self.busy.setText("Working\u2026" if busy else "")
 
     def _event(self, ev: dict) -> None:
-        self.statusBar().showMessage(f"{ev.get('kind')}: {ev.get('message', '')}", 15000)
+        text = f"{ev.get('kind')}: {ev.get('message', '')}"
+        self.statusBar().showMessage(text, 15000)
+        self.statusBar().setToolTip(text)
+        if ev.get("kind") in NOTICE_KINDS:
+            self._notices = [t for t in self._notices if t != text][-(MAX_NOTICES - 1):] + [text]
+            self.notice.setText("\n".join(self._notices))
+            self.notice.setVisible(True)
+            self.dismiss_button.setVisible(True)
+
+    def clear_notices(self) -> None:
+        self._notices = []
+        self.notice.setText("")
+        self.notice.setVisible(False)
+        self.dismiss_button.setVisible(False)
 
     # -- resume and close ---------------------------------------------------------------------
     def offer_resume(self) -> bool:

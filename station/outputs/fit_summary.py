@@ -130,6 +130,17 @@ def fit_point_errors(outcome) -> dict | None:
                       for g in order]}
 
 
+def operator_notes(outcome) -> list[str]:
+    """What the operator must know beside the table, without ``note:``: the captured base
+    origin (AGEBOT's arm, sm-distance-tilt) and the instrument's scale
+    (:func:`scale_note`). The console, the wizard's Calibrate page and the report say
+    the same."""
+    out = []
+    if outcome.trace.method == "sm-distance-tilt" and "robot_file" not in outcome.trace.header:
+        out.append("theta0, a0 and q1_off refer to the captured base origin")
+    return out + [n.removeprefix("note: ") for n in scale_note(outcome)]
+
+
 def scale_note(outcome) -> list[str]:
     """What the instrument's scale means for the lengths: distance methods (the
     draw-wire's) and points measured in an instrument's frame (a tracker's, a motion
@@ -201,9 +212,7 @@ def format_table(outcome) -> str:
         lines.append(describe_not_identified(d))
     for note in getattr(model, "notes", ()) or ():
         lines.append(f"note: {note}")
-    if outcome.trace.method == "sm-distance-tilt" and "robot_file" not in outcome.trace.header:
-        lines.append("note: theta0, a0 and q1_off refer to the captured base origin")
-    lines.extend(scale_note(outcome))
+    lines.extend(f"note: {n}" for n in operator_notes(outcome))
     if any(si.get(n, "").endswith("/u") for n in res.names):
         lines.append("unit u: the actuator unit of qm (the drives' position unit: "
                      "[canopen] increments_per_unit of the station config)")

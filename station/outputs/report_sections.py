@@ -178,6 +178,9 @@ def notes(ctx: ReportContext) -> list[str]:
     if model.n_poses < ctx.min_poses:
         notes.append(f"only {model.n_poses} poses for {res.n_identifiable} identifiable "
                      f"parameters; eq. 60 recommends at least {ctx.min_poses}")
+    from station.outputs.fit_summary import operator_notes
+
+    notes += operator_notes(ctx.outcome)
     infl = [n for n, g in zip(ctx.names, ctx.groups) if g == "influence"]
     if infl:
         notes.append("not identifiable and influencing the model: " + ", ".join(infl)

@@ -2,6 +2,7 @@
 > Getting started, no "-0" in a number, a report the desktop cannot open is said."""
 from __future__ import annotations
 
+from PySide6.QtCore import Qt
 from PySide6.QtGui import QDesktopServices
 
 from station.gui.controller import Controller
@@ -42,3 +43,33 @@ def test_a_report_that_cannot_be_opened_is_said(qtbot, settings, answers, monkey
     assert page._open(report) is False
     box = page.last_error
     assert box.objectName() == "notOpened" and str(report) in box.text()
+
+
+def test_a_warning_stays_above_the_page_until_dismissed(qtbot, settings, answers):
+    """Issue 44: "the draw-wire lost its zero" was only in the status bar, cut at its width."""
+    win = MainWindow(Controller(simulate=True, settings=settings))
+    qtbot.addWidget(win)
+    win.show()
+    long = ("back at the reference: draw-wire read 0.51234 m where its zero was 0.5 m: "
+            "it lost its zero (a slipped wire or a reset counter); zeroed again")
+    win.controller.eventLogged.emit({"kind": "info", "message": "captured"})
+    assert not win.notice.isVisible()
+    win.controller.eventLogged.emit({"kind": "warning", "message": long})
+    assert win.notice.isVisible() and long in win.notice.text()
+    for i in range(5):
+        win.controller.eventLogged.emit({"kind": "fault", "message": f"fault {i}"})
+    assert long not in win.notice.text() and "fault 4" in win.notice.text()
+    qtbot.mouseClick(win.dismiss_button, Qt.MouseButton.LeftButton)
+    assert not win.notice.isVisible()
+
+
+def test_why_rms_before_is_n_a_is_beside_the_table(qtbot):
+    from station.gui.results import CalibrationView
+
+    view = CalibrationView()
+    qtbot.addWidget(view)
+    view.show_validation([{"channel": "tilt", "n": 12, "rms_before": None, "rms_after": 1e-4,
+                           "unit": "rad", "note": "the nominal does not reach the held-out "
+                           "poses' platform (no IK solution)"}])
+    assert "RMS before n/a" in view.validation_note.text()
+    assert "no IK solution" in view.validation_note.text()

@@ -39,3 +39,18 @@ def test_a_folder_typed_under_a_missing_parent_is_still_refused(open_window, qtb
     qtbot.waitUntil(lambda: "does not exist" in setup.missing.text(), timeout=30000)
     assert win.controller.session is None and not (tmp_path / "no").exists()
 
+
+
+def test_how_poses_are_planned_is_said_not_an_unticked_box(open_window):
+    win = open_window()
+    setup = win.page(PageId.SETUP)
+    setup.robot.setCurrentIndex(setup.robot.findData("agebot-pm"))
+    assert not setup.rounds.isVisibleTo(win) and setup.rounds_note.isVisibleTo(win)
+    assert "rounds" in setup.rounds_note.text()
+    ur5 = next(setup.robot.itemData(i) for i in range(setup.robot.count())
+               if "ur5-like-hayati" in str(setup.robot.itemData(i)))
+    setup.robot.setCurrentIndex(setup.robot.findData(ur5))
+    assert not setup.rounds.isVisibleTo(win) and "at once" in setup.rounds_note.text()
+    setup.robot.setCurrentIndex(setup.robot.findData("agebot-sm"))
+    assert setup.rounds.isVisibleTo(win) and setup.rounds.isChecked()
+    assert not setup.rounds_note.isVisibleTo(win)

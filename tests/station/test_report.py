@@ -425,3 +425,38 @@ def test_units_policy():
     assert from_config(cfg) == Units("m", "rad")
     with pytest.raises(Exception, match="display.*furlong|furlong"):
         parse_station_config({**base, "display": {"length": "furlong"}})
+
+
+def test_the_draw_wire_s_scale_is_said_in_the_report_and_the_wizard(tmp_path, qtbot):
+    """Issue 44: the draw-wire's 1 % scale, which every calibrated length carries, was only
+    on the console; the report and the Calibrate page said a std of 0.02 mm without it.
+    The captured base origin's note names AGEBOT's parameters only on AGEBOT's arm."""
+    from station.gui.results import CalibrationView
+    from station.outputs.fit_summary import format_table, operator_notes
+
+    outcome = calibrate(os.path.join(TRACES, "sm-distance-tilt.jsonl"))
+    notes = operator_notes(outcome)
+    assert any("draw-wire's scale" in n and "1 %" in n for n in notes), notes
+    assert any("captured base origin" in n for n in notes)
+    text = write_report(tmp_path / "r.html", outcome).read_text(encoding="utf-8")
+    assert "draw-wire&#39;s scale" in text or "draw-wire's scale" in text
+    view = CalibrationView()
+    qtbot.addWidget(view)
+    view.show_outcome(outcome)
+    assert "draw-wire's scale" in view.notes.text()
+    assert "draw-wire's scale" in format_table(outcome)
+
+
+def test_a_robot_file_s_arm_is_not_told_agebot_s_parameters(tmp_path, qtbot):
+    from station.gui.results import CalibrationView
+
+    trace = tmp_path / "t.jsonl"
+    rc = app.main(["trace", "generate", "--robot",
+                   os.path.join(os.path.dirname(TRACES), "robots", "ur5-like-hayati.toml"),
+                   "--method", "sm-distance-tilt", "--seed", "3", "--out", str(trace)])
+    assert rc == 0
+    outcome = calibrate(trace)
+    view = CalibrationView()
+    qtbot.addWidget(view)
+    view.show_outcome(outcome)
+    assert "theta0" not in view.notes.text() and "draw-wire's scale" in view.notes.text()

@@ -114,7 +114,9 @@ class SetupPage(RobotMethodChoice, Page):
                                 "values, moves not watched (app.py run --one-shot); safe only "
                                 "where the start values are close to the robot")
         self.rounds.setToolTip(self.rounds.property("tip"))
-        form.addRow("", self.rounds)
+        # where the choice does not apply: how the poses are planned, said, not a box
+        self.rounds_note = note("")
+        form.addRow("", _row(self.rounds, self.rounds_note))
         self.layout_.addWidget(box)
 
         self.connect_button = QPushButton("&Connect")

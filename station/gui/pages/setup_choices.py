@@ -140,7 +140,9 @@ class RobotMethodChoice:
 
     def _show_rounds(self) -> None:
         """"Plan in rounds" where it applies (AGEBOT's arm, distance methods), ticked as
-        the operator left it; elsewhere unticked, greyed, and saying how it is planned."""
+        the operator left it; elsewhere the box unticked and hidden, and a line saying how
+        the poses are planned (a greyed box that said "in rounds" unticked contradicted
+        what happened)."""
         applies = self.robot_key == "agebot-sm" and self.method_name in ROUND_METHODS
         if applies:
             self.rounds.setText(ROUNDS_TEXT)
@@ -149,10 +151,12 @@ class RobotMethodChoice:
             self.rounds.blockSignals(True)
             self.rounds.setChecked(False)
             self.rounds.blockSignals(False)
-            self.rounds.setText(
-                "Planned in rounds of its own: a scout round near home, then wider boxes"
-                if self.robot_key == "agebot-pm" else
-                "Planned at once (one shot) from the nominal inside the joint limits"
-                if self.robot_file else "Planned at once")
+            self.rounds_note.setText(
+                "Poses planned in rounds of the wrist's own: a scout round near home, then "
+                "wider boxes" if self.robot_key == "agebot-pm" else
+                "Poses planned at once (one shot) from the nominal inside the joint limits"
+                if self.robot_file else "Poses planned at once")
         self.rounds.setEnabled(applies and not self.locked)
+        self.rounds.setVisible(applies)
+        self.rounds_note.setVisible(not applies)
 
