@@ -8,7 +8,7 @@ from PySide6.QtGui import QColor, QFont
 from PySide6.QtWidgets import (QFrame, QGridLayout, QHeaderView, QLabel, QScrollArea,
                                QSizePolicy, QTableWidget, QTableWidgetItem, QWidget)
 
-from station.outputs.units import MM_DEG, channel_si
+from station.outputs.units import MM_DEG, channel_si, target_coords  # noqa: F401 (re-exported)
 
 OK_COLOR, BAD_COLOR, WARN_COLOR = "#1b7a2f", "#b3261e", "#8a5a00"
 
@@ -27,17 +27,6 @@ def set_units(units) -> None:
 
 def display_units():
     return _UNITS[0]
-
-
-def target_coords(robot) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """``(names, SI units)`` of a planned pose's target for ``robot``'s model: AGEBOT's
-    arm x, y, z, phi; a robot file's tool x, y, z, roll, pitch, yaw; the wrist's
-    orientation alpha, beta, gamma."""
-    if robot.name == "agebot-sm":
-        return ("x", "y", "z", "phi"), ("m", "m", "m", "rad")
-    if robot.kind == "serial":
-        return tuple(robot.coords), ("m", "m", "m", "rad", "rad", "rad")
-    return ("alpha", "beta", "gamma"), ("rad",) * 3
 
 
 def fixed(v: float, decimals: int) -> str:

@@ -138,7 +138,7 @@ def _page(outcome, ctx, title, val_rows, evs, session, units) -> dict:
         "history": bool(list(outcome.result.history)),
         "validation": validation_view(val_rows, units) if val_rows else None,
         "design": design_view(ctx, evs, val_rows, units),
-        "events": events_view(evs, units) if evs else None,
+        "events": events_view(evs, units, outcome.model.robot) if evs else None,
         "session": ([(str(k), short(v)) for k, v in session.items()]
                     if isinstance(session, dict) else [("session", short(session))])
         if session else None,

@@ -140,7 +140,9 @@ def group_of(st) -> str:
 def number_text(v, fmt=".7g") -> str:
     if not _finite(v):
         return "\u2013"
-    return format(float(v), fmt)
+    from station.outputs.units import unsigned_zero
+
+    return unsigned_zero(format(float(v), fmt))
 
 
 def short(v, limit: int = CELL_MAX) -> str:

@@ -322,8 +322,9 @@ def merge_events(recorded, given) -> list:
     return out
 
 
-def events_view(evs, units) -> dict:
-    """The events table (plans by reference) and each plan's poses as its own table."""
+def events_view(evs, units, robot=None) -> dict:
+    """The events table (plans by reference) and each plan's poses as its own table (their
+    targets in ``units``, named as ``robot``'s model names them)."""
     rows, plans = [], []
     for ev in evs:
         kind = str(ev.get("kind", ""))
@@ -332,7 +333,7 @@ def events_view(evs, units) -> dict:
         poses = ev.get("poses") if isinstance(ev.get("poses"), list) else None
         details = short(extra) if extra else ""
         if poses is not None:
-            plans.append(plan_view(len(plans) + 1, ev, poses))
+            plans.append(plan_view(len(plans) + 1, ev, poses, units, robot))
             details = (details + "; " if details else "") + f"poses: plan {len(plans)} below"
         rows.append({"t": short(ev.get("t", "")), "kind": short(kind),
                      "message": short(ev.get("message", "")), "details": short(details),
@@ -340,14 +341,25 @@ def events_view(evs, units) -> dict:
     return {"rows": rows, "plans": plans}
 
 
-def plan_view(number: int, ev: dict, poses: list) -> dict:
+def plan_view(number: int, ev: dict, poses: list, units=None, robot=None) -> dict:
+    from station.outputs.units import MM_DEG, target_coords
+
+    units = units or MM_DEG
+    names, sis = target_coords(robot) if robot is not None else ((), ())
+
+    def target(values) -> str:
+        values = list(values or ())
+        if len(values) != len(sis):        # not the robot's coordinates: as recorded
+            return ", ".join(number_text(v, ".4g") for v in values)
+        return ", ".join(f"{n} {units.text(v, si, '.4g')}" for n, v, si in zip(names, values, sis))
+
     out = []
     for p in poses:
         if not isinstance(p, dict):
             continue
         out.append({"index": short(p.get("index")),
                     "qm": short(", ".join(number_text(v, ".5g") for v in p.get("qm") or ())),
-                    "target": short(", ".join(number_text(v, ".4g") for v in p.get("target") or ())),
+                    "target": short(target(p.get("target"))),
                     "held_out": p.get("use") == "validation",
                     "round": "scout" if p.get("round") in (0, None)
                     else f"round {short(p.get('round'))}"})

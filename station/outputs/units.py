@@ -41,6 +41,18 @@ def channel_si(channel: str) -> str:
     return ""
 
 
+def unsigned_zero(text: str) -> str:
+    """A formatted number that reads as zero, without a sign: ``-0`` and ``-0.000`` are
+    ``0`` and ``0.000`` (a round-off below the shown digits has no sign worth showing)."""
+    if text.startswith("-"):
+        try:
+            if float(text) == 0:
+                return text[1:]
+        except ValueError:
+            pass
+    return text
+
+
 @dataclass(frozen=True)
 class Units:
     """How numbers are shown to people: ``length`` one of :data:`LENGTHS`, ``angle``
@@ -89,7 +101,7 @@ class Units:
             x = self.value(v, si)
         except (TypeError, ValueError):
             return str(v)
-        return format(x, fmt) if math.isfinite(x) else "\u2013"
+        return unsigned_zero(format(x, fmt)) if math.isfinite(x) else "\u2013"
 
     def text(self, v, si: str, fmt: str = ".4g") -> str:
         """Number and unit: ``'2.28 mm'``, ``'28.6°'`` (no space before the degree sign)."""
@@ -167,3 +179,14 @@ def describe_error(error, units: Units = MM_DEG) -> str:
                      f"exceeds the limit {units.text(v.limit, si, '#.3g')}")
     device = getattr(error, "device", None)
     return (f"{device}: " if device else "") + "unstable reading: " + "; ".join(parts)
+
+
+def target_coords(robot) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """``(names, SI units)`` of a planned pose's target for ``robot``'s model: AGEBOT's
+    arm x, y, z, phi; a robot file's tool x, y, z, roll, pitch, yaw; the wrist's
+    orientation alpha, beta, gamma."""
+    if robot.name == "agebot-sm":
+        return ("x", "y", "z", "phi"), ("m", "m", "m", "rad")
+    if robot.kind == "serial":
+        return tuple(robot.coords), ("m", "m", "m", "rad", "rad", "rad")
+    return ("alpha", "beta", "gamma"), ("rad",) * 3

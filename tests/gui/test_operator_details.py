@@ -31,6 +31,12 @@ def test_no_minus_zero():
 
     assert fixed(-0.0004, 3) == "0.000" and fixed(-0.0006, 3) == "-0.001"
     assert channel_text("distance", -1e-8)[0] == "0.000"
+    # the shared formatting too (tables, the report): issue 44's "-0"
+    from station.outputs.report_context import number_text
+    from station.outputs.units import MM_DEG
+
+    assert MM_DEG.text(-0.0, "m") == "0 mm" and MM_DEG.text(-1e-9, "m", ".3f") == "0.000 mm"
+    assert number_text(-0.0, ".4g") == "0" and MM_DEG.text(-2e-3, "m") == "-2 mm"
 
 
 def test_a_report_that_cannot_be_opened_is_said(qtbot, settings, answers, monkeypatch,
@@ -43,6 +49,10 @@ def test_a_report_that_cannot_be_opened_is_said(qtbot, settings, answers, monkey
     assert page._open(report) is False
     box = page.last_error
     assert box.objectName() == "notOpened" and str(report) in box.text()
+    assert str(report) in page.opened.text()
+    # a desktop that takes the request and may start nothing: the page still says where
+    monkeypatch.setattr(QDesktopServices, "openUrl", staticmethod(lambda url: True))
+    assert page._open(report) is True and "if nothing opens" in page.opened.text()
 
 
 def test_a_warning_stays_above_the_page_until_dismissed(qtbot, settings, answers):
@@ -73,3 +83,20 @@ def test_why_rms_before_is_n_a_is_beside_the_table(qtbot):
                            "poses' platform (no IK solution)"}])
     assert "RMS before n/a" in view.validation_note.text()
     assert "no IK solution" in view.validation_note.text()
+
+
+def test_the_export_page_lists_the_calibrated_urdf(qtbot, settings, answers, tmp_path):
+    win = MainWindow(Controller(simulate=True, settings=settings))
+    qtbot.addWidget(win)
+    win.show()
+    page = win.page(PageId.EXPORT)
+    assert page.urdf.isHidden()
+    doc = {"format": "calstation-params", "version": 1, "robot": "ur5-like", "method": "sm-distance",
+           "parameters": {"a": {"identifiable": True}}}
+    files = {"params": str(tmp_path / "params.json"), "report": str(tmp_path / "report.html"),
+             "trace": str(tmp_path / "trace.jsonl"), "checksum": "sha256:00",
+             "urdf": str(tmp_path / "calibrated.urdf")}
+    page._done((files, doc))
+    assert not page.urdf.isHidden() and page.urdf.text().endswith("calibrated.urdf")
+    page._done(({k: v for k, v in files.items() if k != "urdf"}, doc))
+    assert page.urdf.isHidden()

@@ -274,6 +274,9 @@ def test_no_table_cell_is_long_and_the_plan_is_its_own_table(sm_report):
     assert plan.count("<tr") == 80  # header + 79 poses
     assert plan.count("<td>held out</td>") == 13
     assert ">30.85, 161.98, -182.75, -130.29<" in plan
+    # the target as people read it (issue 44): mm and degrees, each coordinate named
+    assert ">x -11.9 mm, y -35.7 mm, z -114.4 mm, phi 3.449°<" in plan, plan[:600]
+    assert "SI: m, rad" not in plan
 
 
 def test_summary_has_the_validation_headline(sm_report):

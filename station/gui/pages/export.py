@@ -33,11 +33,14 @@ class ExportPage(Page):
         self.report = note("\u2013")
         self.trace = note("\u2013")
         self.checksum = note("\u2013")
+        self.urdf = note("\u2013")         # a robot file's arm: its calibration as a URDF
         self.checksum.setStyleSheet("font-family: 'DejaVu Sans Mono', monospace;")
         self.verified = note("")
         form.addRow("Parameter file:", self.params)
         form.addRow("Report:", self.report)
         form.addRow("Trace:", self.trace)
+        form.addRow("URDF:", self.urdf)
+        self.urdf_label = form.labelForField(self.urdf)
         form.addRow("Checksum:", self.checksum)
         form.addRow("Check:", self.verified)
         self.layout_.addWidget(box)
@@ -56,6 +59,10 @@ class ExportPage(Page):
             row.addWidget(b)
         row.addStretch(1)
         self.layout_.addLayout(row)
+        # what Open did: a desktop may accept the request and start nothing (no browser)
+        self.opened = note("")
+        self.opened.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.layout_.addWidget(self.opened)
         self.layout_.addWidget(note(
             "Load the parameter file into the robot controller; it holds every parameter with "
             "its standard deviation and identifiability, and the checksum above. "
@@ -63,12 +70,14 @@ class ExportPage(Page):
         self.layout_.addStretch(1)
         self.files: dict | None = None
         self.running = False
+        self._show_urdf(False)
         controller.sessionChanged.connect(self._reset)
 
     def _reset(self) -> None:
         self.files = None
-        for lab in (self.params, self.report, self.trace, self.checksum):
+        for lab in (self.params, self.report, self.trace, self.checksum, self.urdf):
             lab.setText("\u2013")
+        self._show_urdf(False)
         self.verified.setText("")
 
     def initialize_page(self) -> None:
@@ -101,6 +110,8 @@ class ExportPage(Page):
         self.report.setText(files["report"])
         self.trace.setText(files["trace"])
         self.checksum.setText(files["checksum"])
+        self.urdf.setText(files.get("urdf") or "\u2013")
+        self._show_urdf(bool(files.get("urdf")))
         n_id = sum(p["identifiable"] for p in doc["parameters"].values())
         self.verified.setText(f"\u2713 read back: {doc['format']} v{doc['version']}, robot "
                               f"{doc['robot']}, method {doc['method']}, {n_id} of "
@@ -109,6 +120,10 @@ class ExportPage(Page):
         for b in (self.copy_button, self.folder_button, self.report_button):
             b.setEnabled(True)
         self.completeChanged.emit()
+
+    def _show_urdf(self, shown: bool) -> None:
+        self.urdf.setVisible(shown)
+        self.urdf_label.setVisible(shown)
 
     def _failed(self, e) -> None:
         self.running = False
@@ -126,7 +141,11 @@ class ExportPage(Page):
         if not path:
             return False
         if QDesktopServices.openUrl(QUrl.fromLocalFile(str(path))):
+            self.opened.setText(f"Asked the desktop to open {path}; if nothing opens, open "
+                                "it yourself from there (the path can be selected and copied).")
             return True
+        self.opened.setText(f"Not opened: no program could be started here. Open it yourself: "
+                            f"{path}")
         box = QMessageBox(QMessageBox.Icon.Information, "Not opened",
                           f"No program could be started to open it here. Open it yourself:\n"
                           f"{path}", QMessageBox.StandardButton.Ok, self)
