@@ -145,6 +145,8 @@ def param_units(trace) -> dict:
     spec = getattr(model, "spec", None)
     if spec is None:
         return PARAM_UNITS.get(str(trace.header.get("robot", "")), {})
+    if hasattr(model, "frame_matrix"):
+        return urdf_param_units(model, trace)
     out = {"mount_x": "rad", "mount_y": "rad", "distance_off": "m",
            "plane_a": "1/m", "plane_b": "1/m", "plane_c": "1/m"}
     for name in model.param_names:
@@ -153,6 +155,24 @@ def param_units(trace) -> dict:
     for i, jt in enumerate(spec.joints, start=1):
         q = "rad" if jt.kind == "R" else "m"
         out[f"q{i}_off"], out[f"k{i}"] = q, f"{q}/u"
+    return out
+
+
+def urdf_param_units(model, trace) -> dict:
+    """A URDF robot's parameters (calibration.robots.urdf): positions m, rotations rad,
+    a joint's zero by its type, its ratio dimensionless (a URDF's joint values are SI:
+    the ratio is 1, held), compliances rad/(N m) or m/N, the points on the tool m."""
+    out = {}
+    for name in model.param_names:
+        key = name.rsplit("_", 1)[-1]
+        out[name] = "rad" if key in ("roll", "pitch", "yaw", "rx", "ry", "rz") else "m"
+    for i, jt in enumerate(model.spec.joints, start=1):
+        out[f"q{i}_off"] = "rad" if jt.kind == "R" else "m"
+        out[f"k{i}"] = "1"
+        out[f"c{i}"] = "rad/(N m)" if jt.kind == "R" else "m/N"
+    for k in range(1, int(trace.header.get("markers") or 0) + 1):
+        for a in "xyz":
+            out[f"marker{k}_{a}"] = "m"
     return out
 
 
