@@ -80,6 +80,8 @@ def _entry(trace, model, row: q.Outlier, rows_tested: int | None = None) -> dict
     pose = trace.fit_poses[int(row_poses(model)[row.row])]
     e = {"pose": int(pose["index"]), "channel": row.channel, "residual": row.residual,
          "t": row.t, "threshold": row.threshold}
+    if pose.get("source"):
+        e["where"] = pose["source"]
     point = point_of_row(model, row.row)
     if point is not None:
         e["point"] = point

@@ -13,6 +13,7 @@ from calibration import identifiability as ident
 from calibration import quality as q
 from station.fitting.pose_count import NR_P, parameter_count
 from station.fitting.verdict import Quality
+from station.recording.trace import pose_name
 from station.outputs.params_file import PLAUSIBLE_FACTOR, factor_judged
 from station.outputs.units import MM_DEG, channel_si
 
@@ -42,7 +43,7 @@ def check_validation(quality, validation: list[dict]) -> None:
             verb = "went" if ok else "is worse than the start:"
             text = (f"validation: held-out points' 3D RMS {verb} "
                     f"{mm(pts.get('rms_before'))} -> {mm(pts['rms_after'])} mm "
-                    f"(max {mm(pts['max_after'])} mm at pose {w['pose']} point {w['point']}; "
+                    f"(max {mm(pts['max_after'])} mm at {pose_name(w)} point {w['point']}; "
                     f"{pts['n']} points of {pts['poses']} poses)")
         else:
             text = (f"validation: {v['channel']} RMS on {v['n']} held-out rows "
@@ -55,7 +56,8 @@ def check_validation(quality, validation: list[dict]) -> None:
     for v in validation:
         out = v.get("outside_range")
         if out:
-            named = ", ".join(f"pose {p['pose']} ({p['why']})" for p in out["poses"][:3])
+            named = ", ".join(f"{pose_name(p)}: {p['why']}" if p.get("where") else
+                              f"pose {p['pose']} ({p['why']})" for p in out["poses"][:3])
             more = f" and {len(out['poses']) - 3} more" if len(out["poses"]) > 3 else ""
             unit = "mm" if v.get("points") else v["unit"]
             fig = ((mm(out["rms"]), mm(out["max"])) if v.get("points")
@@ -69,7 +71,7 @@ def check_validation(quality, validation: list[dict]) -> None:
     for v in validation:
         o = v.get("outlier")
         if o:
-            where = f"pose {o['pose']}" if o.get("pose") is not None else "a held-out pose"
+            where = pose_name(o) if o.get("pose") is not None else "a held-out pose"
             if "point" in o:
                 what = (f"validation: held-out {where} point {o['point']} is "
                         f"{mm(o['residual'])} mm off the calibration's prediction, "

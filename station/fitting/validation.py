@@ -72,11 +72,14 @@ def validation_errors(outcome: BatchOutcome) -> list[dict]:
                                                       after, sel)
         if worst is not None and worst[0].channel == ch:
             o, n_test = worst
-            pose = None if rp is None else int(trace.validation_poses[int(rp[o.row])]["index"])
+            vp = None if rp is None else trace.validation_poses[int(rp[o.row])]
+            pose = None if vp is None else int(vp["index"])
             groups = getattr(model, "row_group", None)
             res = float(after[o.row]) if groups is None else float(o.residual)
             rec["outlier"] = {"pose": pose, "residual": res, "std": float(abs(res) / o.t),
                               "t": o.t, "threshold": o.threshold, "rows_tested": n_test}
+            if vp is not None and vp.get("source"):
+                rec["outlier"]["where"] = vp["source"]
             if groups is not None:
                 rec["outlier"]["point"] = int(model.marker_of[int(groups[o.row])]) + 1
         out.append(rec)
@@ -115,9 +118,17 @@ def point_record(model, poses, after, before) -> dict:
         b = model.point_errors(before)
         rec.update(rms_before=float(np.sqrt(np.mean(b ** 2))), max_before=float(b.max()))
     order = np.argsort(-e)[:3]
-    rec["worst"] = [{"pose": int(poses[int(model.pose_of[g])]["index"]),
-                     "point": int(model.marker_of[g]) + 1, "error": float(e[g])} for g in order]
+    rec["worst"] = [_with_source({"pose": int(poses[int(model.pose_of[g])]["index"]),
+                                  "point": int(model.marker_of[g]) + 1, "error": float(e[g])},
+                                 poses[int(model.pose_of[g])]) for g in order]
     return rec
+
+
+def _with_source(entry: dict, pose: dict) -> dict:
+    """``entry`` with ``where`` (the CSV file and line of an imported pose) where known."""
+    if pose.get("source"):
+        entry["where"] = pose["source"]
+    return entry
 
 
 def outside_record(model, poses, outside: dict, after, sel) -> dict:
@@ -129,8 +140,8 @@ def outside_record(model, poses, outside: dict, after, sel) -> dict:
         es = e[np.isin(rp, sorted(outside))]
     else:
         es = np.abs(after[sel])
-    return {"poses": [{"pose": int(poses[i]["index"]), "why": why} for i, why in
-                      sorted(outside.items())],
+    return {"poses": [_with_source({"pose": int(poses[i]["index"]), "why": why}, poses[i])
+                      for i, why in sorted(outside.items())],
             "rms": float(np.sqrt(np.mean(es ** 2))), "max": float(es.max())}
 
 

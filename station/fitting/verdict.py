@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from calibration.errors import CalibrationError
+from station.recording.trace import pose_name
 
 
 class FitQualityError(CalibrationError):
@@ -83,5 +84,5 @@ def max_outliers(n_poses: int) -> int:
 
 def describe(o: dict) -> str:
     """``pose 5 marker`` (sm-markers: ``pose 5 point 2``) for an outlier entry."""
-    return f"pose {o['pose']} point {o['point']}" if "point" in o else \
-        f"pose {o['pose']} {o['channel']}"
+    return f"{pose_name(o)} point {o['point']}" if "point" in o else \
+        f"{pose_name(o)} {o['channel']}"

@@ -13,7 +13,7 @@ import numpy as np
 from calibration import identifiability as ident
 from calibration.errors import CalibrationError
 from station.outputs.params_file import params_document
-from station.recording.trace import Trace
+from station.recording.trace import Trace, pose_name
 
 
 def frame_statement(trace: Trace) -> dict | None:
@@ -126,7 +126,9 @@ def fit_point_errors(outcome) -> dict | None:
     order = np.argsort(-e)[:3]
     return {"n": int(e.size), "rms": float(np.sqrt(np.mean(e ** 2))), "max": float(e.max()),
             "worst": [{"pose": int(poses[int(model.pose_of[g])]["index"]),
-                       "point": int(model.marker_of[g]) + 1, "error": float(e[g])}
+                       "point": int(model.marker_of[g]) + 1, "error": float(e[g]),
+                       **({"where": poses[int(model.pose_of[g])]["source"]}
+                          if poses[int(model.pose_of[g])].get("source") else {})}
                       for g in order]}
 
 
@@ -202,7 +204,7 @@ def format_table(outcome) -> str:
     if pts:
         w = pts["worst"][0]
         lines.append(f"fit: points' 3D RMS {pts['rms'] * 1e3:.3g} mm, max {pts['max'] * 1e3:.3g} mm "
-                     f"(pose {w['pose']} point {w['point']}); {pts['n']} points of "
+                     f"({pose_name(w)} point {w['point']}); {pts['n']} points of "
                      f"{model.n_poses} poses")
     label = getattr(model.robot, "joint_label", None)
     if label is not None:

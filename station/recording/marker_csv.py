@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import re
 
 from calibration.errors import ConfigError
@@ -195,7 +196,9 @@ class MarkerReader:
             pts.append([num(points[j][a]) * self.lu for a in "xyz"])
         if all(p is None for p in pts):
             raise ConfigError("no point seen in this row", source=where)
-        rec = {"index": index, "qm": qm, "markers": pts}
+        # where the user finds the pose: the file's name and its line
+        rec = {"index": index, "qm": qm, "markers": pts,
+               "source": f"{os.path.basename(path)}:{lineno}"}
         if use == "validation":
             rec["use"] = "validation"
         return rec

@@ -252,3 +252,10 @@ def read_trace(path: str | os.PathLike, *, method_override: str | None = None) -
         raise TraceFormatError("the trace is empty (no header)", file=path, line=1)
     check_method_needs(trace)
     return trace
+
+
+def pose_name(o: dict) -> str:
+    """``pose 51``, or for a pose imported from a CSV ``pose 51 (held.csv:16)``: the file
+    and line a user finds it at (``o``: an entry with ``pose`` and, where known, ``where``,
+    the pose record's ``source``)."""
+    return f"pose {o['pose']}" + (f" ({o['where']})" if o.get("where") else "")

@@ -53,7 +53,9 @@ def imp(capsys, folder, csv, *extra):
 
 
 def poses(folder):
-    return [json.loads(ln) for ln in (folder / "t.jsonl").read_text().splitlines()
+    """The trace's pose records without ``source`` (the file and line: another file's)."""
+    return [{k: v for k, v in json.loads(ln).items() if k != "source"}
+            for ln in (folder / "t.jsonl").read_text().splitlines()
             if '"record":"pose"' in ln.replace(" ", "")]
 
 
@@ -269,3 +271,26 @@ def test_a_rail_in_metres_beside_a_tracker_in_mm_is_named(tmp_path, capsys):
     assert rc == 0, err
     rc, out, err = run(capsys, "batch", tmp_path / "t.jsonl", "--out", tmp_path / "p.json")
     assert rc == 0 and "fit quality: passed" in out, err + out
+
+
+def test_a_pose_is_named_with_its_file_and_line(tmp_path, capsys, export):
+    """Issue 42 item 5: pose indices run on across the fit and held-out files; every pose
+    the gate names also carries the file and line a user finds it at."""
+    from station.recording.trace import read_trace
+
+    folder, head, rows = export
+    shutil.copy(folder / "map.toml", tmp_path / "map.toml")
+    rc, out, err = imp(capsys, tmp_path, write(tmp_path / "meas.csv", head, rows))
+    assert rc == 0, err
+    tr = read_trace(str(tmp_path / "t.jsonl"))
+    src = [p["source"] for p in tr.poses]
+    assert src[0] == "meas.csv:2" and src[-1] == f"meas.csv:{len(src) + 1}"
+    rc, out, err = run(capsys, "batch", tmp_path / "t.jsonl", "--out", tmp_path / "p.json")
+    assert rc == 0, err
+    import re
+
+    named = re.findall(r"pose \d+ \(meas\.csv:(\d+)\)", out)
+    assert named, out
+    for line in named:            # the line holds the pose the message names
+        pose = next(p for p in tr.poses if p["source"] == f"meas.csv:{line}")
+        assert f"pose {pose['index']} (meas.csv:{line})" in out

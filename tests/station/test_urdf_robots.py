@@ -225,7 +225,7 @@ def test_a_held_out_pose_outside_the_fitted_range_is_named_not_refused(tmp_path,
     assert run(capsys, *import_args(tmp_path))[0] == 0
     rc, out, err = run(capsys, "batch", tmp_path / "t.jsonl", "--out", tmp_path / "p.json")
     assert rc == 0, out + err
-    assert "1 held-out pose(s) lie outside the fitted poses' joint ranges: pose 60 (joint_2" in out
+    assert "1 held-out pose(s) lie outside the fitted poses' joint ranges: pose 60 (meas.csv:62): joint_2" in out, out
     assert "fit quality: passed" in out
 
 
