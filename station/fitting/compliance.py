@@ -144,6 +144,13 @@ def _mm(v) -> str:
     return "-" if v is None or not math.isfinite(v) else f"{v * 1e3:.4g} mm"
 
 
+def _gate_failures(e) -> str:
+    """What the compliant fit's gate refused, without the command's own advice ("no
+    parameter file written": the rigid fit's file is written)."""
+    quality = getattr(getattr(e, "outcome", None), "quality", None)
+    return quality.summary() if quality is not None else str(e)
+
+
 def compare(trace, calibrate, payload: dict | None = None):
     """Fit ``trace`` rigid and compliant with ``calibrate(trace) -> BatchOutcome`` and
     judge them (:func:`judge`). A compliant fit the gate refuses is not supported; a
@@ -165,8 +172,8 @@ def compare(trace, calibrate, payload: dict | None = None):
         if rigid_error is not None:
             raise rigid_error from None
         info = {"supported": False, "test": "gate",
-                "statement": f"compliance not supported: the compliant fit failed the "
-                             f"fit-quality gate ({e})"}
+                "statement": "compliance not supported: the compliant fit failed the "
+                             f"fit-quality gate ({_gate_failures(e)}); the rigid fit is kept"}
         info["rigid"] = figures(rigid)
         if e.outcome is not None:
             info["compliant"] = figures(e.outcome)

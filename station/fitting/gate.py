@@ -348,10 +348,11 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
     if restarts:
         quality.check("start", True, f"start: {restarts} local minimum(s) left by refitting "
                       "from the fit without a suspect reading (which then fitted the others)")
-    if quality.outliers:
-        quality.check("outliers", True, f"outliers: {len(quality.outliers)} reading(s) excluded "
-                      "and the trace refitted: " + ", ".join(
-                          describe(o) for o in quality.outliers))
+    failed = any(c["check"] == "outliers" and not c["ok"] for c in quality.checks)
+    if quality.outliers and not failed:    # (a failure names the excluded ones already)
+        quality.check("outliers", True, f"outliers: {len(quality.outliers)} pose(s) excluded "
+                      "(a reading that does not fit takes its whole pose out) and the trace "
+                      "refitted: " + ", ".join(describe(o) for o in quality.outliers))
     elif not quality.checks:
         quality.check("outliers", True, "outliers: none")
     r, h = _statistics(model, result)

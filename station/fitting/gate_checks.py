@@ -119,7 +119,7 @@ def check_poses(quality, trace, model, result) -> None:
     quality.check("poses", ok, f"poses: {distinct} distinct of {model.n_poses} fitted "
                   f"(eq. 60 recommends >= {need} for {n_id} identifiable){why}",
                   distinct=distinct, poses=int(model.n_poses), identifiable=int(n_id),
-                  expected_identifiable=int(expected))
+                  expected_identifiable=int(expected), short=bool(ok and distinct < need))
 
 
 

@@ -115,6 +115,35 @@ def absorbed_names(outcome) -> dict[str, list[str]]:
     return {res.names[j]: [res.names[h] for h in hs] for j, hs in got.items()}
 
 
+def excluded_point_errors(outcome) -> dict | None:
+    """The points' 3D errors of the calibrated model over every fit posture, those the
+    gate excluded as outliers too (sm-markers; None without exclusions): ``{rms, poses,
+    excluded: [{pose, where?, error}]}`` (m; each excluded pose's worst point)."""
+    import dataclasses
+
+    from calibration.methods import build
+
+    model, res, trace = outcome.model, outcome.result, outcome.trace
+    if not hasattr(model, "point_errors"):
+        return None
+    out_idx = {p["index"] for p in trace.current_poses if p.get("use") == "outlier"}
+    if not out_idx:
+        return None
+    every = dataclasses.replace(trace, poses=[dict(p, use="fit") if p["index"] in out_idx
+                                              else p for p in trace.poses])
+    poses = every.fit_poses
+    m = build(model.method, model.robot, every.method_data(model.method), res.x)
+    e = m.point_errors(m.evaluate(res.x)[0])
+    worst = {}
+    for g, err in enumerate(e.tolist()):
+        p = poses[int(m.pose_of[g])]
+        if p["index"] in out_idx and err > worst.get(p["index"], (0.0, None))[0]:
+            worst[p["index"]] = (err, p)
+    excluded = [{"pose": i, "error": err, **({"where": p["source"]} if p.get("source") else {})}
+                for i, (err, p) in sorted(worst.items())]
+    return {"rms": float(np.sqrt(np.mean(e ** 2))), "poses": len(poses), "excluded": excluded}
+
+
 def fit_point_errors(outcome) -> dict | None:
     """3D errors of the fit's points on the tool (sm-markers): RMS, max and the worst
     three by pose and point (m); None for other methods."""
@@ -206,6 +235,15 @@ def format_table(outcome) -> str:
         lines.append(f"fit: points' 3D RMS {pts['rms'] * 1e3:.3g} mm, max {pts['max'] * 1e3:.3g} mm "
                      f"({pose_name(w)} point {w['point']}); {pts['n']} points of "
                      f"{model.n_poses} poses")
+        every = excluded_point_errors(outcome)
+        if every:
+            lines.append(f"fit over every posture, the excluded too: points' 3D RMS "
+                         f"{every['rms'] * 1e3:.3g} mm over {every['poses']} poses; "
+                         + ", ".join(f"{pose_name(x)} {x['error'] * 1e3:.3g} mm"
+                                     for x in every["excluded"][:3])
+                         + (f" and {len(every['excluded']) - 3} more"
+                            if len(every["excluded"]) > 3 else "")
+                         + " off the calibrated model")
     label = getattr(model.robot, "joint_label", None)
     if label is not None:
         lines.append("joints: " + ", ".join(f"{i} {label(i)}"

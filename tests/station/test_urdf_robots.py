@@ -311,3 +311,31 @@ def test_the_parameter_file_s_check_judges_what_the_gate_judges(tmp_path, capsys
     (tmp_path / "a2.json").write_text(json.dumps(doc))
     refused(capsys, ["params", "verify", tmp_path / "a2.json"], "parameters.k2",
             "not a plausible calibration")
+
+
+def test_an_excluded_pose_s_error_under_the_final_model_is_printed(tmp_path, capsys):
+    """Issue 42: the fit's figures over every posture, the excluded ones too, each
+    excluded pose's error under the calibrated model (the fit RMS alone leaves it out)."""
+    rob, _x, qm, P = tracker_case(tmp_path, seed=6, unseen=0.0)
+    bad = P.copy()
+    bad[7, 0] += [0.004, -0.003, 0.002]            # one reflector reading 5.4 mm off
+    tracker_case(tmp_path, seed=6, unseen=0.0, readings=bad)
+    assert run(capsys, *import_args(tmp_path))[0] == 0
+    rc, out, err = run(capsys, "batch", tmp_path / "t.jsonl", "--out", tmp_path / "p.json")
+    assert rc == 0, err
+    assert "outlier excluded: pose 7 (meas.csv:9) point 1" in out, out
+    line = next(ln for ln in out.splitlines() if ln.startswith("fit over every posture"))
+    m = re.search(r"pose 7 \(meas\.csv:9\) ([\d.]+) mm off", line)
+    assert m and 4.5 < float(m.group(1)) < 6.5, line
+    assert "1 pose(s) excluded" in out
+
+
+def test_a_check_short_of_its_recommendation_is_a_note_not_ok():
+    from station.fitting.verdict import Quality
+
+    q = Quality()
+    q.check("poses", True, "poses: 36 distinct (eq. 60 recommends >= 54)", short=True)
+    q.check("noise", True, "noise: fits")
+    lines = q.lines()
+    assert lines[0].startswith("note: poses") and lines[1].startswith("ok: noise")
+    assert q.passed
