@@ -110,6 +110,29 @@ def _tiago_data() -> Path:
 
 
 @pytest.mark.slow
+def test_tiago_joint_offsets_reproduce_figaroh_s_figures(tmp_path, capsys):
+    """FIGAROH's TIAGo example as it comes (marker 1, joint offsets only): the fit, the
+    held-out and the worst held-out 3D errors to FIGAROH's printed digits, 2.88 / 4.23 /
+    12.0 mm (docs/urdf-robots.md, "A worked example: TIAGo")."""
+    data = _tiago_data()
+    others = ",".join(f"{a}{j}" for j in (2, 3, 4) for a in "xyz")
+    rc, _o, err = run(capsys, "trace", "import", data / "qualisys_2021-11-30_static_postures.csv",
+                      "--validation", data / "qualisys_2021-11-26_static_postures.csv",
+                      "--robot", data / "tiago_48_schunk.urdf", "--base-link", "base_footprint",
+                      "--tip-link", "wrist_ft_tool_link", "--method", "sm-markers",
+                      "--ignore-columns", f"{TIAGO_IGNORE},{others}", "--out", tmp_path / "t.jsonl")
+    assert rc == 0, err
+    rc, out, err = run(capsys, "batch", tmp_path / "t.jsonl", "--hold", "j*", "--out",
+                       tmp_path / "p.json")
+    assert rc == 0, err
+    doc = json.loads((tmp_path / "p.json").read_text())
+    pts = held_out(doc)
+    figures = (round(doc["fit_points"]["rms"] * 1e3, 2), round(pts["rms_after"] * 1e3, 2),
+               round(pts["max_after"] * 1e3, 1))
+    assert figures == (2.88, 4.23, 12.0), (figures, out)
+
+
+@pytest.mark.slow
 def test_tiago_recalibrates_from_its_exported_urdf(tmp_path, capsys):
     data = _tiago_data()
 
