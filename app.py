@@ -6,8 +6,10 @@
     python app.py params verify PARAMS.json
     python app.py trace generate --method M --out TRACE [--truth FILE] [--noise ...]
     python app.py simulate --robot R [--truth FILE] [--endpoints FILE]
-    python app.py devices check [--config FILE]
+    python app.py devices check --config FILE | --simulate [--robot R]
     python app.py run --simulate --robot R --method M [--truth FILE] --out DIR
+    python app.py run --config FILE --robot R --method M --out DIR   (docs/real-station.md)
+    python app.py study --method M --robots N --out DIR
     python app.py truth draw --robot R --seed N --out TRUTH.json
     python app.py doctor               what this machine lacks, and how to install it
 

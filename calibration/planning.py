@@ -13,7 +13,7 @@ from calibration.errors import CalibrationError, UnreachablePose
 from calibration.ties import first_min
 
 # Workspace boxes of the report, relative to the base offset (x0, y0, z0)
-# (brief section 1), phi +-20 deg; and for 7.5 relative to the chosen origin.
+# (docs/models.md, "Serial part (SM)"), phi +-20 deg; and for 7.5 relative to the chosen origin.
 DEG20 = np.radians(20.0)
 SM_BOX_7_1 = {"x": (1.0, 1.5), "y": (0.5, 1.0), "z": (-0.75, 0.75), "phi": (-DEG20, DEG20)}
 SM_BOX_7_5 = {"x": (-0.25, 0.25), "y": (-0.25, 0.25), "z": (-0.75, 0.75), "phi": (-DEG20, DEG20)}

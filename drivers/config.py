@@ -62,7 +62,7 @@ LIMIT_CHANNEL = re.compile(r"^(qm[0-9]*|tilt|roll|pitch|yaw|distance)$")
 
 @dataclass(frozen=True)
 class CanopenConfig:
-    """The actuators' CANopen bus (devices.md).
+    """The actuators' CANopen bus (docs/real-station.md, "The CANopen drives").
 
     interface/channel: python-can interface (``socketcand``, ``socketcan``, ...) and channel.
     host, port:        socketcand server (None for other interfaces).

@@ -1,6 +1,6 @@
 """Serial inclinometer with WitMotion-style binary frames (pyserial).
 
-Wire format (see ``shared/spec/devices.md``): 11-byte frames
+Wire format (the sensor's side: docs/real-station.md, "The inclinometer"): 11-byte frames
 ``55 TYPE d0L d0H d1L d1H d2L d2H d3L d3H SUM``, little-endian int16 data,
 ``SUM = sum(bytes 0..9) & 0xFF``.
 

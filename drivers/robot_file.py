@@ -1,5 +1,5 @@
 """Robot files: TOML, ``format = "calstation-robot"``, ``version = 1``
-(shared/spec/robot-file.md, docs/robot-files.md).
+(docs/robot-files.md, "The file format").
 
 :func:`load_robot_file` reads one into a :class:`calibration.robots.serial.SerialSpec`
 that carries its own source (``{name, sha256, text}``), which is what a trace's

@@ -44,10 +44,18 @@ GUI_PACKAGES = ("libegl1", "libgl1", "libfontconfig1", "libdbus-1-3", "libxkbcom
                 "libxkbcommon-x11-0", "libxcb-cursor0", "libxcb-icccm4", "libxcb-image0",
                 "libxcb-keysyms1", "libxcb-randr0", "libxcb-render-util0", "libxcb-shape0",
                 "libxcb-xkb1")
+#: (module, distribution) of every package in pyproject.toml's ``dependencies`` (all
+#: required: tests/station/test_doctor.py checks that the two lists agree)
 PYTHON_PACKAGES = (("numpy", "numpy"), ("scipy", "scipy"), ("can", "python-can"),
                    ("canopen", "canopen"), ("serial", "pyserial"), ("pymodbus", "pymodbus"),
                    ("matplotlib", "matplotlib"), ("jinja2", "Jinja2"),
-                   ("PySide6", "PySide6-Essentials"))
+                   ("PySide6", "PySide6-Essentials"), ("dask", "dask"),
+                   ("dask.distributed", "distributed"), ("jsonschema", "jsonschema"),
+                   ("yourdfpy", "yourdfpy"))
+#: what uses a package that only some commands need (said where it is missing)
+USED_BY = {"dask": "app.py study", "distributed": "app.py study (dask[distributed])",
+           "jsonschema": "reading parameter files (params verify, params export)",
+           "yourdfpy": "URDF robots (--robot FILE.urdf)"}
 
 
 def xcb_plugin() -> Path | None:
@@ -125,8 +133,9 @@ def checks() -> list[tuple[bool, str, str]]:
             version = importlib.metadata.version(dist)
             out.append((True, f"Python package {dist}", version))
         except Exception as e:  # noqa: BLE001 - a broken install is what this reports
+            used = f"used by {USED_BY[dist]}; " if dist in USED_BY else ""
             out.append((False, f"Python package {dist}",
-                        f"{type(e).__name__}: {e}; install with: pip install -e ."))
+                        f"{type(e).__name__}: {e}; {used}install with: pip install -e ."))
     try:
         from station.outputs.report import template_environment
 

@@ -1,6 +1,6 @@
 """The parallel part (PM) of the AGEBOT: a spherical wrist, 3 x PUS + passive S.
 
-Calibration brief, section 2 (report sections 8-9). Base points ``B_i`` and
+docs/models.md, "Parallel part (PM)" (report sections 8-9). Base points ``B_i`` and
 platform points ``D_i`` (platform frame F_e) on equilateral triangles of sides
 ``a1`` and ``a2``; platform centre fixed at ``O_e = (0, 0, v)``; orientation
 ``R = Rx(alpha) Ry(beta) Rz(gamma)``; slider i at ``C_i = B_i + (0, 0, q_i)``;

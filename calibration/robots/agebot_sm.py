@@ -1,6 +1,6 @@
 """The serial part (SM) of the AGEBOT: a linear rail plus a planar 3R arm.
 
-Calibration brief, section 1 (report section 6, Table 2)::
+docs/models.md, "Serial part (SM)" (report section 6, Table 2)::
 
     T_b4 = Rz(theta0) Tx(a0) * Tz(d1') Rz(pi/2 - theta0) * Rz(theta2) Tx(L2)
            * Rz(theta3) Tx(L3) * Rz(theta4) Tx(L4)

@@ -1,4 +1,4 @@
-"""Any serial manipulator of a robot file (report section 2; shared/spec/robot-file.md).
+"""Any serial manipulator of a robot file (report section 2; docs/robot-files.md).
 
 The chain, base to tool (eqs. 1-9)::
 

@@ -1,4 +1,5 @@
-"""The simulated AGEBOT behind the simulated devices (devices.md, last section).
+"""The simulated AGEBOT behind the simulated devices (its conventions are stated below; the
+real devices it stands in for: docs/real-station.md).
 
 :class:`SimulatedAgebot` holds the true parameters (a :class:`~drivers.sim.truth.SimTruth`)
 and one :class:`~drivers.sim.axis.SimAxis` per actuator; the simulated drives move

@@ -1,4 +1,4 @@
-"""The simulated serial robot of a robot file (shared/spec/robot-file.md).
+"""The simulated serial robot of a robot file (docs/robot-files.md).
 
 :class:`SimulatedSerial` is :class:`~drivers.sim.robot.SimulatedAgebot` for any
 serial arm: one :class:`~drivers.sim.axis.SimAxis` per joint (driven by one

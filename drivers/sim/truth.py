@@ -5,7 +5,7 @@ seen::
 
     {"robot": "agebot-sm" | "agebot-pm",
      "parameters": {name: value, ...},   # every parameter of the robot model,
-                                         # names as in calibration-brief.md;
+                                         # names as in docs/models.md;
                                          # agebot-sm may add plane_a, plane_b, plane_c
                                          # (all three): the plane a x + b y + c z + 1 = 0
      "noise": {channel: std, ...},       # optional, std of ONE reading:
@@ -17,10 +17,10 @@ seen::
                                          # R_mount = Rx(rx) Ry(ry), rad (default 0, 0)
      "comment": "..."}                   # optional, free text
 
-A robot file's truth (shared/spec/robot-file.md) adds ``"robot_file": "<path to the
-TOML>"`` (relative to the truth file) and ``"robot"`` is the file's name; names
-left out of ``parameters`` take the file's nominal; ``inclinometer_mount`` is
-the tool inclinometer's; noise also takes ``position`` [m] and ``pose``
+A robot file's truth (docs/robot-files.md, "Truth files of a robot file") adds
+``"robot_file": "<path to the TOML>"`` (relative to the truth file) and ``"robot"``
+is the file's name; names left out of ``parameters`` take the file's nominal;
+``inclinometer_mount`` is the tool inclinometer's; noise also takes ``position`` [m] and ``pose``
 (a number or 6 values: m, m, m, rad, rad, rad).
 
 Unknown keys are errors; every error is a :class:`ConfigError` naming the file
@@ -89,7 +89,7 @@ class SimTruth:
 
 
 def report_truth(robot: str) -> SimTruth:
-    """The report's true values for ``robot`` (calibration-brief.md), noise-free."""
+    """The report's true values for ``robot`` (docs/models.md), noise-free."""
     model = get_robot(robot)
     return SimTruth(robot=robot, parameters=frozen_map(model.as_dict(model.true)))
 

@@ -7,9 +7,9 @@ from calibration.identifiability import minimum_poses
 from calibration.methods import METHODS
 from calibration.methods.sm_distance import zero_names
 
-# N_R and p of each method (brief section 3) for the pose count of eq. 60; for
+# N_R and p of each method (docs/models.md's method table) for the pose count of eq. 60; for
 # sm-self-redundancy a "pose" of eq. 60 is a pair (its p = 2 rows dx, dy). The
-# brief's N_R counts the robot's parameters only: :func:`parameter_count` adds the
+# table's N_R counts the robot's parameters only: :func:`parameter_count` adds the
 # draw-wire's zero offset where the method calibrates it.
 NR_P = {"sm-distance": (9, 1), "sm-distance-tilt": (13, 2), "pm-ik": (8, 3), "pm-fk": (8, 3),
         "pm-tilt": (10, 2), "sm-self-redundancy": (7, 2), "sm-plane": (10, 1),
@@ -21,7 +21,7 @@ SESSION_ZERO = "reading"
 
 def parameter_count(method: str, distance_zero: str = SESSION_ZERO) -> int:
     """N_R of eq. 60 for ``method`` on AGEBOT: the parameters a well-spread set of
-    poses identifies, the brief's (:data:`NR_P`) plus the method's draw-wire zero
+    poses identifies, docs/models.md's (:data:`NR_P`) plus the method's draw-wire zero
     offset where the zero is a reading (:func:`calibration.methods.sm_distance.zero_names`)."""
     nr = NR_P[method][0]
     if "distance" in METHODS[method].channels:

@@ -5,7 +5,7 @@ Both start from a parameter file of a robot file (its ``robot_file`` and the
 calibrated ``parameters``): :func:`calibrated_model` gives the model and the
 calibrated vector, every parameter the fit did not calibrate at its start value.
 
-URDF (shared/spec/robot-file.md, "URDF export"): links ``base_link`` (the base
+URDF (docs/robot-files.md, "URDF export of a calibrated robot file"): links ``base_link`` (the base
 frame F_b), ``link1 .. linkn`` and ``tool0`` (the tool frame F_e); joint i is a
 revolute or prismatic joint about z whose position is the actuator value
 ``qm_i``. Each joint's constant transforms are split around its motion factor

@@ -5,7 +5,7 @@ joint's limits; the readings come from the true robot there, plus noise.
 Physical constraints are where the true robot really is: a group of
 sm-self-redundancy poses shares the true tool position, sm-plane contacts lie
 on the true plane. The header carries the robot file (``robot_file``), so the
-trace is complete on its own (shared/spec/robot-file.md).
+trace is complete on its own (docs/robot-files.md, "Traces of a robot file").
 """
 from __future__ import annotations
 

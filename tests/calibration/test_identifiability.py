@@ -1,4 +1,4 @@
-"""The brief's method table: non-identifiable parameters, their influence
+"""The method table of docs/models.md: non-identifiable parameters, their influence
 class and N_R, as the solver reports them at the solution."""
 import pytest
 
@@ -53,7 +53,7 @@ def test_analysis_at_nominal_alone_finds_too_few():
 def test_a_zero_that_is_a_reading_adds_one_identifiable_parameter(method, n_r):
     """The draw-wire zeroed on a noisy reading: ``distance_off`` is calibrated and
     identifiable with distance alone (7.2) as with distance + tilt (7.5); the
-    brief's table above is the exact zero (no ``distance_off``)."""
+    table above (docs/models.md's) is the exact zero (no ``distance_off``)."""
     model, _ = dataset(method, seed=4, distance_zero="reading", distance_off=3e-5)
     res = solve(model)
     assert res.converged, res.message

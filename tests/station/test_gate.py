@@ -244,7 +244,7 @@ def test_the_plans_eq60_minimum_is_the_gates(tmp_path, method, n_r, minimum):
     """A session's trace (its draw-wire zero a reading: distance_off calibrated):
     the planner's eq. 60 minimum is the one the gate checks (the plan said 33 for
     sm-distance-tilt where the gate asked for 35); a trace with an exact zero keeps
-    the brief's N_R."""
+    docs/models.md's N_R."""
     from calibration.identifiability import minimum_poses
     from station.fitting.pose_count import minimum_count, parameter_count
 
