@@ -83,7 +83,7 @@ class DrawWire(Device):
     def __init__(self, *, metres_per_count: float, offset_m: float = 0.0,
                  port: str | None = None, host: str | None = None, tcp_port: int = 502,
                  device_id: int = 1, word_order: str = "big", baudrate: int = 19200,
-                 timeout: float = 1.0, retries: int = 3, backoff_s: float = 0.05,
+                 parity: str = "N", stopbits: int = 1, timeout: float = 1.0, retries: int = 3, backoff_s: float = 0.05,
                  name: str | None = None):
         if (port is None) == (host is None):
             raise ConfigError("give exactly one of port (RTU) or host (TCP)", key="drawwire")
@@ -105,8 +105,12 @@ class DrawWire(Device):
         self._link_lost = False
         self._seq = 0
         if port is not None:
-            self._client = ModbusSerialClient(port, baudrate=baudrate, bytesize=8, parity="N",
-                                              stopbits=1, timeout=self.timeout, retries=0)
+            if parity not in ("N", "E", "O") or stopbits not in (1, 2):
+                raise ConfigError(f"parity must be N, E or O and stopbits 1 or 2, got "
+                                  f"{parity!r}, {stopbits!r}", key="drawwire")
+            self._client = ModbusSerialClient(port, baudrate=baudrate, bytesize=8, parity=parity,
+                                              stopbits=int(stopbits), timeout=self.timeout,
+                                              retries=0)
         else:
             self._client = ModbusTcpClient(host, port=int(tcp_port), timeout=self.timeout,
                                            retries=0)

@@ -50,7 +50,8 @@ def drawwire_from_config(cfg) -> DrawWire:
               timeout=cfg.timeout, name="draw-wire")
     if cfg.mode == "tcp":
         return DrawWire(host=cfg.host, tcp_port=cfg.port, **kw)
-    return DrawWire(port=cfg.serial_port, baudrate=cfg.baudrate, **kw)
+    return DrawWire(port=cfg.serial_port, baudrate=cfg.baudrate, parity=cfg.parity,
+                    stopbits=cfg.stopbits, **kw)
 
 
 class Rig:

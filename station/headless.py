@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shlex
 import sys
 import warnings
@@ -132,9 +133,25 @@ def main(args: argparse.Namespace) -> int:
     if not args.config:
         raise ConfigError("give --config FILE (the station's devices) or --simulate")
     config = load_station_config(args.config)
+    want = getattr(args, "robot", None)
+    if want and not _same_robot(want, config.robot):
+        raise ConfigError(f"the station config is for {config.robot}, not {want} (--robot): "
+                          "give the config of this robot's station, or leave --robot out",
+                          source=config.source, key="robot")
     if getattr(args, "endpoints", None):
         config = with_endpoints(config, load_endpoints(args.endpoints), source=args.endpoints)
     return _run(config, args.method, out, request, nominal, accept=accept)
+
+
+def _same_robot(a: str, b: str) -> bool:
+    """Do ``--robot`` and a config's ``robot`` name the same robot (a built-in's name, or
+    the same robot file by path)?"""
+    if a == b:
+        return True
+    try:
+        return os.path.isfile(a) and os.path.isfile(b) and os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def parse_target(text: str | None) -> tuple[str, float] | None:

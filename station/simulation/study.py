@@ -306,8 +306,13 @@ def cli(args) -> int:
     from station.planning.pose_design import DESIGNS
     from station.simulation.tracegen import parse_noise
 
+    from station.fitting.pose_count import NR_P
+
     if args.method not in METHODS:
         raise StationError(f"unknown method {args.method!r} (known: {', '.join(METHODS)})")
+    if args.method not in NR_P:
+        raise StationError(f"study draws AGEBOT's arm and wrist: method {args.method} is not "
+                           f"one of theirs (study takes {', '.join(NR_P)})")
     robot = BUILTIN[METHODS[args.method].kind]
     if args.robot and args.robot != robot:
         raise StationError(f"method {args.method} is for {robot}, not {args.robot}")

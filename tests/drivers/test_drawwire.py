@@ -186,3 +186,13 @@ def test_config_errors_and_idempotent_close(server):
     dw.open()
     dw.close()
     dw.close()
+
+
+def test_an_rtu_port_is_opened_with_the_configured_parity_and_stop_bits():
+    """The config's parity and stopbits reach the serial port (a sensor set to 8E2 talks
+    8E2); a value the port cannot take is a config error naming the section."""
+    dw = DrawWire(metres_per_count=1e-5, port="/dev/null-no-such-port", parity="E", stopbits=2)
+    params = dw._client.comm_params
+    assert (params.parity, params.stopbits, params.bytesize) == ("E", 2, 8)
+    with pytest.raises(ConfigError, match="parity"):
+        DrawWire(metres_per_count=1e-5, port="/dev/x", parity="X")

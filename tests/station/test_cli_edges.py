@@ -625,3 +625,15 @@ def test_a_station_config_timeout_beyond_reason_is_refused(tmp_path, key, value)
                           flags=re.M))
     with pytest.raises(ConfigError, match=rf"{key}: .* must be <="):
         load_station_config(cfg)
+
+
+def test_run_refuses_a_config_of_another_robot(tmp_path, capsys):
+    """``run --config`` of an AGEBOT arm's station with ``--robot agebot-pm`` ran the arm's
+    session without a word; now one line, before any device is touched."""
+    from tests.simconfig import quick_config
+
+    cfg = quick_config(tmp_path / "station", "agebot-sm")
+    rc, out, err = run(capsys, "run", "--config", cfg, "--robot", "agebot-pm", "--method",
+                       "pm-fk", "--out", tmp_path / "s")
+    one_line(rc, err, "is for agebot-sm, not agebot-pm", "--robot")
+    assert not (tmp_path / "s").exists()

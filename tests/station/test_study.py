@@ -98,7 +98,8 @@ def test_study_bad_options_one_line(tmp_path):
     for args, msg in ((["--method", "sm-nope"], "unknown method"),
                       (["--method", "sm-distance", "--design", "best"], "--design"),
                       (["--method", "sm-distance", "--gear", "1.5"], "--gear"),
-                      (["--method", "sm-distance", "--robot", "agebot-pm"], "is for agebot-sm")):
+                      (["--method", "sm-distance", "--robot", "agebot-pm"], "is for agebot-sm"),
+                      (["--method", "sm-markers"], "not one of theirs")):
         r = _app("study", *args, "--robots", "2", "--out", str(tmp_path / "x"))
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1
