@@ -20,6 +20,7 @@ from station.gui.plots import Canvas
 from station.outputs.units import MM_DEG
 
 INCL_AXIS = 0.12          # m: length of the inclinometer's drawn axes
+MIN_WIDTH, MIN_HEIGHT = 380, 300     # px: the 3D view (and its size hint)
 REDRAW_MS = 120           # coalesced redraws (the polling delivers readings every 0.4 s)
 
 
@@ -32,14 +33,17 @@ class ArmFigure(ReferenceSteps, QWidget):
         QWidget.__init__(self, parent)
         self._init_steps(robot, nominal, target_label, units)
         self.roll = self.pitch = None
-        self.canvas = Canvas(300)
+        # asks for its minimum: on the reference page it fills the room beside the jog
+        # panel, and the buttons under it stay in sight at 1366 x 768 (at matplotlib's
+        # 614 x 460 the page was laid out taller than the window, the buttons cut)
+        self.canvas = Canvas(MIN_HEIGHT, hint=(MIN_WIDTH, MIN_HEIGHT))
         self.steps_label = QLabel()
         self.steps_label.setWordWrap(True)
         lay = QVBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.canvas, 1)
         lay.addWidget(self.steps_label)
-        self.setMinimumSize(380, 300)
+        self.setMinimumSize(MIN_WIDTH, MIN_HEIGHT)
         self.ax = self.canvas.figure.add_subplot(projection="3d")
         self.ax.view_init(elev=22, azim=-60)
         self._box = None

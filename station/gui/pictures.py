@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 from PySide6.QtCore import QPointF, QRectF, Qt
-from PySide6.QtGui import QBrush, QColor, QFont, QPainter, QPainterPath, QPen
+from PySide6.QtGui import QBrush, QColor, QFont, QFontMetricsF, QPainter, QPainterPath, QPen
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
 from station.outputs.units import MM_DEG
@@ -25,6 +25,34 @@ INK, ARM, TARGET, CABLE, OK, BAD = ("#202124", "#3c6e9f", "#d35400", "#6a1b9a", 
 NEAR_M = 0.01            # end effector this close to the target counts as there (m, nominal)
 FAR_M = 0.05             # a reference captured farther from the mark is warned about (m)
 MOUNT_TOLERANCE = math.radians(2.0)
+RAIL_CAPTION = "rail\n(seen from above)"
+READING_TEMPLATE = "roll +00.00\u00b0, pitch +00.00\u00b0 \u2014 not level: check the mount"
+RAIL_X = 30              # the rail's line from its column's left edge (px)
+RAIL_W = RAIL_X + 24     # the rail's column where its caption is above it (px)
+
+
+WRAP = int(Qt.TextFlag.TextWordWrap)
+
+
+def text_height(font: QFont, width: float, text: str, flags: int = 0) -> float:
+    """The height of ``text`` word-wrapped at ``width`` pixels in ``font``."""
+    if not text:
+        return 0.0
+    return QFontMetricsF(font).boundingRect(QRectF(0, 0, max(width, 1.0), 1e5),
+                                            int(flags) | WRAP, text).height()
+
+
+def draw_wrapped(p: QPainter, rect: QRectF, text: str, flags: int = 0) -> float:
+    """``text`` word-wrapped in ``rect``'s width from its top (a word longer than the
+    width is broken anywhere rather than cut); returns the height it took."""
+    flags = int(flags) | WRAP
+    probe = QRectF(rect.left(), rect.top(), max(rect.width(), 1.0), 1e5)
+    br = p.boundingRect(probe, flags, text)
+    if br.width() > probe.width() + 0.5:                 # a word wider than the rect
+        flags = (flags & ~WRAP) | int(Qt.TextFlag.TextWrapAnywhere)
+        br = p.boundingRect(probe, flags, text)
+    p.drawText(QRectF(rect.left(), rect.top(), probe.width(), br.height() + 1), flags, text)
+    return br.height()
 
 
 class _Picture(QWidget):
@@ -37,18 +65,26 @@ class _Picture(QWidget):
         self.done: set[int] = set()    # the steps ticked
         self.warned: set[int] = set()  # steps marked as not done as asked
 
-    def _steps(self, p: QPainter, rect: QRectF) -> None:
-        f = QFont(self.font())
-        y = rect.top()
+    def _step_lines(self):
+        """``(font, colour, text)`` of each step, the current one in bold."""
         for i, text in enumerate(self.steps):
+            f = QFont(self.font())
             f.setBold(i == self.step)
-            p.setFont(f)
-            p.setPen(QColor(BAD if i in self.warned else "#777" if i in self.done else INK))
+            color = BAD if i in self.warned else "#777" if i in self.done else INK
             mark = "!" if i in self.warned else "\u2713" if i in self.done else f"{i + 1}."
-            r = QRectF(rect.left(), y, rect.width(), 200)
-            br = p.boundingRect(r, Qt.TextFlag.TextWordWrap, f"{mark} {text}")
-            p.drawText(r, Qt.TextFlag.TextWordWrap, f"{mark} {text}")
-            y += br.height() + 4
+            yield f, color, f"{mark} {text}"
+
+    def _steps_height(self, width: float) -> float:
+        """The height the steps take word-wrapped at ``width`` (0 without steps)."""
+        return sum(text_height(f, width, text) + 4 for f, _, text in self._step_lines())
+
+    def _steps(self, p: QPainter, rect: QRectF) -> None:
+        y = rect.top()
+        for f, color, text in self._step_lines():
+            p.setFont(f)
+            p.setPen(QColor(color))
+            y += draw_wrapped(p, QRectF(rect.left(), y, rect.width(), 0), text) + 4
+        p.setFont(self.font())
 
 
 class ReferenceSteps:
@@ -145,19 +181,56 @@ class ArmPicture(ReferenceSteps, _Picture):
             pts.append((x + length * math.cos(a), y + length * math.sin(a)))
         return pts, float(q[0])
 
+    def _z_text(self, z: float) -> str:
+        return f"z {self.units.text(z, 'm', '.4g')}"
+
+    def _rail_text(self) -> str:
+        """The rail's caption and the carriage's position now."""
+        if self.qm is None:
+            return RAIL_CAPTION
+        return f"{RAIL_CAPTION}\n{self._z_text(self.points(self.qm)[1])}"
+
+    def _rail_text_width(self, fm: QFontMetricsF) -> float:
+        """The widest line of :meth:`_rail_text` (``z`` with four digits and a sign
+        at least, so the layout does not follow every reading)."""
+        lines = RAIL_CAPTION.split("\n") + [self._z_text(-0.8888)]
+        lines += self._rail_text().split("\n")
+        return math.ceil(max(fm.horizontalAdvance(t) for t in lines)) + 4
+
     def paintEvent(self, _event) -> None:
         p = QPainter(self)
         p.setRenderHint(QPainter.RenderHint.Antialiasing)
         w, h = self.width(), self.height()
         p.fillRect(self.rect(), QColor("#fbfbfb"))
-        text_h = 96
-        view = QRectF(10, 8, w * 0.74 - 10, h - text_h - 16)
-        rail = QRectF(w * 0.74 + 10, 8, w * 0.26 - 20, h - text_h - 16)
+        fm = QFontMetricsF(self.font())
+        # from the top: the headline; the view of the arm beside the rail, the rail's
+        # caption over it; the steps. Every text is measured first: none is cut at the
+        # picture's edge. The caption beside the view where the picture is wide, above
+        # both where it is narrow (the view keeps its width, the arm its size).
+        steps_h = self._steps_height(w - 20)
+        bottom = h - (steps_h + 8 if steps_h else 0) - 6
+        head = self.headline()
+        top = 8.0
+        if head is not None:
+            p.setPen(QColor(head[1]))
+            top += draw_wrapped(p, QRectF(10, top, w - 20, 0), head[0]) + 4
+        text_w = min(self._rail_text_width(fm), w - 20)
+        side = text_w <= w * 0.26
+        rail_w = text_w if side else RAIL_W
+        text_r = QRectF(w - 10 - text_w, top, text_w, 0)
+        p.setPen(QPen(QColor(INK), 1))
+        text_h = draw_wrapped(p, text_r, self._rail_text(),
+                              int(Qt.AlignmentFlag.AlignLeft if side
+                                  else Qt.AlignmentFlag.AlignRight))
+        view_top = top if side else top + text_h + 6
+        rail = QRectF(w - 10 - rail_w, top + text_h + 6, rail_w, bottom - top - text_h - 6)
+        # the floor's caption below its line, inside the view
+        view = QRectF(10, view_top, w - 30 - rail_w, bottom - view_top - fm.height() - 4)
         reach = sum(self.xi[self.robot.index(n)] for n in ("L2", "L3", "L4"))
         x0, y0, _ = self.robot.base_offset(self.xi)
         lo = np.array([x0 - reach, min(0.0, y0 - reach * 0.6)])
         hi = np.array([x0 + reach, y0 + reach])
-        s = min(view.width() / (hi[0] - lo[0]), view.height() / (hi[1] - lo[1]))
+        s = max(1e-9, min(view.width() / (hi[0] - lo[0]), view.height() / (hi[1] - lo[1])))
 
         def P(x, y):
             return QPointF(view.left() + (x - lo[0]) * s, view.bottom() - (y - lo[1]) * s)
@@ -165,7 +238,10 @@ class ArmPicture(ReferenceSteps, _Picture):
         p.setPen(QPen(QColor("#999"), 1, Qt.PenStyle.DashLine))
         p.drawLine(P(lo[0], 0), P(hi[0], 0))
         p.setPen(QColor("#777"))
-        p.drawText(P(lo[0], 0) + QPointF(4, 14), "floor (y = 0)")
+        floor = P(lo[0], 0) + QPointF(4, 2)
+        p.drawText(floor + QPointF(0, fm.ascent()), "floor (y = 0)")
+        taken = [QRectF(floor.x(), floor.y(), fm.horizontalAdvance("floor (y = 0)"),
+                        fm.height())]
         target = None
         if self.target_qm is not None:
             tpts, _ = self.points(self.target_qm)
@@ -191,11 +267,20 @@ class ArmPicture(ReferenceSteps, _Picture):
             p.drawEllipse(qp[-1], 5, 5)
             if target is not None:
                 if self.captured or self.step == 1:
+                    # the sensor below and right of the mark, it and its caption in the view
+                    label_w = fm.horizontalAdvance("draw-wire") + 8
                     sensor = target + QPointF(70, 56)
+                    sensor.setX(max(view.left() + label_w / 2,
+                                    min(sensor.x(), view.right() - label_w / 2)))
+                    sensor.setY(max(view.top() + 12,
+                                    min(sensor.y(), view.bottom() - 14 - fm.height())))
                     p.setBrush(QBrush(QColor("#ddd")))
                     p.setPen(QPen(QColor(INK), 1))
                     p.drawRect(QRectF(sensor - QPointF(14, 10), sensor + QPointF(14, 10)))
-                    p.drawText(sensor + QPointF(-26, 28), "draw-wire")
+                    caption = QRectF(sensor.x() - label_w / 2, sensor.y() + 12, label_w,
+                                     fm.height() + 1)
+                    p.drawText(caption, Qt.AlignmentFlag.AlignCenter, "draw-wire")
+                    taken.append(caption)
                     pen = QPen(QColor(CABLE), 2,
                                Qt.PenStyle.SolidLine if self.captured else Qt.PenStyle.DashLine)
                     p.setPen(pen)
@@ -204,38 +289,35 @@ class ArmPicture(ReferenceSteps, _Picture):
                     p.setPen(QPen(QColor(TARGET), 1.5, Qt.PenStyle.DashLine))
                     p.drawLine(qp[-1], target)
             self._rail(p, rail)
-            # labels last, on a light box, each away from the arm's last link
+            # labels last, on a light box, each away from the arm's last link and from
+            # the texts already drawn
             away = qp[-1] - qp[-2]
             n = math.hypot(away.x(), away.y()) or 1.0
             ee_dir = QPointF(away.x() / n, away.y() / n)
-            _label(p, qp[-1], "end effector", ee_dir, INK, view)
+            taken.append(_label(p, qp[-1], "end effector", ee_dir, INK, view, avoid=taken))
             if target is not None:
                 d = target - qp[-1]
                 dn = math.hypot(d.x(), d.y())
                 t_dir = QPointF(d.x() / dn, d.y() / dn) if dn > 1 else QPointF(-ee_dir.x(),
                                                                              -ee_dir.y())
-                _label(p, target, self.target_label, t_dir, TARGET, view, gap=22)
+                _label(p, target, self.target_label, t_dir, TARGET, view, gap=22, avoid=taken)
         elif target is not None:
-            _label(p, target, self.target_label, QPointF(0.7, -0.7), TARGET, view, gap=22)
-        head = self.headline()
-        if head is not None:
-            p.setPen(QColor(head[1]))
-            p.drawText(QPointF(view.left(), view.top() + 14), head[0])
-        self._steps(p, QRectF(10, h - text_h, w - 20, text_h))
+            _label(p, target, self.target_label, QPointF(0.7, -0.7), TARGET, view, gap=22,
+                   avoid=taken)
+        self._steps(p, QRectF(10, h - steps_h - 6, w - 20, steps_h))
         p.end()
 
     def _rail(self, p: QPainter, r: QRectF) -> None:
+        """The rail from above in ``r``: its limits, the reference's mark, the carriage."""
         lo, hi = self.robot.joint_limits[0]
         _, z = self.points(self.qm)
-        p.setPen(QPen(QColor(INK), 1))
-        p.drawText(QPointF(r.left(), r.top() + 14), "rail (seen from above)")
-        x = r.left() + 30
-        top, bottom = r.top() + 30, r.bottom() - 10
+        x = r.left() + RAIL_X
+        top, bottom = r.top() + 10, r.bottom() - 10
         p.setPen(QPen(QColor("#888"), 6))
         p.drawLine(QPointF(x, top), QPointF(x, bottom))
 
-        def Y(zz):
-            return bottom - (zz - lo) / (hi - lo) * (bottom - top)
+        def Y(zz):       # off the rail's ends (past a limit): drawn at the end
+            return max(top, min(bottom, bottom - (zz - lo) / (hi - lo) * (bottom - top)))
 
         if self.target_qm is not None:
             _, zt = self.points(self.target_qm)
@@ -244,24 +326,34 @@ class ArmPicture(ReferenceSteps, _Picture):
         p.setPen(QPen(QColor(INK), 1))
         p.setBrush(QBrush(QColor(ARM)))
         p.drawRect(QRectF(x - 14, Y(z) - 8, 28, 16))
-        p.drawText(QPointF(x + 20, Y(z) + 4), f"z {self.units.text(z, 'm', '.4g')}")
 
 
 def _label(p: QPainter, anchor: QPointF, text: str, direction: QPointF, color: str,
-           bounds: QRectF, gap: float = 12) -> None:
+           bounds: QRectF, gap: float = 12, avoid=()) -> QRectF:
     """``text`` on a light box beside ``anchor``, ``gap`` pixels along ``direction``
-    (a unit vector) and extending away from it, kept inside ``bounds``."""
+    (a unit vector) and extending away from it, kept inside ``bounds``; where that box
+    would cover one of ``avoid`` (texts drawn already), the first of the other sides
+    that does not. Returns the box."""
     fm = p.fontMetrics()
     w, h = fm.horizontalAdvance(text) + 8, fm.height() + 2
-    c = anchor + QPointF(direction.x() * (gap + w / 2), direction.y() * (gap + h / 2))
-    box = QRectF(c.x() - w / 2, c.y() - h / 2, w, h)
-    box.moveLeft(max(bounds.left(), min(box.left(), bounds.right() - w)))
-    box.moveTop(max(bounds.top() + 18, min(box.top(), bounds.bottom() - h)))
+
+    def place(d: QPointF) -> QRectF:
+        c = anchor + QPointF(d.x() * (gap + w / 2), d.y() * (gap + h / 2))
+        box = QRectF(c.x() - w / 2, c.y() - h / 2, w, h)
+        box.moveLeft(max(bounds.left(), min(box.left(), bounds.right() - w)))
+        box.moveTop(max(bounds.top(), min(box.top(), bounds.bottom() - h)))
+        return box
+
+    sides = [direction, QPointF(-direction.x(), -direction.y()), QPointF(0, -1),
+             QPointF(0, 1), QPointF(-1, 0), QPointF(1, 0)]
+    box = next((b for b in map(place, sides) if not any(b.intersects(a) for a in avoid)),
+               place(direction))
     p.setPen(Qt.PenStyle.NoPen)
     p.setBrush(QBrush(QColor(255, 255, 255, 215)))
     p.drawRoundedRect(box, 3, 3)
     p.setPen(QColor(color))
     p.drawText(box, Qt.AlignmentFlag.AlignCenter, text)
+    return box
 
 
 class LevelPicture(_Picture):
@@ -287,13 +379,35 @@ class LevelPicture(_Picture):
         self.done = {0} if self.level else set()
         self.update()
 
+    def reading_text(self) -> str | None:
+        """The line under the pictures: roll and pitch now and whether that is level."""
+        if self.roll is None or self.pitch is None:
+            return None
+        return (f"roll {math.degrees(self.roll):+.2f}\u00b0, pitch "
+                f"{math.degrees(self.pitch):+.2f}\u00b0 \u2014 "
+                + ("level: mounted flat" if self.level else "not level: check the mount"))
+
     def paintEvent(self, _event) -> None:
         p = QPainter(self)
         p.setRenderHint(QPainter.RenderHint.Antialiasing)
         w, h = self.width(), self.height()
         p.fillRect(self.rect(), QColor("#fbfbfb"))
-        text_h = 80
-        left = QRectF(10, 10, w * 0.5 - 20, h - text_h - 20)
+        font = self.font()
+        # from the top: the two captions, the platform beside the bubble level, the
+        # reading, the steps; every text measured first, so none is cut at the edge
+        steps_h = self._steps_height(w - 20)
+        bottom = h - (steps_h + 8 if steps_h else 0) - 6
+        reading = self.reading_text()
+        read_h = max(text_height(font, w - 20, reading or ""),
+                     text_height(font, w - 20, READING_TEMPLATE))
+        half = w * 0.5
+        captions = ("platform (side view, tilt \u00d75)",
+                    f"bubble level (green circle: \u00b1{math.degrees(MOUNT_TOLERANCE):.0f}\u00b0)")
+        cap_h = max(text_height(font, half - 20, t) for t in captions)
+        top = 10 + cap_h + 6
+        panel_bottom = bottom - read_h - 8
+        left = QRectF(10, top, half - 20, max(20.0, panel_bottom - top))
+        right = QRectF(half + 10, top, half - 20, max(20.0, panel_bottom - top))
         c = left.center()
         pitch = self.pitch or 0.0
         p.save()
@@ -301,7 +415,8 @@ class LevelPicture(_Picture):
         p.rotate(-math.degrees(pitch) * 5)          # exaggerated, as a hint
         p.setPen(QPen(QColor(INK), 1.5))
         p.setBrush(QBrush(QColor("#cfd8dc")))
-        p.drawRect(QRectF(-left.width() * 0.4, 0, left.width() * 0.8, 14))
+        half_len = min(left.width() * 0.4, left.height() * 0.4)
+        p.drawRect(QRectF(-half_len, 0, 2 * half_len, 14))
         p.setBrush(QBrush(QColor("#ffcc80")))
         p.drawRect(QRectF(-30, -26, 60, 26))
         p.drawText(QRectF(-30, -26, 60, 26), Qt.AlignmentFlag.AlignCenter, "incl.")
@@ -315,8 +430,8 @@ class LevelPicture(_Picture):
         p.drawText(QPointF(44, -32), "x")
         p.restore()
         p.setPen(QColor(INK))
-        p.drawText(QPointF(left.left(), left.top() + 14), "platform (side view, tilt \u00d75)")
-        right = QRectF(w * 0.5 + 10, 10, w * 0.5 - 20, h - text_h - 20)
+        draw_wrapped(p, QRectF(10, 10, half - 20, cap_h), captions[0])
+        draw_wrapped(p, QRectF(half + 10, 10, half - 20, cap_h), captions[1])
         rc = right.center()
         R = min(right.width(), right.height()) * 0.4
         p.setPen(QPen(QColor("#999"), 1))
@@ -326,19 +441,13 @@ class LevelPicture(_Picture):
         p.drawLine(rc - QPointF(0, R), rc + QPointF(0, R))
         p.setPen(QPen(QColor(OK), 2))
         p.drawEllipse(rc, R / 2, R / 2)
-        p.setPen(QColor(INK))
-        p.drawText(QPointF(right.left(), right.top() + 14),
-                   f"bubble level (green circle: \u00b1{math.degrees(MOUNT_TOLERANCE):.0f}\u00b0)")
-        if self.roll is not None and self.pitch is not None:
+        if reading is not None:
             scale = (R / 2) / MOUNT_TOLERANCE
             off = QPointF(max(-R, min(R, self.roll * scale)), max(-R, min(R, -self.pitch * scale)))
             p.setBrush(QBrush(QColor(OK if self.level else BAD)))
             p.setPen(Qt.PenStyle.NoPen)
             p.drawEllipse(rc + off, 9, 9)
             p.setPen(QColor(OK if self.level else BAD))
-            p.drawText(QPointF(right.left(), right.bottom()),
-                       f"roll {math.degrees(self.roll):+.2f}\u00b0, pitch "
-                       f"{math.degrees(self.pitch):+.2f}\u00b0 \u2014 "
-                       + ("level: mounted flat" if self.level else "not level: check the mount"))
-        self._steps(p, QRectF(10, h - text_h, w - 20, text_h))
+            draw_wrapped(p, QRectF(10, bottom - read_h, w - 20, read_h), reading)
+        self._steps(p, QRectF(10, h - steps_h - 6, w - 20, steps_h))
         p.end()

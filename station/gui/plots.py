@@ -8,7 +8,7 @@ import numpy as np
 from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
-from PySide6.QtCore import QTimer
+from PySide6.QtCore import QSize, QTimer
 from PySide6.QtWidgets import QAbstractScrollArea, QApplication, QSizePolicy
 
 COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2",
@@ -17,14 +17,23 @@ COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e3
 
 
 class Canvas(FigureCanvasQTAgg):
-    """A figure in a widget, sized by the layout (``min_height`` pixels at least)."""
+    """A figure in a widget, sized by the layout (``min_height`` pixels at least).
 
-    def __init__(self, min_height: int = 220, parent=None):
+    ``hint``: the size it asks for, ``(width, height)``; by default matplotlib's, the
+    figure's default size (614 x 460 px): a page that scrolls lays out at the hint's
+    height, so a picture that should fit on the page with what is under it gives a
+    smaller one (it still grows into the room the page has)."""
+
+    def __init__(self, min_height: int = 220, parent=None, hint=None):
         self.figure = Figure(dpi=96, layout="constrained")
         super().__init__(self.figure)
         self.setParent(parent)
         self.setMinimumHeight(min_height)
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        self._hint = None if hint is None else QSize(*hint)
+
+    def sizeHint(self) -> QSize:
+        return self._hint if self._hint is not None else super().sizeHint()
 
     def wheelEvent(self, event) -> None:
         """The wheel scrolls the page the plot is on (the plots do not zoom): handed

@@ -7,11 +7,16 @@ import subprocess
 import time
 from pathlib import Path
 
+from PySide6.QtCore import QPoint, QPointF, QRect, QRectF
+from PySide6.QtGui import QFontMetricsF, QPainter
 from PySide6.QtWidgets import QApplication, QScrollArea
 
 ROOT = Path(__file__).resolve().parents[2]
 SHOTS = ROOT / "docs" / "screenshots"
 SCREEN = (1366, 768)
+#: the window on that screen under a desktop: less a taskbar (40 px) and the window
+#: manager's title bar (32 px); what the operator's window really has
+FRAMED = (SCREEN[0], SCREEN[1] - 72)
 
 
 def _settle(seconds: float = 0.4) -> None:
@@ -21,10 +26,12 @@ def _settle(seconds: float = 0.4) -> None:
         time.sleep(0.02)
 
 
-def screenshot(win, name: str) -> None:
+def screenshot(win, name: str, size=SCREEN) -> None:
     """Save a screenshot of ``win`` if asked to (``CALSTATION_SCREENSHOTS``):
 
-    * ``1``: the widget itself at 1366x768 (``QWidget.grab``, no window frame);
+    * ``1``: the widget itself at ``size``, 1366x768 unless said (``QWidget.grab``, no
+      window frame); a page taller than that is saved once more scrolled to its end
+      (``NAME-end.png``), the window left at 1366x768;
     * ``root``: the whole X screen with ``import -window root`` (ImageMagick), the
       window fitted to the screen as the wizard does it (under Xvfb at 1366x768 and
       a window manager, the frame included); a page taller than the screen is saved
@@ -35,11 +42,24 @@ def screenshot(win, name: str) -> None:
         return
     SHOTS.mkdir(parents=True, exist_ok=True)
     if mode != "root":
-        if win.isWindow() and win.inherits("QMainWindow"):
-            win.resize(*SCREEN)
-        for _ in range(5):
-            QApplication.processEvents()
+        main = win.isWindow() and win.inherits("QMainWindow")
+        if main:
+            win.resize(*size)
+        _settle(0.2)
+        area = win.stack.currentWidget().findChild(QScrollArea) if main else None
+        if area is not None:
+            area.verticalScrollBar().setValue(0)
+            _settle(0.05)
         assert win.grab().save(str(SHOTS / f"{name}.png"))
+        bar = area.verticalScrollBar() if area is not None else None
+        if bar is not None and bar.maximum() > 0:
+            bar.setValue(bar.maximum())
+            _settle(0.05)
+            assert win.grab().save(str(SHOTS / f"{name}-end.png"))
+            bar.setValue(0)
+        if main:
+            win.resize(*SCREEN)
+            _settle(0.05)
         return
     assert shutil.which("import"), "CALSTATION_SCREENSHOTS=root needs ImageMagick's import"
     main = win if win.inherits("QMainWindow") else win.parentWidget().window()
@@ -79,3 +99,61 @@ def wait_measured(qtbot, page, session, timeout=180000) -> None:
     box = page.fault_box
     assert box is None, (box.text(), box.informativeText())
     assert page.is_complete(), (page.status.text(), [e["message"] for e in session.events[-5:]])
+
+
+def drawn_texts(widget, module) -> list[tuple[str, QRectF, QRectF | None]]:
+    """Render ``widget`` (``grab``) and return every text its painting drew with
+    ``module``'s ``QPainter``: ``(text, the rectangle it needs, the rectangle it was
+    given or None)`` in the widget's coordinates."""
+    drawn = []
+
+    class Recorder(QPainter):
+        def drawText(self, *args):
+            t = self.transform()
+            if isinstance(args[0], (QPointF, QPoint)) and len(args) == 2:
+                pt, text = QPointF(args[0]), args[1]
+                fm = QFontMetricsF(self.font())
+                need = QRectF(pt.x(), pt.y() - fm.ascent(), fm.horizontalAdvance(text),
+                              fm.ascent() + fm.descent())
+                drawn.append((text, t.mapRect(need), None))
+            elif isinstance(args[0], (QRectF, QRect)) and len(args) >= 3:
+                given, flags, text = QRectF(args[0]), int(args[1]), args[2]
+                need = self.boundingRect(given, flags, text)
+                drawn.append((text, t.mapRect(need), t.mapRect(given)))
+            else:
+                raise AssertionError(f"drawText{args!r}: not recorded")
+            return QPainter.drawText(self, *args)
+
+    old = module.QPainter
+    module.QPainter = Recorder
+    try:
+        widget.grab()
+    finally:
+        module.QPainter = old
+    return drawn
+
+
+def cut_texts(widget, module=None) -> list[str]:
+    """The texts ``widget`` draws (:func:`drawn_texts`, the pictures' module unless
+    said) cut: past the widget's edge, or larger than the rectangle they were drawn in
+    (which clips them)."""
+    if module is None:
+        from station.gui import pictures as module
+    edge = QRectF(widget.rect()).adjusted(-0.5, -0.5, 0.5, 0.5)
+    return [text for text, need, given in drawn_texts(widget, module)
+            if not edge.contains(need)
+            or (given is not None and not given.adjusted(-1, -1, 1, 1).contains(need))]
+
+
+def overlapping_texts(widget, module=None) -> list[tuple[str, str]]:
+    """Pairs of texts ``widget`` draws over each other (:func:`drawn_texts`)."""
+    if module is None:
+        from station.gui import pictures as module
+    drawn = [(text, need) for text, need, _ in drawn_texts(widget, module) if text.strip()]
+    out = []
+    for i, (a, ra) in enumerate(drawn):
+        for b, rb in drawn[i + 1:]:
+            both = ra.intersected(rb)
+            if both.width() > 1 and both.height() > 1:
+                out.append((a, b))
+    return out

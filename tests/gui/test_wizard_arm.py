@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from PySide6.QtCore import Qt
+from PySide6.QtCore import QPoint, QRect, Qt
+from PySide6.QtWidgets import QPushButton, QScrollArea
 
 from drivers.sim.truth import load_truth
 from station.planning import serial_plan
@@ -17,7 +18,7 @@ from station.gui.pages import PageId
 from station.outputs.params_file import read_params
 from station.recording.trace import read_trace
 from station.gui.pictures import CABLE
-from tests.gui.helpers import ROOT, screenshot, wait_idle
+from tests.gui.helpers import FRAMED, ROOT, SCREEN, screenshot, wait_idle
 from tests.station.test_serial_session import _fast_config, _truth_file
 
 HAYATI = ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml"
@@ -125,6 +126,60 @@ def test_ur5_like_setup_reference_and_plan(open_window, qtbot, tmp_path, method)
     assert ref.picture.target_label == s.info.reference.replace("-", " ")
 
 
+def _inside(widget, area: QScrollArea) -> bool:
+    """``widget`` whole inside the scroll area's viewport (in sight without scrolling)."""
+    top_left = widget.mapTo(area.viewport(), QPoint(0, 0))
+    return area.viewport().rect().contains(QRect(top_left, widget.size()))
+
+
+def test_ur5_like_reference_buttons_are_in_sight(open_window, qtbot, tmp_path, monkeypatch):
+    """A robot file's arm (UR5-like, chosen with Robot file...) on the Reference page at
+    1366x768, and less a taskbar and a title bar: the buttons under the 3D picture were
+    half off the window (the picture asked for matplotlib's 614 x 460 px and the page
+    was laid out taller than the window)."""
+    from station.gui.pages import setup as setup_module
+
+    win, truth = _open(open_window, tmp_path, seed=8713)
+    setup = win.page(PageId.SETUP)
+    setup.folder.setText(str(tmp_path / "arm"))
+    monkeypatch.setattr(setup_module.QFileDialog, "getOpenFileName",
+                        staticmethod(lambda *a, **k: (str(HAYATI), "")))
+    qtbot.mouseClick(setup.robot_file_button, Qt.MouseButton.LeftButton)
+    assert setup.robot_file and "ur5-like-hayati" in setup.robot.currentText()
+    setup.method.setCurrentIndex(setup.method.findData("sm-distance-tilt"))
+    setup.truth.setText(str(truth))
+    setup.count.setValue(12)
+    qtbot.mouseClick(setup.connect_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(setup.is_complete, timeout=TIMEOUT)
+    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
+    ref = win.page(PageId.REFERENCE)
+    assert isinstance(ref.picture, ArmFigure)
+    area = ref.findChild(QScrollArea)
+
+    def buttons():
+        return [b for b in ref.container.findChildren(QPushButton) if b.isVisible()]
+
+    def in_sight():
+        return (area.verticalScrollBar().maximum() == 0 and _inside(ref.status, area)
+                and all(_inside(b, area) for b in buttons()))
+
+    for size in (SCREEN, FRAMED):
+        win.resize(*size)
+        qtbot.wait(200)
+        try:                          # the 3D picture's first paint takes a while
+            qtbot.waitUntil(in_sight, timeout=3000)
+        except qtbot.TimeoutError:
+            pass
+        assert ref.goto_button in buttons() and ref.capture_button in buttons()
+        for b in buttons():
+            assert _inside(b, area), (size, b.text(), b.mapTo(area.viewport(), QPoint(0, 0)),
+                                      area.viewport().size())
+        assert _inside(ref.status, area), size
+        assert area.verticalScrollBar().maximum() == 0, size
+    screenshot(win, "arm-02-reference-framed", size=FRAMED)
+    win.resize(*SCREEN)
+
+
 @pytest.mark.slow
 def test_ur5_like_session_in_the_wizard(open_window, qtbot, tmp_path, answers):
     win, truth_path, folder = _to_plan(open_window, qtbot, tmp_path, count=48, shots=True)
@@ -181,6 +236,12 @@ def test_ur5_like_session_in_the_wizard(open_window, qtbot, tmp_path, answers):
     assert cal.is_complete(), cal.status.text()
     val = {v["channel"]: v for v in s.validation}
     assert val["distance"]["rms_after"] < val["distance"]["rms_before"] / 10
+    # the 45 parameters' identifiability in rows (not 45 columns), no table scrolling
+    # inside the page (tests/gui/test_layout_1366.py)
+    names = list(s.outcome.result.names)
+    assert list(cal.view.strip.symbols()) == names and cal.view.strip.columnCount() <= 15
+    assert all(t.verticalScrollBar().maximum() == 0
+               for t in (cal.view.strip, cal.view.params, cal.view.validation))
     screenshot(win, "arm-05-calibrate")
 
     # 6 export: parameter file, URDF, report; the calibrated arm point to point

@@ -13,7 +13,7 @@ from PySide6.QtCore import Qt
 from station.gui.pages import PageId
 from station.outputs.params_file import read_params
 from station.planning.wrist_plan import PM_SCOUT_COUNT
-from tests.gui.helpers import screenshot, wait_idle, wait_measured
+from tests.gui.helpers import cut_texts, screenshot, wait_idle, wait_measured
 from tests.gui.test_wizard_sm import TIMEOUT, connect
 from tests.simconfig import quick_config
 
@@ -94,6 +94,7 @@ def test_pm_fk_session(open_window, qtbot, tmp_path):
     assert any(p.round == 1 for p in s.plan_poses)          # the main round was planned
     assert len(s.measured) == len(s.plan_poses) - 1
     assert "skip" in [e["kind"] for e in s.events]
+    assert not cut_texts(ex.picture)           # the bubble level's caption and reading
     screenshot(win, "wrist-04-execute")
 
     # 5 calibrate: the wrist's q3_off and k3 are not identifiable, with influence
@@ -105,10 +106,9 @@ def test_pm_fk_session(open_window, qtbot, tmp_path):
     status = dict(zip(res.names, res.status))
     assert not status["q3_off"].identifiable and status["q3_off"].influences_model
     assert not status["k3"].identifiable and status["k3"].influences_model
-    strip = cal.view.strip
-    symbols = {strip.horizontalHeaderItem(j).text(): strip.item(0, j).text()
-               for j in range(strip.columnCount())}
+    symbols = cal.view.strip.symbols()        # parameter name -> the symbol under it
     assert symbols["k3"] == "\u25cf" and symbols["a1"] == "\u2713"
+    assert list(symbols) == list(res.names)
     assert s.validation and all(v["rms_after"] < 1e-3 for v in s.validation)
     screenshot(win, "05-calibrate-wrist")
 

@@ -17,7 +17,7 @@ from drivers.sim.truth import load_truth
 from station.gui.pages import PageId
 from station.outputs.params_file import read_params
 from station.recording.trace import read_trace
-from tests.gui.helpers import ROOT, SCREEN, screenshot, wait_idle, wait_measured
+from tests.gui.helpers import ROOT, SCREEN, cut_texts, screenshot, wait_idle, wait_measured
 from tests.simconfig import quick_config
 
 TIMEOUT = 30000
@@ -101,6 +101,7 @@ def test_sm_distance_tilt_session(open_window, qtbot, tmp_path, answers):
     qtbot.waitUntil(lambda: len(c.session.measured) >= 5, timeout=TIMEOUT)
     kinds = [e["kind"] for e in c.session.events]
     assert "fault" in kinds and "retry" in kinds
+    assert not cut_texts(ex.picture)           # the rail's caption, the carriage's z
     screenshot(win, "04-execute")
     win.close()
     assert c.sim is None and c.session is None
