@@ -89,7 +89,8 @@ def test_the_reference_pictures_cut_no_text_at_any_size(qtbot, size):
     """The pictures with the reference's steps, from their smallest to a wide page (the
     Reference page gives them some 714 x 532 px at 1366x768): no text cut, none over
     another."""
-    from station.gui.pictures import ArmPicture, LevelPicture
+    from station.gui.level_picture import LevelPicture
+    from station.gui.pictures import ArmPicture
 
     s = _agebot_sm()
     arm = ArmPicture(s.robot, s.nominal)
@@ -116,7 +117,8 @@ def test_the_reference_pictures_cut_no_text_at_any_size(qtbot, size):
 def test_the_execute_pictures_cut_no_text_at_any_size(qtbot, size):
     """The Execute page's form of the pictures (no steps, the reference captured) from
     the smallest the page lets them be."""
-    from station.gui.pictures import ArmPicture, LevelPicture
+    from station.gui.level_picture import LevelPicture
+    from station.gui.pictures import ArmPicture
 
     s = _agebot_sm()
     arm = ArmPicture(s.robot, s.nominal, target_label="reference")

@@ -102,7 +102,8 @@ class ExecutePage(Page):
         """The session's robot as the reference page draws it, following the readings
         (a robot file's arm in 3D, AGEBOT's arm from the side, the wrist's level)."""
         from station.gui.arm3d import ArmFigure
-        from station.gui.pictures import ArmPicture, LevelPicture
+        from station.gui.level_picture import LevelPicture
+        from station.gui.pictures import ArmPicture
 
         lay = self.picture_box.layout()
         if self.picture is not None:
@@ -125,7 +126,7 @@ class ExecutePage(Page):
 
     def _show_robot(self, values: dict) -> None:
         from station.gui.arm3d import ArmFigure
-        from station.gui.pictures import LevelPicture
+        from station.gui.level_picture import LevelPicture
 
         pic, s = self.picture, self.session
         if pic is None or s is None:

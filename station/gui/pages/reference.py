@@ -10,7 +10,8 @@ from PySide6.QtWidgets import (QButtonGroup, QCheckBox, QDoubleSpinBox, QFormLay
 
 from station.gui.pages.base import Page
 from station.gui.arm3d import ArmFigure
-from station.gui.pictures import FAR_M, ArmPicture, LevelPicture, ReferenceSteps
+from station.gui.level_picture import LevelPicture
+from station.gui.pictures import FAR_M, ArmPicture, ReferenceSteps
 from station.gui.widgets import OK_COLOR, WARN_COLOR, ReadingsPanel, channel_text, note
 
 
