@@ -25,6 +25,9 @@ import sys
 import warnings
 
 
+
+OUTLIER_MODES = ("exclude", "flag", "off")   # station.fitting.gate.OUTLIER_MODES
+
 def _cmd_batch(args) -> int:
     from calibration.solver import SolverOptions
     from station.fitting.batch import calibrate_trace
@@ -44,6 +47,7 @@ def _cmd_batch(args) -> int:
         outcome = calibrate_trace(args.trace, method=args.method, residual=args.residual,
                                   options=opts, accept_poor_fit=args.accept_poor_fit,
                                   exclude=_exclusions(args.exclude, args.exclude_reason),
+                                  outliers=args.outliers,
                                   compliance=_compliance(args.compliance, args.payload),
                                   distance_scale=_distance_scale(args.distance_scale))
     for w in caught:
@@ -273,6 +277,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--accept-poor-fit", action="store_true",
                    help="write the parameter file even if the fit fails the quality gate "
                         "(recorded in its fit.quality)")
+    b.add_argument("--outliers", choices=OUTLIER_MODES, default="exclude",
+                   help="readings that do not fit the others: exclude them and refit "
+                        "(default), flag them (named, kept in the fit) or off (not judged); "
+                        "recorded in the parameter file")
     b.add_argument("--exclude", metavar="POSE,...",
                    help="leave these poses (trace indices) out of the fit and the held-out "
                         "set, with --exclude-reason (recorded in the parameter file)")

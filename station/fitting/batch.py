@@ -51,7 +51,8 @@ def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | No
                     residual: str | None = None, options: SolverOptions | None = None,
                     callback=None, accept_poor_fit: bool = False,
                     exclude: dict | None = None, compliance: dict | None = None,
-                    distance_scale: tuple | None = None) -> BatchOutcome:
+                    distance_scale: tuple | None = None,
+                    outliers: str = "exclude") -> BatchOutcome:
     """Read a trace file and :func:`calibrate` it; ``compliance`` (``{"payload": ...}``)
     offers a URDF robot's joint compliance and keeps it only where the data support it
     (:func:`station.fitting.compliance.compare`)."""
@@ -60,12 +61,14 @@ def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | No
         trace = with_distance_scale(trace, *distance_scale)
     if compliance is None:
         return calibrate(trace, out=out, method=method, residual=residual, options=options,
-                         callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
+                         callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude,
+                         outliers=outliers)
     from station.fitting.compliance import compare
 
     def one(tr):
         return calibrate(tr, method=method, residual=residual, options=options,
-                         callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude)
+                         callback=callback, accept_poor_fit=accept_poor_fit, exclude=exclude,
+                         outliers=outliers)
 
     chosen, info = compare(trace, one, payload=compliance.get("payload"))
     chosen = dataclasses.replace(chosen, comparison=info)
@@ -210,7 +213,7 @@ def _fit(trace: Trace, method, residual, opts, callback, model=None, start=None)
 def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None,
               residual: str | None = None, options: SolverOptions | None = None,
               callback=None, accept_poor_fit: bool = False,
-              exclude: dict | None = None) -> BatchOutcome:
+              exclude: dict | None = None, outliers: str = "exclude") -> BatchOutcome:
     """Calibrate the fit poses of ``trace`` and pass the fit-quality gate
     (:mod:`station.fitting.gate`: outliers left out and refitted, noise, validation, pose
     spread); write the parameter file ``out`` if given. A failed gate raises
@@ -246,7 +249,7 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
         trace, model, first=lambda: _fit(trace, method, residual, opts, callback, model),
         refit=lambda tr, start, hold=(): _refit(tr, method, residual, opts, hold, start),
         stated_sigma=stated,
-        validate=validate, fixed=opts.fixed)
+        validate=validate, fixed=opts.fixed, outlier_mode=outliers)
     if exclude:
         quality.excluded = [{"pose": int(k), "reason": str(v)} for k, v in sorted(exclude.items())]
     if trace.remeasured:

@@ -168,13 +168,24 @@ def check_spread(trace, model) -> None:
                               f"distinct poses (eq. 60): the robot did not move between readings")
 
 
-def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
+#: what the gate does with readings that do not fit the others (batch --outliers)
+OUTLIER_MODES = ("exclude", "flag", "off")
+
+
+def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=(),
+              outlier_mode: str = "exclude"):
     """The gate around a calibration: ``first()`` fits ``model`` (raising a
     :class:`CalibrationError` with ``.model`` if it does not converge),
     ``refit(trace, start, hold=names)`` fits a trace copy from ``start`` holding
     ``hold`` (:func:`held_at_start`: ``fixed`` and what the model cannot identify at its
     start values), as every refit and robust fit of the gate does. Returns ``(quality, trace, model,
-    result, validation)`` of the fit that passed, else of the last one tried."""
+    result, validation)`` of the fit that passed, else of the last one tried.
+    ``outlier_mode``: ``exclude`` (leave a reading that does not fit out and refit),
+    ``flag`` (name the worst, keep it in the fit) or ``off`` (not judged); the noise,
+    validation and plausibility checks judge the fit in every mode."""
+    if outlier_mode not in OUTLIER_MODES:
+        raise CalibrationError(f"outliers: {outlier_mode!r} is not one of "
+                               f"{', '.join(OUTLIER_MODES)}")
     check_spread(trace, model)
     hold = held_at_start(model, fixed)
     try:
@@ -184,8 +195,11 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=()):
         trace, model0, result, pre = rescue(trace, model, e, refit=refit, stated_sigma=stated_sigma,
                                             hold=hold)
     got = run_gate(trace, model0, result, refit=refit, stated_sigma=stated_sigma,
-                   validate=validate, outliers=pre, hold=hold)
+                   validate=validate, outliers=pre, hold=hold, mode=outlier_mode)
     quality, trace1, model1 = got[:3]
+    quality.outlier_mode = outlier_mode
+    if outlier_mode != "exclude":
+        return got          # (the robust phase leaves readings out)
     if quality.passed or len(quality.outliers) >= max_outliers(len(trace.fit_poses)) \
             or any(c["check"] == "points" and not c["ok"] for c in quality.checks):
         return got          # (a point off the tool is no reading to leave out)
@@ -296,7 +310,7 @@ def _statistics(model, result):
 
 
 def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
-             validate=None, outliers=(), hold=()):
+             validate=None, outliers=(), hold=(), mode: str = "exclude"):
     """Run the gate on a converged fit. ``refit(trace, start, hold=names) -> (model, result)``
     calibrates a trace copy from the start values ``start`` (the fit's so far); ``validate(trace, model, result)`` gives the held-out rows
     (:func:`station.fitting.validation.validation_errors`). Returns ``(quality, trace,
@@ -314,6 +328,12 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
         if worst is None:
             break
         entry = _entry(trace, model, worst, n_test)
+        if mode != "exclude":
+            if mode == "flag":
+                quality.check("outliers", True, f"outliers: flagged, kept in the fit "
+                              f"(--outliers flag): {describe(entry)} (studentized residual "
+                              f"{worst.t:.3g} > {worst.threshold:.3g})", flagged=entry)
+            break
         if len(quality.outliers) >= limit:
             named = ", ".join(describe(o) for o in quality.outliers)
             quality.check("outliers", False,
@@ -348,12 +368,14 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
     if restarts:
         quality.check("start", True, f"start: {restarts} local minimum(s) left by refitting "
                       "from the fit without a suspect reading (which then fitted the others)")
+    if mode == "off":
+        quality.check("outliers", True, "outliers: not judged (--outliers off)")
     failed = any(c["check"] == "outliers" and not c["ok"] for c in quality.checks)
     if quality.outliers and not failed:    # (a failure names the excluded ones already)
         quality.check("outliers", True, f"outliers: {len(quality.outliers)} pose(s) excluded "
                       "(a reading that does not fit takes its whole pose out) and the trace "
                       "refitted: " + ", ".join(describe(o) for o in quality.outliers))
-    elif not quality.checks:
+    elif not quality.checks and mode != "off":
         quality.check("outliers", True, "outliers: none")
     r, h = _statistics(model, result)
     for c in q.chi_square(r, h, model.row_channel, model.channels, stated_sigma or {}):

@@ -34,6 +34,7 @@ class Quality:
     checks: list[dict] = field(default_factory=list)
     accepted: bool = False
     excluded: list[dict] = field(default_factory=list)   # by the operator: pose, reason
+    outlier_mode: str = "exclude"    # batch --outliers: exclude, flag or off
 
     @property
     def passed(self) -> bool:
@@ -48,6 +49,7 @@ class Quality:
 
     def as_dict(self) -> dict:
         out = {"passed": self.passed, "accepted": self.accepted,
+               "outlier_mode": self.outlier_mode,
                "outliers": [dict(o) for o in self.outliers],
                "checks": [dict(c) for c in self.checks]}
         if self.excluded:

@@ -339,3 +339,31 @@ def test_a_check_short_of_its_recommendation_is_a_note_not_ok():
     lines = q.lines()
     assert lines[0].startswith("note: poses") and lines[1].startswith("ok: noise")
     assert q.passed
+
+
+@pytest.mark.parametrize("mode, said", [("flag", "outliers: flagged, kept in the fit "
+                                                 "(--outliers flag): pose 7 (meas.csv:9) point 1"),
+                                        ("off", "outliers: not judged (--outliers off)")])
+def test_outliers_flagged_or_not_judged_on_request(tmp_path, capsys, mode, said):
+    """``batch --outliers flag|off``: a fit with every reading (issue 42); the mode is in
+    the parameter file. The other checks judge the fit as always: a reading 0.25 mm off
+    (8 sigma) is kept and the fit passes; one 5.4 mm off, kept, still fails the gate."""
+    for size, passes in ((0.25e-3, True), (5.4e-3, False)):
+        folder = tmp_path / f"{size:g}"
+        folder.mkdir()
+        rob, _x, qm, P = tracker_case(folder, seed=6, unseen=0.0)
+        bad = P.copy()
+        bad[7, 0] += size * np.array([0.74, -0.56, 0.37])
+        tracker_case(folder, seed=6, unseen=0.0, readings=bad)
+        assert run(capsys, *import_args(folder))[0] == 0
+        rc, out, err = run(capsys, "batch", folder / "t.jsonl", "--outliers", mode, "--out",
+                           folder / "p.json")
+        assert "outlier excluded" not in out
+        if passes:
+            assert rc == 0 and said in out, out + err
+            doc = json.loads((folder / "p.json").read_text())
+            assert doc["fit"]["quality"]["outlier_mode"] == mode
+            assert doc["fit_points"]["n"] == 180            # every reading of the 60 poses
+        else:
+            assert rc == 2 and "failed the quality gate" in err, out + err
+            assert not (folder / "p.json").exists()
