@@ -9,7 +9,7 @@ from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from PySide6.QtCore import QSize, QTimer
-from PySide6.QtWidgets import QAbstractScrollArea, QApplication, QSizePolicy
+from PySide6.QtWidgets import QSizePolicy
 
 COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2",
           "#7f7f7f", "#bcbd22", "#17becf", "#393b79", "#637939", "#843c39", "#7b4173",
@@ -36,15 +36,10 @@ class Canvas(FigureCanvasQTAgg):
         return self._hint if self._hint is not None else super().sizeHint()
 
     def wheelEvent(self, event) -> None:
-        """The wheel scrolls the page the plot is on (the plots do not zoom): handed
-        to the nearest scroll area around the plot."""
-        w = self.parentWidget()
-        while w is not None and not isinstance(w, QAbstractScrollArea):
-            w = w.parentWidget()
-        if w is None:
-            event.ignore()
-            return
-        QApplication.sendEvent(w.viewport(), event)
+        """The wheel scrolls the page the plot is on (the plots do not zoom)."""
+        from station.gui.widgets import wheel_to_page
+
+        wheel_to_page(self, event)
 
 
 def _style(ax, title: str, ylabel: str = "") -> None:

@@ -8,10 +8,9 @@ import math
 
 from PySide6.QtCore import QSize, Qt, QTimer
 from PySide6.QtGui import QColor, QFont, QFontMetrics, QPalette
-from PySide6.QtWidgets import (QAbstractItemView, QAbstractScrollArea, QApplication,
-                               QHeaderView, QSizePolicy, QTableWidget, QTableWidgetItem)
+from PySide6.QtWidgets import (QAbstractItemView, QHeaderView, QSizePolicy, QTableWidget, QTableWidgetItem)
 
-from station.gui.widgets import BAD_COLOR, OK_COLOR
+from station.gui.widgets import BAD_COLOR, OK_COLOR, wheel_to_page
 from station.outputs.report_context import IDENT_SYMBOL, group_of
 
 GROUP_COLOR = {"identifiable": OK_COLOR, "no-influence": "#555555", "influence": BAD_COLOR,
@@ -33,18 +32,6 @@ def _table(rows: int, headers) -> QTableWidget:
     t.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
     t.horizontalHeader().setStretchLastSection(True)
     return t
-
-
-def _wheel_to_page(widget, event) -> None:
-    """The wheel over a table that does not scroll scrolls the page it is on (handed to
-    the nearest scroll area around it, as the plots do)."""
-    w = widget.parentWidget()
-    while w is not None and not isinstance(w, QAbstractScrollArea):
-        w = w.parentWidget()
-    if w is None:
-        event.ignore()
-        return
-    QApplication.sendEvent(w.viewport(), event)
 
 
 def _no_scrolling(t: QTableWidget) -> None:
@@ -105,7 +92,7 @@ class ContentTable(QTableWidget):
         self._fitted_width = self.viewport().width()
 
     def wheelEvent(self, event) -> None:
-        _wheel_to_page(self, event)
+        wheel_to_page(self, event)
 
     def resizeEvent(self, event) -> None:
         super().resizeEvent(event)
@@ -225,7 +212,7 @@ class IdentifiabilityStrip(QTableWidget):
         self.setMinimumWidth(2 * self.frameWidth() + (max(self._widths()) if n else 0))
 
     def wheelEvent(self, event) -> None:
-        _wheel_to_page(self, event)
+        wheel_to_page(self, event)
 
     def resizeEvent(self, event) -> None:
         super().resizeEvent(event)

@@ -168,3 +168,17 @@ class DeviceTable(QTableWidget):
     def clear_devices(self) -> None:
         self.setRowCount(0)
         self.states = {}
+
+
+def wheel_to_page(widget, event) -> None:
+    """The wheel over a widget that does not scroll (a plot, a table sized to its rows)
+    scrolls the page it is on: handed to the nearest scroll area around it."""
+    from PySide6.QtWidgets import QAbstractScrollArea, QApplication
+
+    w = widget.parentWidget()
+    while w is not None and not isinstance(w, QAbstractScrollArea):
+        w = w.parentWidget()
+    if w is None:
+        event.ignore()
+        return
+    QApplication.sendEvent(w.viewport(), event)
