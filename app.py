@@ -26,7 +26,7 @@ import warnings
 
 
 
-OUTLIER_MODES = ("exclude", "flag", "off")   # station.fitting.gate.OUTLIER_MODES
+OUTLIER_MODES = ("exclude", "flag", "off")   # station.fitting.verdict.OUTLIER_MODES
 
 def _cmd_batch(args) -> int:
     from calibration.solver import SolverOptions

@@ -34,7 +34,8 @@ from station.fitting.gate_checks import (check_explains, check_plausibility, che
                                          check_validation, people)
 from station.fitting.point_check import check_points
 from station.fitting.pose_count import NR_P, parameter_count
-from station.fitting.verdict import FitQualityError, NotConverged, Quality, describe, max_outliers
+from station.fitting.verdict import (OUTLIER_MODES, FitQualityError, NotConverged, Quality,
+                                     describe, max_outliers)
 
 
 def point_of_row(model, row: int) -> int | None:
@@ -166,10 +167,6 @@ def check_spread(trace, model) -> None:
         raise FitQualityError(f"the fit failed the quality gate: poses: only {distinct} distinct "
                               f"of {model.n_poses} poses to fit; {trace.method} needs {need} "
                               f"distinct poses (eq. 60): the robot did not move between readings")
-
-
-#: what the gate does with readings that do not fit the others (batch --outliers)
-OUTLIER_MODES = ("exclude", "flag", "off")
 
 
 def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=(),

@@ -81,6 +81,10 @@ class Quality:
         return "; ".join(self.failures) if self.failures else "passed"
 
 
+#: what the gate does with readings that do not fit the others (batch --outliers)
+OUTLIER_MODES = ("exclude", "flag", "off")
+
+
 def max_outliers(n_poses: int) -> int:
     """At most one pose in ten (at least one) may be excluded as an outlier."""
     return max(1, n_poses // 10)
