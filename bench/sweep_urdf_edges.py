@@ -128,58 +128,28 @@ def urdf_edge_cases(root: str, d: str, Case) -> list:
     return C
 
 
-#: joint 5 of the test arm turned as many ROS URDFs turn their frames (axis z, x along
-#: joint 4's axis): the same robot (tests/station/test_urdf_recalibration.py)
-TURNED_WRIST = (
-    ('<origin xyz="0.4595 -0.0565 0" rpy="0 0 0"/>',
-     '<origin xyz="0.4595 -0.0565 0" rpy="-1.5707963267948966 0 3.141592653589793"/>'),
-    ('<child link="link_5"/>\n    <axis xyz="0 -1 0"/>', '<child link="link_5"/>\n    <axis xyz="0 0 1"/>'),
-    ('<origin xyz="0.1 0.0565 0" rpy="0 0 0"/>',
-     '<origin xyz="-0.1 0 -0.0565" rpy="-1.5707963267948966 0 3.141592653589793"/>'))
-
-
 def _rail_and_recalibration(top: str, urdf: str, text: str, Case) -> list:
     """An arm on a rail printed in m beside a tracker's mm (refused, the column named);
     the recalibration from the station's own export of the turned-wrist arm seen at
     0.5 mm (converged, passed)."""
     from pathlib import Path
 
-    import numpy as np
-
     from calibration.robots import get_robot
     from drivers.urdf_file import load_urdf
     from station.simulation import tracegen_urdf as tg
+    from tests.station.urdf_helpers import rail_export, turned_wrist
 
-    rail = os.path.join(top, "rail.urdf")
-    Path(rail).write_text(text.replace(
-        '<joint name="joint_1" type="revolute">\n    <origin xyz="0 0 0" rpy="0 0 0"/>\n'
-        '    <parent link="base_link"/>',
-        '<joint name="rail" type="prismatic">\n    <origin xyz="0 0 0" rpy="0 0 0"/>\n'
-        '    <parent link="base_link"/>\n    <child link="carriage"/>\n    <axis xyz="1 0 0"/>\n'
-        '    <limit lower="0" upper="2.0" effort="0" velocity="1.0"/>\n  </joint>\n'
-        '  <link name="carriage"/>\n'
-        '  <joint name="joint_1" type="revolute">\n    <origin xyz="0 0 0" rpy="0 0 0"/>\n'
-        '    <parent link="carriage"/>', 1))
-    rob = get_robot(load_urdf(rail, "base_link", "tool0"))
-    rng = np.random.default_rng(43)
-    x = tg.frame_parameters(rob, tg.draw_truth(rob, rng), *tg.draw_frame(rng, vertical_tilt_deg=0.5))
-    qm = tg.draw_poses(rob, 60, rng)
-    P = tg.readings(rob, x, tg.draw_points(rng, 3), qm, rng, 3e-5)
-    cols = {"rail": qm[:, 0]} | {f"joint_{i}": np.degrees(qm[:, i]) for i in range(1, 7)}
-    rail_csv = os.path.join(top, "rail.csv")
-    Path(rail_csv).write_text(tg.write_csv(cols, P, length_scale=1e-3))
+    os.makedirs(os.path.join(top, "rail"), exist_ok=True)
+    rail_path, rail_csv_path = rail_export(Path(top) / "rail", 43)
+    rail, rail_csv = str(rail_path), str(rail_csv_path)
     out = [Case("u43-csv-rail-in-m-read-in-mm", [
         "trace", "import", rail_csv, "--robot", rail, "--base-link", "base_link", "--tip-link",
         "tool0", "--method", "sm-markers", "--length-unit", "mm", "--angle-unit", "deg", "--out",
         os.path.join(top, "rail.jsonl")], inputs=[rail_csv, rail])]
     sub = os.path.join(top, "recal")
     os.makedirs(sub, exist_ok=True)
-    turned = text
-    for old, new in TURNED_WRIST:
-        assert turned.count(old) == 1, old
-        turned = turned.replace(old, new)
     arm = os.path.join(sub, "arm.urdf")
-    Path(arm).write_text(turned)
+    Path(arm).write_text(turned_wrist(text))
     tg.tracker_export(Path(sub), get_robot(load_urdf(urdf, "base_link", "tool0")), 43,
                       noise=5e-4, unseen=0.0)
 

@@ -157,3 +157,34 @@ def overlapping_texts(widget, module=None) -> list[tuple[str, str]]:
             if both.width() > 1 and both.height() > 1:
                 out.append((a, b))
     return out
+
+
+def to_execute(win, qtbot, folder, count: int, timeout: int = 60000):
+    """Connect ``win`` (AGEBOT's arm, sm-distance, every pose planned at once) to a new
+    session in ``folder``, capture the reference, plan ``count`` poses and show the
+    Execute page, as an operator clicks through; returns that page."""
+    from PySide6.QtCore import Qt
+
+    from station.gui.pages import PageId
+
+    c = win.controller
+    setup = win.page(PageId.SETUP)
+    setup.folder.setText(str(folder))
+    setup.set_choice("agebot-sm", "sm-distance")
+    setup.rounds.setChecked(False)          # one shot: every pose planned at once
+    setup.count.setValue(count)
+    qtbot.mouseClick(setup.connect_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(setup.is_complete, timeout=timeout)
+    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
+    ref = win.page(PageId.REFERENCE)
+    qtbot.mouseClick(ref.goto_button, Qt.MouseButton.LeftButton)
+    wait_idle(qtbot, c)
+    qtbot.mouseClick(ref.capture_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(ref.is_complete, timeout=timeout)
+    wait_idle(qtbot, c)
+    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
+    plan = win.page(PageId.PLAN)
+    qtbot.waitUntil(lambda: plan.table.rowCount() >= count, timeout=timeout)
+    wait_idle(qtbot, c)
+    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
+    return win.page(PageId.EXECUTE)

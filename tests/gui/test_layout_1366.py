@@ -14,9 +14,7 @@ from PySide6.QtWidgets import QApplication, QScrollArea
 
 from calibration.robots import get_robot
 from drivers.robot_file import load_robot_file
-from station.gui.controller import Controller
 from station.gui.pages import PageId
-from station.gui.window import MainWindow
 from station.outputs.report_context import IDENT_SYMBOL, group_of
 from tests.gui.helpers import ROOT, SCREEN, cut_texts, overlapping_texts
 
@@ -27,14 +25,9 @@ READABLE = 15         # the identifiability strip's parameters a row at most
 
 
 @pytest.fixture
-def window(qtbot, settings, answers):
-    win = MainWindow(Controller(simulate=True, settings=settings))
-    qtbot.addWidget(win)
-    win.resize(*SCREEN)
-    win.show()
-    qtbot.waitExposed(win)
-    yield win
-    win.controller.shutdown()
+def window(open_window):
+    """The wizard over simulated devices at 1366x768 (conftest's open_window)."""
+    return open_window()
 
 
 def _show(qtbot, win, pid):

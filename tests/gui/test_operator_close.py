@@ -7,8 +7,7 @@ import time
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QMessageBox
 
-from station.gui.pages import PageId
-from tests.gui.helpers import wait_idle
+from tests.gui.helpers import to_execute
 from tests.simconfig import quick_config
 
 TIMEOUT = 60000
@@ -17,26 +16,7 @@ TIMEOUT = 60000
 def _measuring(open_window, qtbot, tmp_path, count=12):
     win = open_window(config_path=str(quick_config(tmp_path / "station", "agebot-sm")))
     c = win.controller
-    setup = win.page(PageId.SETUP)
-    setup.folder.setText(str(tmp_path / "s"))
-    setup.set_choice("agebot-sm", "sm-distance")
-    setup.rounds.setChecked(False)
-    setup.count.setValue(count)
-    qtbot.mouseClick(setup.connect_button, Qt.MouseButton.LeftButton)
-    qtbot.waitUntil(setup.is_complete, timeout=TIMEOUT)
-    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
-    ref = win.page(PageId.REFERENCE)
-    qtbot.mouseClick(ref.goto_button, Qt.MouseButton.LeftButton)
-    wait_idle(qtbot, c)
-    qtbot.mouseClick(ref.capture_button, Qt.MouseButton.LeftButton)
-    qtbot.waitUntil(ref.is_complete, timeout=TIMEOUT)
-    wait_idle(qtbot, c)
-    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
-    plan = win.page(PageId.PLAN)
-    qtbot.waitUntil(lambda: plan.table.rowCount() >= count, timeout=TIMEOUT)
-    wait_idle(qtbot, c)
-    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
-    ex = win.page(PageId.EXECUTE)
+    ex = to_execute(win, qtbot, tmp_path / "s", count, TIMEOUT)
     qtbot.mouseClick(ex.start_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: len(c.session.measured) >= 2, timeout=TIMEOUT)
     return win, c, ex

@@ -12,7 +12,7 @@ import signal
 from PySide6.QtCore import Qt
 
 from station.gui.pages import PageId
-from tests.gui.helpers import wait_idle
+from tests.gui.helpers import to_execute, wait_idle
 from tests.simconfig import quick_config
 
 TIMEOUT = 60000
@@ -67,25 +67,7 @@ def test_a_dead_simulator_is_survived(open_window, qtbot, tmp_path, answers):
     win = open_window(config_path=str(quick_config(tmp_path / "station", "agebot-sm")))
     c = win.controller
     setup = win.page(PageId.SETUP)
-    setup.folder.setText(str(tmp_path / "s"))
-    setup.set_choice("agebot-sm", "sm-distance")
-    setup.rounds.setChecked(False)          # one shot: every pose planned at once
-    setup.count.setValue(10)
-    qtbot.mouseClick(setup.connect_button, Qt.MouseButton.LeftButton)
-    qtbot.waitUntil(setup.is_complete, timeout=TIMEOUT)
-    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
-    ref = win.page(PageId.REFERENCE)
-    qtbot.mouseClick(ref.goto_button, Qt.MouseButton.LeftButton)
-    wait_idle(qtbot, c)
-    qtbot.mouseClick(ref.capture_button, Qt.MouseButton.LeftButton)
-    qtbot.waitUntil(ref.is_complete, timeout=TIMEOUT)
-    wait_idle(qtbot, c)
-    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
-    plan = win.page(PageId.PLAN)
-    qtbot.waitUntil(lambda: plan.table.rowCount() >= 10, timeout=TIMEOUT)
-    wait_idle(qtbot, c)
-    qtbot.mouseClick(win.next_button, Qt.MouseButton.LeftButton)
-    ex = win.page(PageId.EXECUTE)
+    ex = to_execute(win, qtbot, tmp_path / "s", 10, TIMEOUT)
     assert ex.picture is not None and ex.picture.isVisibleTo(win)   # the robot, live
 
     # the simulator dies while measuring: the fault dialog, then Retry goes on

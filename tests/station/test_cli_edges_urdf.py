@@ -239,25 +239,9 @@ def test_a_rail_in_metres_beside_a_tracker_in_mm_is_named(tmp_path, capsys):
     in m and the joints in degrees beside the tracker's mm: ``--length-unit mm`` applies to
     the rail too, which then moves by a thousandth of its travel. Refused with the column
     and the joint map line that reads it; with that line, the import and the fit pass."""
-    text = URDF.read_text().replace(
-        '<joint name="joint_1" type="revolute">\n    <origin xyz="0 0 0" rpy="0 0 0"/>\n'
-        '    <parent link="base_link"/>',
-        '<joint name="rail" type="prismatic">\n    <origin xyz="0 0 0" rpy="0 0 0"/>\n'
-        '    <parent link="base_link"/>\n    <child link="carriage"/>\n    <axis xyz="1 0 0"/>\n'
-        '    <limit lower="0" upper="2.0" effort="0" velocity="1.0"/>\n  </joint>\n'
-        '  <link name="carriage"/>\n'
-        '  <joint name="joint_1" type="revolute">\n    <origin xyz="0 0 0" rpy="0 0 0"/>\n'
-        '    <parent link="carriage"/>')
-    urdf = tmp_path / "rail.urdf"
-    urdf.write_text(text)
-    rob = get_robot(load_urdf(urdf, "base_link", "tool0"))
-    rng = np.random.default_rng(7)
-    x = tg.frame_parameters(rob, tg.draw_truth(rob, rng), *tg.draw_frame(rng, vertical_tilt_deg=0.5))
-    qm = tg.draw_poses(rob, 60, rng)
-    P = tg.readings(rob, x, tg.draw_points(rng, 3), qm, rng, 3e-5)
-    cols = {"rail": qm[:, 0]} | {f"joint_{i}": np.degrees(qm[:, i]) for i in range(1, 7)}
-    csv = tmp_path / "meas.csv"
-    csv.write_text(tg.write_csv(cols, P, length_scale=1e-3))
+    from tests.station.urdf_helpers import rail_export
+
+    urdf, csv = rail_export(tmp_path, 7)
     args = ["trace", "import", csv, "--robot", urdf, "--base-link", "base_link", "--tip-link",
             "tool0", "--method", "sm-markers", "--length-unit", "mm", "--angle-unit", "deg",
             "--out", tmp_path / "t.jsonl"]

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 import app as app_module
-from tests.station.urdf_helpers import URDF, import_args, tracker_case
+from tests.station.urdf_helpers import URDF, import_args, tracker_case, turned_wrist
 
 TIAGO = Path(__file__).resolve().parents[3] / "shared" / "data" / "tiago"
 TIAGO_IGNORE = "shipped_row,t_start_robot,t_end_robot,marker_std_mm"
@@ -53,32 +53,18 @@ def assert_same_calibration(first, again, out_again, *, rel: float):
     assert again["fit"]["identifiable_count"] >= 0.9 * first["fit"]["identifiable_count"]
 
 
-def turned_wrist(folder: Path) -> Path:
+def turned(folder: Path) -> Path:
     """The simulated arm's URDF with joint 5's frame turned as many ROS URDFs turn theirs
-    (its axis z, its x along joint 4's axis): the same robot, and joint 5's x the
-    translation along joint 4's axis. (Calibrated, the two differ by a milliradian: the
-    near-dependency that the station's own export of TIAGo has.)"""
-    text = URDF.read_text()
-    for old, new in (
-            ('<origin xyz="0.4595 -0.0565 0" rpy="0 0 0"/>',
-             '<origin xyz="0.4595 -0.0565 0" rpy="-1.5707963267948966 0 3.141592653589793"/>'),
-            ('<child link="link_5"/>\n    <axis xyz="0 -1 0"/>',
-             '<child link="link_5"/>\n    <axis xyz="0 0 1"/>'),
-            # joint 6's origin in the turned frame (R^T of it; R = R^T): the same chain
-            ('<origin xyz="0.1 0.0565 0" rpy="0 0 0"/>',
-             '<origin xyz="-0.1 0 -0.0565" rpy="-1.5707963267948966 0 3.141592653589793"/>'),
-):
-        assert text.count(old) == 1, old
-        text = text.replace(old, new)
+    (:func:`tests.station.urdf_helpers.turned_wrist`), written in ``folder``."""
     out = folder / "turned.urdf"
-    out.write_text(text)
+    out.write_text(turned_wrist(URDF.read_text()))
     return out
 
 
 def test_a_simulated_arm_recalibrates_from_its_exported_urdf(tmp_path, capsys):
     tracker_case(tmp_path, seed=5, noise=5e-4)  # a motion-capture room
     args = import_args(tmp_path)
-    args[args.index(str(URDF))] = str(turned_wrist(tmp_path))
+    args[args.index(str(URDF))] = str(turned(tmp_path))
     rc, out, err = run(capsys, *args)
     assert rc == 0, err
     first, _ = calibrated(capsys, tmp_path / "t.jsonl", tmp_path / "p.json")
