@@ -180,7 +180,7 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
     else:  # not tall (rare): restarts below on T as it always was, in C order
         T = np.ascontiguousarray(T)
         tri = False
-    T0, idx0 = T, idx  # (for the joint check below)
+    T0, idx0, tri0 = T, idx, tri  # (for the checks below: T0 is its triangle where tri0)
     basis = None  # orthonormal basis of the kept columns before idx[0], once one was dropped
     while idx.size:
         if tri:
@@ -210,7 +210,7 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
     if use.any():
         # each kept column is clearly off the span of the earlier ones; several of them
         # together may still be nearly dependent: dropped, the last judged first
-        for j in _jointly_dependent(T0, idx0, use, rank_tol):
+        for j in _jointly_dependent(T0, idx0, use, rank_tol, tri0):
             use[j] = False
             dep[j] = True
             R = None
@@ -246,9 +246,9 @@ def _exchange(T0, idx0, use, dep, rdiag, rank_tol: float) -> bool:
     order = idx0.tolist()
     kept = [k for k, i in enumerate(order) if use[i]]
     cand = [k for k, i in enumerate(order) if dep[i] and rdiag[i] <= rank_tol]
-    changed = False
     if not cand:
         return False
+    changed = False
     for _ in range(4 * len(order)):
         best = None
         A = T0[:, kept]
@@ -290,17 +290,23 @@ def _well_conditioned(R, rank_tol: float) -> bool:
     return s == s and s * rank_tol < 1.0
 
 
-def _jointly_dependent(T0, idx0, use, rank_tol: float) -> list[int]:
+def _jointly_dependent(T0, idx0, use, rank_tol: float, triangular: bool) -> list[int]:
     """The kept columns (``use``) to drop until the kept set's smallest singular value
     (of its unit columns) is above ``rank_tol``: each time, of the columns that take part
     in the near-dependency (a weight at least a hundredth of the largest in its singular
     vector), the one judged last, as :func:`classify` keeps the first of two dependent
-    columns. ``T0``: the unit columns ``idx0`` in judging order, or their QR triangle."""
+    columns. ``T0``: the unit columns ``idx0`` in judging order, or (``triangular``) their
+    QR triangle, which serves as it is while every column is kept."""
     pos = [k for k, i in enumerate(idx0.tolist()) if use[i]]
     out = []
     while len(pos) > 1:
         A = T0[:, pos]
-        Rk = np.linalg.qr(A, mode="r") if A.shape[0] > A.shape[1] else A
+        if triangular and len(pos) == T0.shape[1]:
+            Rk = A                                  # (T0's own triangle)
+        elif A.shape[0] >= A.shape[1]:
+            Rk = np.linalg.qr(A, mode="r")
+        else:
+            Rk = A                                  # (not tall: the SVD below decides)
         if Rk.shape[0] == Rk.shape[1] and _well_conditioned(np.asarray(Rk, order="F"), rank_tol):
             break
         _, s, vt = np.linalg.svd(Rk)

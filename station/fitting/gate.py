@@ -319,8 +319,8 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
     limit = max_outliers(len(trace.fit_poses) + len(excluded))
     restarts = 0
     while True:
-        if row_poses(model) is None:
-            break
+        if mode == "off" or row_poses(model) is None:
+            break                       # (off: not judged, nothing to compute)
         worst, n_test = _worst(model, result)
         if worst is None:
             break
