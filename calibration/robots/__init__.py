@@ -1,6 +1,7 @@
 """Robot models known to the station: the built-ins by name, any serial robot
-from a robot file (:class:`calibration.robots.serial.SerialSpec`, read by
-:mod:`drivers.robot_file`)."""
+(:class:`calibration.robots.serial.SerialRobot`) from a robot file
+(:class:`calibration.robots.dh_form.SerialSpec`, read by :mod:`drivers.robot_file`) or
+a URDF (:class:`calibration.robots.urdf.UrdfSpec`, read by :mod:`drivers.urdf_file`)."""
 from __future__ import annotations
 
 from calibration.errors import ConfigError
@@ -28,11 +29,9 @@ def get_robot(robot) -> RobotModel:
 
         return AgebotPM()
     from calibration.robots.serial import SerialRobot, SerialSpec
-    from calibration.robots.urdf import UrdfRobot, UrdfSpec
+    from calibration.robots.urdf import UrdfSpec
 
-    if isinstance(robot, SerialSpec):
+    if isinstance(robot, (SerialSpec, UrdfSpec)):   # the one model of a serial chain
         return SerialRobot(robot)
-    if isinstance(robot, UrdfSpec):
-        return UrdfRobot(robot)
     raise ConfigError(f"unknown robot {robot!r} (known: {', '.join(ROBOTS)}, or a robot file)",
                       key="robot")

@@ -1,118 +1,40 @@
-"""Any serial manipulator of a robot file (report section 2; docs/robot-files.md).
+"""The model of a serial chain, whichever way it is written (report section 2).
 
-The chain, base to tool (eqs. 1-9)::
+A serial chain is a :class:`calibration.chain.Chain` of elementary factors, base to
+tool, with a linear transmission::
 
-    T_b^e = T_0^b * A_1 * ... * A_n * T_e^n
-    T_0^b, T_e^n = Trans(z, d) Rot(z, theta) Trans(x, a) Rot(x, alpha) Trans(z, b) Rot(z, gamma)
-    A_i (R)      = Trans(z, d_i) Rot(z, q_i) Trans(x, a_i) Rot(x, alpha_i)
-    A_i (R, Hayati) = Rot(z, q_i) Trans(x, a_i) Rot(x, alpha_i) Rot(y, beta_i)
-    A_i (P)      = Trans(z, q_i) Rot(z, theta_i) Trans(x, a_i) Rot(x, alpha_i)
-    q_i = k_i * qm_i + q{i}_off                                          (eq. 9)
+    T = F_1(xi, q) * F_2(xi, q) * ... * F_K(xi, q)
+    F_k = Trans(x|y|z, .) or Rot(x|y|z, .) of a constant, a parameter or a joint value
+    q_i = k_i * qm_i + q{i}_off  (+ c{i} * tau_i where the joints bend)       (eq. 9)
 
-``Rot(y, beta)`` is written ``Rot(x, -pi/2) Rot(z, beta) Rot(x, pi/2)`` so that
-the chain keeps its four elementary kinds. Every parameter of the spec is a
-candidate; the identifiability analysis decides which are calibrated. They are
-ordered as AGEBOT's: the offsets ``q{i}_off``, the ratios ``k{i}``, the links'
-constants joint by joint, then base and tool. The unpivoted QR keeps the
-earlier of two dependent parameters, so a joint's offset and ``d`` are kept and
-the base's ``b, gamma`` (eq. 5) or the tool's ``a, alpha`` (eq. 7) are the ones
-reported dependent.
+It is written in one of two forms, each a small module that says how its spec becomes
+the parameter layout, the chain, the held parameters and the labels (a
+:class:`calibration.robots.written_form.WrittenForm`, the spec's ``form``):
+
+* a robot file's DH/Hayati joints, :class:`SerialSpec`
+  (:mod:`calibration.robots.dh_form`: eqs. 1-9, the parameters in AGEBOT's order);
+* a URDF's chain from a base link to a tip link, :class:`calibration.robots.urdf.UrdfSpec`
+  (:mod:`calibration.robots.urdf`: the joints' origins corrected in the joints' own
+  frames, the instrument's frame first; optionally bending under gravity).
+
+:class:`SerialRobot` is the one model of either: forward kinematics, the spatial and
+generalized Jacobians, the numeric inverse kinematics. What only one form offers (a
+URDF's ``calibrated_origins``, ``frame_matrix``, ``held_reason``, ``joint_label``) are
+methods of the models of that form only, so ``hasattr`` tells the forms apart.
 
 Generalized coordinates ``X = [x, y, z, roll, pitch, yaw]`` of the tool frame
 in the base frame, URDF convention ``R = Rz(yaw) Ry(pitch) Rx(roll)``.
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from types import MethodType
 
 import numpy as np
 
-from calibration.chain import Chain, Factor
 from calibration.errors import UnreachablePose
 from calibration.robots.base import RobotModel
-
-FRAME_KEYS = ("d", "theta", "a", "alpha", "b", "gamma")
-FRAME_KINDS = ("tz", "rz", "tx", "rx", "tz", "rz")
-
-
-@dataclass(frozen=True)
-class JointSpec:
-    """One joint of a robot file: nominal DH constants, transmission and limits.
-
-    kind: ``"R"`` or ``"P"``. beta: Hayati's angle (R joints only; then ``d``
-    is not used). limits: ``(lo, hi)`` of the actuator value ``qm``.
-    """
-
-    kind: str
-    d: float = 0.0
-    theta: float = 0.0
-    a: float = 0.0
-    alpha: float = 0.0
-    beta: float | None = None
-    k: float = 1.0
-    offset: float = 0.0
-    limits: tuple[float, float] = (-math.pi, math.pi)
-
-    @property
-    def hayati(self) -> bool:
-        return self.beta is not None
-
-    def constants(self, i: int) -> tuple[tuple[str, float], ...]:
-        """``(name, nominal)`` of the link's constant parameters (spec's names)."""
-        if self.kind == "P":
-            return ((f"theta{i}", self.theta), (f"a{i}", self.a), (f"alpha{i}", self.alpha))
-        if self.hayati:
-            return ((f"a{i}", self.a), (f"alpha{i}", self.alpha), (f"beta{i}", self.beta))
-        return ((f"d{i}", self.d), (f"a{i}", self.a), (f"alpha{i}", self.alpha))
-
-
-@dataclass(frozen=True)
-class SerialSpec:
-    """A parsed robot file (pure data; drivers.robot_file reads the TOML)."""
-
-    name: str
-    joints: tuple[JointSpec, ...]
-    base: tuple[float, ...] = (0.0,) * 6
-    tool: tuple[float, ...] = (0.0,) * 6
-    fixed: tuple[str, ...] = ()
-    source: dict | None = field(default=None, compare=False)  # {name, sha256, text}
-
-
-def param_layout(spec: SerialSpec) -> list[tuple[str, float]]:
-    """``(name, nominal)`` of every parameter, in the model's order (module doc)."""
-    js = list(enumerate(spec.joints, start=1))
-    out = [(f"q{i}_off", jt.offset) for i, jt in js] + [(f"k{i}", jt.k) for i, jt in js]
-    for i, jt in js:
-        out.extend(jt.constants(i))
-    out += [(f"base_{k}", v) for k, v in zip(FRAME_KEYS, spec.base)]
-    out += [(f"tool_{k}", v) for k, v in zip(FRAME_KEYS, spec.tool)]
-    return out
-
-
-def build_chain(spec: SerialSpec, names: tuple[str, ...]) -> Chain:
-    ix = {n: j for j, n in enumerate(names)}
-
-    def p(name, kind, const=0.0, coef=1.0):
-        return Factor(kind, const=const, terms=((ix[name], coef),))
-
-    factors = [p(f"base_{k}", kd) for k, kd in zip(FRAME_KEYS, FRAME_KINDS)]
-    for i, jt in enumerate(spec.joints, start=1):
-        j = i - 1
-        if jt.kind == "P":
-            factors += [Factor("tz", joint=j), p(f"theta{i}", "rz"), p(f"a{i}", "tx"),
-                        p(f"alpha{i}", "rx")]
-        elif jt.hayati:
-            factors += [Factor("rz", joint=j), p(f"a{i}", "tx"),
-                        p(f"alpha{i}", "rx", const=-math.pi / 2), p(f"beta{i}", "rz"),
-                        Factor("rx", const=math.pi / 2)]
-        else:
-            factors += [p(f"d{i}", "tz"), Factor("rz", joint=j), p(f"a{i}", "tx"),
-                        p(f"alpha{i}", "rx")]
-    factors += [p(f"tool_{k}", kd) for k, kd in zip(FRAME_KEYS, FRAME_KINDS)]
-    n = len(spec.joints)
-    return Chain(tuple(factors), len(names), offset_idx=tuple(ix[f"q{i}_off"] for i in range(1, n + 1)),
-                 gain_idx=tuple(ix[f"k{i}"] for i in range(1, n + 1)))
+from calibration.robots.dh_form import (  # noqa: F401  (the robot file's names, read from here)
+    FRAME_KEYS, FRAME_KINDS, JointSpec, SerialSpec, build_chain, param_layout)
 
 
 def rpy_of(R: np.ndarray) -> np.ndarray:
@@ -147,31 +69,48 @@ def rpy_rates(rpy: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 class SerialRobot(RobotModel):
-    """The model of a robot file (module doc). ``nominal`` is the file's values;
-    ``fixed`` the names the file holds at them."""
+    """The model of a serial chain written in any form (module doc): a robot file's
+    ``SerialSpec`` or a URDF's ``UrdfSpec``. ``nominal`` is the spec's values;
+    ``fixed`` the names held at them (the spec's, or its form's default)."""
 
     kind = "serial"
     coords = ("x", "y", "z", "roll", "pitch", "yaw")
     angle_coords = (3, 4, 5)
     group_rows = (0, 1, 2)  # sm-self-redundancy compares the whole tool position
 
-    def __init__(self, spec: SerialSpec):
+    def __init__(self, spec):
+        form = spec.form
         self.spec = spec
         self.name = spec.name
-        layout = param_layout(spec)
+        layout = form.layout(spec)
         self.param_names = tuple(n for n, _ in layout)
         self.nominal = np.array([v for _, v in layout], dtype=float)
         self.true = self.nominal.copy()
-        self.fixed = tuple(spec.fixed)
+        self.fixed = form.held(spec)
         self.n_actuators = len(spec.joints)
         self.limits = np.array([jt.limits for jt in spec.joints], dtype=float)
-        self.chain = build_chain(spec, self.param_names)
+        self.chain = form.chain(spec, self.param_names)
+
+    def __getattr__(self, name):
+        """The written form's own operations (``WrittenForm.operations``), bound to this
+        model; an AttributeError where the form has none of that name."""
+        spec = self.__dict__.get("spec")      # absent while a copy or a pickle is rebuilt
+        op = None if spec is None else spec.form.operations.get(name)
+        if op is None:
+            raise AttributeError(f"{type(self).__name__} {self.__dict__.get('name', '')!r} "
+                                 f"has no attribute {name!r}")
+        return MethodType(op, self)
+
+    def __dir__(self):
+        return sorted({*super().__dir__(), *self.spec.form.operations})
 
     # -- kinematics -------------------------------------------------------------------
     def loads(self, qm):
-        """The loads ``tau (m, n)`` that bend the joints at ``qm`` (a compliant model:
-        :class:`calibration.robots.urdf.UrdfRobot`), else None."""
-        return None
+        """The loads ``tau (m, n)`` that bend the joints at ``qm`` (a compliant written
+        form's: a URDF's with compliance, :func:`calibration.robots.urdf.gravity_loads`),
+        else None."""
+        loads = self.spec.form.loads
+        return None if loads is None else loads(self, qm)
 
     def frames(self, qm, xi) -> np.ndarray:
         """Tool frames ``T (m, 4, 4)`` in the base frame."""
@@ -202,21 +141,10 @@ class SerialRobot(RobotModel):
         return np.column_stack([T[:, :3, 3], rpy]), dX
 
     def warnings(self, xi, tol: float = 0.05) -> tuple[str, ...]:
-        """Conditioning warnings of the DH form: an R joint in DH form (its ``d`` not
-        fixed) whose axis is (nearly) parallel to the next joint's (``|sin alpha_i| < tol``) has an
-        ill-defined ``d`` (its common normal slides along the axes): a small
-        misalignment needs a huge ``d`` and the fit is ill-conditioned."""
-        out = []
-        n = len(self.spec.joints)
-        for i, jt in enumerate(self.spec.joints[:-1], start=1):
-            if jt.kind == "R" and not jt.hayati and f"d{i}" not in self.fixed:
-                alpha = float(xi[self.index(f"alpha{i}")])
-                if abs(math.sin(alpha)) < tol and i < n:
-                    out.append(f"joints {i} and {i + 1} of {self.name} have (nearly) parallel axes "
-                               f"(alpha{i} = {alpha:.4g} rad) and joint {i} is in DH form: d{i} "
-                               f"is ill-conditioned there (a small misalignment needs a huge "
-                               f"d); give joint {i} Hayati's beta instead of d")
-        return tuple(out)
+        """The written form's conditioning warnings at ``xi`` (the DH form's: a ``d`` on
+        (nearly) parallel axes, :func:`calibration.robots.dh_form.dh_warnings`)."""
+        warn = self.spec.form.warnings
+        return () if warn is None else warn(self, xi, tol)
 
     # -- inverse kinematics (numeric) ----------------------------------------------------
     def move_to(self, qm, p, xi, *, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:

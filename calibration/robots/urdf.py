@@ -30,8 +30,19 @@ parallel to the first joint's, the first joint's origin): the instrument frame,
 the offsets ``q{i}_off``, the ratios ``k{i}`` (held at 1: a URDF has no
 transmission), then the joints' corrections base to tip.
 
-Generalized coordinates as :class:`calibration.robots.serial.SerialRobot`:
-``[x, y, z, roll, pitch, yaw]`` of the tip link in the instrument's frame.
+With ``compliance``, joint i also bends by ``c{i} * tau_i`` (``q_i = k_i * qm_i +
+q{i}_off + c{i} * tau_i``), ``tau_i`` gravity's load on it (:func:`gravity_loads`); the
+compliances ``c{i}`` follow the ratios in the order.
+
+This module only says how a :class:`UrdfSpec` becomes the parameter layout, the
+:class:`calibration.chain.Chain`, the held parameters and the loads
+(:data:`URDF_FORM`), and what only a URDF's model offers: its joints' names
+(``joint_label``), why a parameter is held (``held_reason``), the calibrated
+``<origin>`` of each joint (``calibrated_origins``, what the export writes back) and
+the instrument frame (``frame_matrix``). The model of the chain, its kinematics,
+Jacobians and inverse kinematics, is :class:`calibration.robots.serial.SerialRobot`
+(``UrdfRobot`` is its old name here): generalized coordinates ``[x, y, z, roll, pitch,
+yaw]`` of the tip link in the instrument's frame.
 
 Array shapes: ``m`` poses, ``n`` movable joints. Units: metres and radians.
 """
@@ -44,6 +55,7 @@ import numpy as np
 
 from calibration.chain import Chain, Factor
 from calibration.robots.serial import SerialRobot
+from calibration.robots.written_form import WrittenForm, transmission_chain
 
 BASE_FREE = ("base_x", "base_y", "base_z", "base_rx", "base_ry", "base_rz")
 BASE_HELD = ("base_roll", "base_pitch", "base_yaw")
@@ -101,6 +113,10 @@ class UrdfSpec:
     def joint_names(self) -> tuple[str, ...]:
         return tuple(j.name for j in self.joints)
 
+    @property
+    def form(self) -> WrittenForm:
+        return URDF_FORM
+
 
 def urdf_layout(spec: UrdfSpec) -> list[tuple[str, float]]:
     """``(name, nominal)`` of every parameter, in the model's order (module doc)."""
@@ -119,6 +135,11 @@ def urdf_layout(spec: UrdfSpec) -> list[tuple[str, float]]:
 def default_fixed(spec: UrdfSpec) -> tuple[str, ...]:
     """Held unless the user frees them: the ratios and the frame's estimated turn."""
     return BASE_HELD + tuple(f"k{i}" for i in range(1, len(spec.joints) + 1))
+
+
+def held_parameters(spec: UrdfSpec) -> tuple[str, ...]:
+    """The spec's ``fixed``, else :func:`default_fixed`."""
+    return tuple(spec.fixed) if spec.fixed else default_fixed(spec)
 
 
 def axis_alignment(axis) -> list[tuple[str, float]]:
@@ -187,6 +208,7 @@ def joint_pieces(spec: UrdfSpec):
 
 
 def build_urdf_chain(spec: UrdfSpec, names: tuple[str, ...]) -> Chain:
+    """The factors of the chain (module doc) over the parameters ``names``."""
     ix = {n: j for j, n in enumerate(names)}
 
     def p(name, kind):
@@ -201,127 +223,121 @@ def build_urdf_chain(spec: UrdfSpec, names: tuple[str, ...]) -> Chain:
         factors += [p(f"j{i}_{k}", kd) for k, kd in zip(DELTA_KEYS, DELTA_KINDS)]
         factors.append(Factor("rz" if jt.kind == "R" else "tz", joint=i - 1))
     factors += constant_factors(tail)
-    n = len(spec.joints)
-    return Chain(tuple(factors), len(names),
-                 offset_idx=tuple(ix[f"q{i}_off"] for i in range(1, n + 1)),
-                 gain_idx=tuple(ix[f"k{i}"] for i in range(1, n + 1)),
-                 comp_idx=(tuple(ix[f"c{i}"] for i in range(1, n + 1)) if spec.compliance
-                           else ()))
+    return transmission_chain(factors, names, len(spec.joints), spec.compliance)
 
 
-class UrdfRobot(SerialRobot):
-    """The model of a URDF robot's chain (module doc)."""
+# -- compliance ----------------------------------------------------------------------
+GRAVITY = 9.80665
 
-    def __init__(self, spec: UrdfSpec):
-        self.spec = spec
-        self.name = spec.name
-        layout = urdf_layout(spec)
-        self.param_names = tuple(n for n, _ in layout)
-        self.nominal = np.array([v for _, v in layout], dtype=float)
-        self.true = self.nominal.copy()
-        self.fixed = tuple(spec.fixed) if spec.fixed else default_fixed(spec)
-        self.n_actuators = len(spec.joints)
-        self.limits = np.array([jt.limits for jt in spec.joints], dtype=float)
-        self.chain = build_urdf_chain(spec, self.param_names)
-        self._loads_cache: dict = {}
 
-    def warnings(self, xi, tol: float = 0.05) -> tuple[str, ...]:
-        return ()
+def gravity_loads(robot, qm):
+    """Gravity's torque about each joint's axis (N m; a prismatic joint: the force along
+    it, N) at ``qm (m, n)``, from what each joint carries (:class:`UrdfJoint`
+    ``mass``, ``com``; the payload on the tip), with the chain at its URDF geometry
+    and gravity along the base link's -z; None without compliance. The model bends
+    joint i by ``c{i} * tau_i``. The last poses' loads are kept on the model."""
+    if not robot.spec.compliance:
+        return None
+    qm = np.atleast_2d(np.asarray(qm, dtype=float))
+    key = (qm.shape, qm.tobytes())
+    cache = robot.__dict__.setdefault("_loads_cache", {})
+    hit = cache.get("key")
+    if hit is not None and hit[0] == key:
+        return hit[1]
+    tau = _gravity_loads(robot, qm)
+    cache["key"] = (key, tau)
+    return tau
 
-    # -- compliance ----------------------------------------------------------------------
-    GRAVITY = 9.80665
 
-    def loads(self, qm):
-        """Gravity's torque about each joint's axis (N m; a prismatic joint: the force along
-        it, N) at ``qm (m, n)``, from what each joint carries (:class:`UrdfJoint`
-        ``mass``, ``com``; the payload on the tip), with the chain at its URDF geometry
-        and gravity along the base link's -z; None without compliance. The model bends
-        joint i by ``c{i} * tau_i``."""
-        if not self.spec.compliance:
-            return None
-        qm = np.atleast_2d(np.asarray(qm, dtype=float))
-        key = (qm.shape, qm.tobytes())
-        hit = self._loads_cache.get("key")
-        if hit is not None and hit[0] == key:
-            return hit[1]
-        tau = self._loads(qm)
-        self._loads_cache["key"] = (key, tau)
-        return tau
+def _gravity_loads(robot, qm) -> np.ndarray:
+    spec, chain = robot.spec, robot.chain
+    xi = robot.nominal.copy()              # URDF geometry, base link frame, no bending
+    _T, before = chain.frames(qm, xi)
+    motion = [j for j, f in enumerate(chain.factors) if f.joint is not None]
+    n, m = len(motion), qm.shape[0]
+    q = chain.joints(qm, xi)
+    axes, origins, coms, masses = [], [], [], []
+    pieces, tail = joint_pieces(spec)
+    for i, (jt, f) in enumerate(zip(spec.joints, motion)):
+        F = before[:, f]                   # the joint's aligned frame (z along its axis)
+        M = np.repeat(np.eye(4)[None], m, axis=0)
+        if jt.kind == "R":
+            c, s_ = np.cos(q[:, i]), np.sin(q[:, i])
+            M[:, 0, 0], M[:, 0, 1], M[:, 1, 0], M[:, 1, 1] = c, -s_, s_, c
+        else:
+            M[:, 2, 3] = q[:, i]
+        A = pieces[i][1]
+        child = F @ M @ A.T                # the joint's child link frame
+        com = np.asarray(jt.com, dtype=float)
+        mass = jt.mass
+        if i == n - 1 and spec.payload is not None:
+            pm, pc = spec.payload
+            p_tail = (np.asarray(tail) @ np.r_[pc, 1.0])[:3]
+            total = mass + pm
+            com = (mass * com + pm * p_tail) / total if total > 0 else com
+            mass = total
+        axes.append(F[:, :3, 2])
+        origins.append(F[:, :3, 3])
+        coms.append(child[:, :3, :3] @ com + child[:, :3, 3])
+        masses.append(mass)
+    g = np.array([0.0, 0.0, -GRAVITY])
+    tau = np.zeros((m, n))
+    for i, jt in enumerate(spec.joints):
+        if jt.kind == "R":
+            for b in range(i, n):
+                r = coms[b] - origins[i]
+                tau[:, i] += masses[b] * np.einsum("mk,mk->m", axes[i], np.cross(r, g))
+        else:
+            tau[:, i] = sum(masses[b] for b in range(i, n)) * (axes[i] @ g)
+    return tau
 
-    def _loads(self, qm) -> np.ndarray:
-        xi = self.nominal.copy()               # URDF geometry, base link frame, no bending
-        _T, before = self.chain.frames(qm, xi)
-        motion = [j for j, f in enumerate(self.chain.factors) if f.joint is not None]
-        n, m = len(motion), qm.shape[0]
-        q = self.chain.joints(qm, xi)
-        axes, origins, coms, masses = [], [], [], []
-        pieces, tail = joint_pieces(self.spec)
-        for i, (jt, f) in enumerate(zip(self.spec.joints, motion)):
-            F = before[:, f]                   # the joint's aligned frame (z along its axis)
-            M = np.repeat(np.eye(4)[None], m, axis=0)
-            if jt.kind == "R":
-                c, s_ = np.cos(q[:, i]), np.sin(q[:, i])
-                M[:, 0, 0], M[:, 0, 1], M[:, 1, 0], M[:, 1, 1] = c, -s_, s_, c
-            else:
-                M[:, 2, 3] = q[:, i]
-            A = pieces[i][1]
-            child = F @ M @ A.T                # the joint's child link frame
-            com = np.asarray(jt.com, dtype=float)
-            mass = jt.mass
-            if i == n - 1 and self.spec.payload is not None:
-                pm, pc = self.spec.payload
-                p_tail = (np.asarray(tail) @ np.r_[pc, 1.0])[:3]
-                total = mass + pm
-                com = (mass * com + pm * p_tail) / total if total > 0 else com
-                mass = total
-            axes.append(F[:, :3, 2])
-            origins.append(F[:, :3, 3])
-            coms.append(child[:, :3, :3] @ com + child[:, :3, 3])
-            masses.append(mass)
-        g = np.array([0.0, 0.0, -self.GRAVITY])
-        tau = np.zeros((m, n))
-        for i, jt in enumerate(self.spec.joints):
-            if jt.kind == "R":
-                for b in range(i, n):
-                    r = coms[b] - origins[i]
-                    tau[:, i] += masses[b] * np.einsum("mk,mk->m", axes[i], np.cross(r, g))
-            else:
-                tau[:, i] = sum(masses[b] for b in range(i, n)) * (axes[i] @ g)
-        return tau
 
-    def held_reason(self, name: str) -> str:
-        """Why a held parameter is held (the batch table's label)."""
-        if name in BASE_HELD:
-            return "the instrument frame's estimated turn; base_rx, base_ry, base_rz correct it"
-        if name.startswith("k") and name[1:].isdigit():
-            return "a URDF joint has no transmission ratio"
-        return "fixed"
+# -- what only a URDF's model offers (its methods: URDF_FORM.operations) ----------------
+def held_reason(robot, name: str) -> str:
+    """Why a held parameter is held (the batch table's label)."""
+    if name in BASE_HELD:
+        return "the instrument frame's estimated turn; base_rx, base_ry, base_rz correct it"
+    if name.startswith("k") and name[1:].isdigit():
+        return "a URDF joint has no transmission ratio"
+    return "fixed"
 
-    def joint_label(self, i: int) -> str:
-        """The URDF's name of joint ``i`` (1-based)."""
-        return self.spec.joints[i - 1].name
 
-    def calibrated_origins(self, xi) -> dict[str, np.ndarray]:
-        """Per movable joint (URDF name), its ``<origin>`` ``(4, 4)`` with the
-        calibration in it: ``origin * A D Rot(q_off) A^-1`` (the correction and the
-        offset moved into the origin, so that the joint's value drives it as before:
-        the joint turns by ``q`` about its axis where the model turns by
-        ``k q + q_off``; ``k`` must be 1)."""
-        xi = np.asarray(xi, dtype=float)
-        out = {}
-        for i, jt in enumerate(self.spec.joints, start=1):
-            A = rotations_matrix(axis_alignment(jt.axis))
-            sub = Chain(tuple(Factor(kd, terms=((self.index(f"j{i}_{k}"), 1.0),))
-                              for k, kd in zip(DELTA_KEYS, DELTA_KINDS)), len(xi), (), ())
-            D = sub.fk(np.zeros((1, 0)), xi)[0]
-            off = float(xi[self.index(f"q{i}_off")])
-            M = _rot("rz", off) if jt.kind == "R" else np.eye(4)
-            if jt.kind == "P":
-                M[2, 3] = off
-            out[jt.name] = np.asarray(jt.origin, dtype=float) @ A @ D @ M @ A.T
-        return out
+def joint_label(robot, i: int) -> str:
+    """The URDF's name of joint ``i`` (1-based)."""
+    return robot.spec.joints[i - 1].name
 
-    def frame_matrix(self, xi) -> np.ndarray:
-        """``(4, 4)`` the base link in the instrument's frame (``T_frame``)."""
-        sub = Chain(self.chain.factors[:9], len(xi), (), ())
-        return sub.fk(np.zeros((1, 0)), np.asarray(xi, dtype=float))[0]
+
+def calibrated_origins(robot, xi) -> dict[str, np.ndarray]:
+    """Per movable joint (URDF name), its ``<origin>`` ``(4, 4)`` with the
+    calibration in it: ``origin * A D Rot(q_off) A^-1`` (the correction and the
+    offset moved into the origin, so that the joint's value drives it as before:
+    the joint turns by ``q`` about its axis where the model turns by
+    ``k q + q_off``; ``k`` must be 1)."""
+    xi = np.asarray(xi, dtype=float)
+    out = {}
+    for i, jt in enumerate(robot.spec.joints, start=1):
+        A = rotations_matrix(axis_alignment(jt.axis))
+        sub = Chain(tuple(Factor(kd, terms=((robot.index(f"j{i}_{k}"), 1.0),))
+                          for k, kd in zip(DELTA_KEYS, DELTA_KINDS)), len(xi), (), ())
+        D = sub.fk(np.zeros((1, 0)), xi)[0]
+        off = float(xi[robot.index(f"q{i}_off")])
+        M = _rot("rz", off) if jt.kind == "R" else np.eye(4)
+        if jt.kind == "P":
+            M[2, 3] = off
+        out[jt.name] = np.asarray(jt.origin, dtype=float) @ A @ D @ M @ A.T
+    return out
+
+
+def frame_matrix(robot, xi) -> np.ndarray:
+    """``(4, 4)`` the base link in the instrument's frame (``T_frame``)."""
+    sub = Chain(robot.chain.factors[:9], len(xi), (), ())
+    return sub.fk(np.zeros((1, 0)), np.asarray(xi, dtype=float))[0]
+
+
+URDF_FORM = WrittenForm(
+    layout=urdf_layout, chain=build_urdf_chain, held=held_parameters, loads=gravity_loads,
+    operations={"held_reason": held_reason, "joint_label": joint_label,
+                "calibrated_origins": calibrated_origins, "frame_matrix": frame_matrix})
+
+#: the model of a URDF's chain is the one serial-chain model (old name; pickles)
+UrdfRobot = SerialRobot

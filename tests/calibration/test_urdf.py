@@ -164,6 +164,27 @@ def test_scale_and_mirror_are_what_a_person_checks_first():
     assert mirrored_f < proper_f / 10 and mirrored_f < 0.02
 
 
+def test_a_urdf_and_a_robot_file_are_one_model():
+    """Both written forms make the one serial-chain model; what only a URDF's model
+    offers (its origins, its frame, its labels) is there for it alone, also after a
+    pickle's round trip."""
+    import pickle
+
+    from calibration.robots.serial import SerialRobot
+    from calibration.robots.urdf import UrdfRobot
+    from drivers.robot_file import load_robot_file
+
+    urdf = arm()
+    dh = get_robot(load_robot_file(URDF.parent / "ur5-like-hayati.toml"))
+    assert type(urdf) is type(dh) is SerialRobot and UrdfRobot is SerialRobot
+    for name in ("calibrated_origins", "frame_matrix", "held_reason", "joint_label"):
+        assert hasattr(urdf, name) and not hasattr(dh, name), name
+    twin = pickle.loads(pickle.dumps(urdf))
+    assert twin.joint_label(1) == urdf.joint_label(1) and twin.fixed == urdf.fixed
+    assert np.array_equal(twin.frame_matrix(urdf.nominal), np.eye(4))
+    assert urdf.warnings(urdf.nominal) == () and urdf.loads(np.zeros((1, 6))) is None
+
+
 def compliant_arm(payload=None):
     from drivers.urdf_file import parse_urdf
 
@@ -179,7 +200,7 @@ def test_gravity_loads_are_the_potential_energy_s_slope():
     tau = rob.loads(qm)
 
     # potential of the lumped bodies, each body carried rigidly by its joint's child frame
-    from calibration.robots.urdf import joint_pieces
+    from calibration.robots.urdf import GRAVITY, joint_pieces
 
     pieces, tail = joint_pieces(rob.spec)
     motion = [j for j, f in enumerate(rob.chain.factors) if f.joint is not None]
@@ -197,7 +218,7 @@ def test_gravity_loads_are_the_potential_energy_s_slope():
                 pm, pc = rob.spec.payload
                 com = (mass * com + pm * (np.asarray(tail) @ np.r_[pc, 1.0])[:3]) / (mass + pm)
                 mass += pm
-            total += mass * rob.GRAVITY * (child[:3, :3] @ com + child[:3, 3])[2]
+            total += mass * GRAVITY * (child[:3, :3] @ com + child[:3, 3])[2]
         return total
 
     h = 1e-6
