@@ -1,23 +1,27 @@
 """The station's devices, built from one :class:`~drivers.config.StationConfig`.
 
-:class:`Rig` owns the actuators (CANopen drives or encoders), the inclinometer
-and the draw-wire of a station, opens and closes them together, and offers the
-few operations a session needs: move and wait, one live reading of every
+:class:`Rig` owns the actuators (CANopen drives or encoders), the inclinometer,
+the draw-wire and the motion capture of a station, opens and closes them together, and
+offers the few operations a session needs: move and wait, one live reading of every
 channel, one checked snapshot of a pose, zeroing the draw-wire. The session and
 ``app.py devices check`` use it; nothing here knows a method or a widget.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
+import math
 import time
-from typing import Sequence
+from datetime import datetime, timezone
+from typing import Any, Mapping, Sequence
 
-from drivers.base import Device
+from drivers.base import Device, Sample
 from drivers.canopen_drives import CanopenActuators, CanopenNodes, canopen_device
 from drivers.config import StationConfig
 from drivers.drawwire import WORD_ORDER, DrawWire
 from drivers.errors import DeviceError
 from drivers.inclinometer import Inclinometer
+from drivers.mocap import AXES, MotionCapture
 from drivers.snapshot import Snapshot, UnstableReading, snapshot_with
 
 log = logging.getLogger("drivers.rig")
@@ -54,13 +58,55 @@ def drawwire_from_config(cfg) -> DrawWire:
                     stopbits=cfg.stopbits, **kw)
 
 
+def mocap_from_config(cfg) -> MotionCapture:
+    """The motion capture a :class:`~drivers.config_mocap.MocapConfig` describes (not opened)."""
+    return MotionCapture(cfg.host, port=cfg.port, labels=cfg.labels, frames=cfg.frames,
+                         timeout=cfg.timeout, name="motion capture")
+
+
+@dataclasses.dataclass(frozen=True)
+class PoseSnapshot(Snapshot):
+    """A :class:`~drivers.snapshot.Snapshot` with ``info``: device name -> what its reading
+    says beyond the means (the motion capture: ``frames``, ``timestamps_us``, ``seen``,
+    ``std``, ``drift`` of :mod:`drivers.mocap`)."""
+
+    info: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+
+def with_mocap(snap: Snapshot, mocap: MotionCapture, sample: Sample) -> PoseSnapshot:
+    """``snap`` with one reading of the motion capture (the mean of its N frames): each
+    marker's mean, std and drift over the frames it was seen in; a marker seen in fewer
+    than half of them is NaN (its count is in ``info``). ``t_end`` and ``duration`` then
+    include the motion capture's read, taken right after the others'."""
+    n = len(sample.info["frames"])
+    mean, std, drift = dict(snap.mean), dict(snap.std), dict(snap.drift)
+    devices = dict(snap.devices or {})
+    for k, label in enumerate(mocap.labels, start=1):
+        enough = 2 * sample.info["seen"][label] >= n
+        for a, axis in enumerate(AXES):
+            ch = f"m{k}_{axis}"
+            mean[ch] = sample.values[ch] if enough else math.nan
+            std[ch] = sample.info["std"][label][a] if enough else math.nan
+            drift[ch] = sample.info["drift"][label][a] if enough else math.nan
+            devices[ch] = mocap.name
+    fields = {f.name: getattr(snap, f.name) for f in dataclasses.fields(Snapshot)}
+    fields.update(mean=mean, std=std, drift=drift, devices=devices,
+                  t_end=datetime.now(timezone.utc).isoformat(timespec="milliseconds"),
+                  duration=snap.duration + (sample.t - sample.info["since"]))
+    info = dict(getattr(snap, "info", {}))
+    info[mocap.name] = {k: v for k, v in sample.info.items() if k != "since"}
+    return PoseSnapshot(**fields, info=info)
+
+
 class Rig:
     """Every device of a station (config resolved: no ``"@endpoints"`` left).
 
     ``actuators`` is a :class:`CanopenActuators` (the station moves the robot) or
-    :class:`~drivers.canopen_drives.CanopenEncoders` (read only); ``inclinometer`` and
-    ``drawwire`` are None where the station has none.
+    :class:`~drivers.canopen_drives.CanopenEncoders` (read only); ``inclinometer``,
+    ``drawwire`` and ``mocap`` are None where the station has none.
     """
+
+    mocap: MotionCapture | None = None
 
     def __init__(self, config: StationConfig):
         self.config = config.require_resolved()
@@ -69,10 +115,12 @@ class Rig:
                              if config.inclinometer is not None else None)
         self.drawwire = (drawwire_from_config(config.drawwire)
                          if config.drawwire is not None else None)
+        self.mocap = mocap_from_config(config.mocap) if config.mocap is not None else None
 
     @property
     def devices(self) -> list[Device]:
-        return [d for d in (self.actuators, self.inclinometer, self.drawwire) if d is not None]
+        return [d for d in (self.actuators, self.inclinometer, self.drawwire, self.mocap)
+                if d is not None]
 
     @property
     def can_move(self) -> bool:
@@ -145,11 +193,16 @@ class Rig:
         still settling after the move, a streaming sensor's frames queued behind a busy
         computer) are measured again after a wait, :data:`SETTLE_RETAKES` times at most
         (:func:`retake_waits`); ``on_retake(error, wait_s)`` is told before each wait.
-        Still unstable after the last: that UnstableReading, the device's fault."""
+        Still unstable after the last: that UnstableReading, the device's fault.
+        The motion capture averages its N frames itself: it is read once, after the
+        others, and its means join theirs (:func:`with_mocap`, a :class:`PoseSnapshot`)."""
         waits = retake_waits(overrides.get("settle", self.config.snapshot.settle))
+        sensors = [d for d in self.devices if d is not self.mocap]
         while True:
             try:
-                return snapshot_with(self.devices, self.config.snapshot, **overrides)
+                snap = snapshot_with(sensors, self.config.snapshot, **overrides)
+                return snap if self.mocap is None else with_mocap(snap, self.mocap,
+                                                                  self.mocap.read())
             except UnstableReading as e:
                 if not waits:
                     raise

@@ -51,11 +51,12 @@ PYTHON_PACKAGES = (("numpy", "numpy"), ("scipy", "scipy"), ("can", "python-can")
                    ("matplotlib", "matplotlib"), ("jinja2", "Jinja2"),
                    ("PySide6", "PySide6-Essentials"), ("dask", "dask"),
                    ("dask.distributed", "distributed"), ("jsonschema", "jsonschema"),
-                   ("yourdfpy", "yourdfpy"))
+                   ("yourdfpy", "yourdfpy"), ("qtm_rt", "qtm-rt"))
 #: what uses a package that only some commands need (said where it is missing)
 USED_BY = {"dask": "app.py study", "distributed": "app.py study (dask[distributed])",
            "jsonschema": "reading parameter files (params verify, params export)",
-           "yourdfpy": "URDF robots (--robot FILE.urdf)"}
+           "yourdfpy": "URDF robots (--robot FILE.urdf)",
+           "qtm-rt": "the motion capture ([mocap]: Qualisys QTM's real-time protocol)"}
 
 
 def xcb_plugin() -> Path | None:
