@@ -260,6 +260,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from station.simulation.truth_cli import add_chain_arguments
+    from station.simulation.truth_cli import add_parser as add_truth_parser
+
     from calibration.methods import METHODS
 
     p = _Parser(prog="app.py", description="Robot calibration station")
@@ -366,7 +369,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("simulate", help="run the simulated devices until stopped")
     s.add_argument("--robot", required=True, metavar="ROBOT",
-                   help="agebot-sm, agebot-pm or a robot file (TOML)")
+                   help="agebot-sm, agebot-pm, a robot file (TOML) or a URDF (with "
+                        "--base-link, --tip-link)")
+    add_chain_arguments(s)
     s.add_argument("--truth")
     s.add_argument("--config")
     s.add_argument("--endpoints", help="write the devices' endpoints (JSON) here")
@@ -376,7 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the noise of a reading at rest is a function of the seed and the pose "
                         "(a pose read twice reads the same; for comparing runs)")
     s.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
-    s.set_defaults(func=_delegate("drivers.sim.server", "main"))
+    s.set_defaults(func=_delegate("drivers.sim.server", "main"), robot_chain=True)
 
     d = sub.add_parser("devices", help="devices")
     dsub = d.add_subparsers(dest="devices_command", required=True)
@@ -386,13 +391,20 @@ def build_parser() -> argparse.ArgumentParser:
     dc.add_argument("--seconds", type=float, default=3.0)
     dc.add_argument("--simulate", action="store_true",
                     help="start the simulated station (--robot) and check it")
-    dc.add_argument("--robot", choices=("agebot-sm", "agebot-pm"), default="agebot-sm")
-    dc.set_defaults(func=_delegate("drivers.check", "main"))
+    dc.add_argument("--robot", default="agebot-sm", metavar="ROBOT",
+                    help="with --simulate: agebot-sm (default), agebot-pm, a robot file (TOML) "
+                         "or a URDF (with --base-link, --tip-link)")
+    add_chain_arguments(dc)
+    dc.add_argument("--truth", help="with --simulate: the simulated robot's truth file (a "
+                                    "robot file's or URDF robot's)")
+    dc.set_defaults(func=_delegate("drivers.check", "main"), robot_chain=True)
 
     r = sub.add_parser("run", help="a whole station session, headless")
     r.add_argument("--simulate", action="store_true")
     r.add_argument("--robot", required=True, metavar="ROBOT",
-                   help="agebot-sm, agebot-pm or a robot file (TOML)")
+                   help="agebot-sm, agebot-pm, a robot file (TOML) or a URDF (with "
+                        "--base-link, --tip-link)")
+    add_chain_arguments(r)
     r.add_argument("--method", required=True)
     r.add_argument("--truth")
     r.add_argument("--config")
@@ -421,12 +433,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--accept-poor-fit", action="store_true",
                    help="export the calibration even if the fit fails the quality gate "
                         "(recorded in the parameter file's fit.quality)")
-    r.set_defaults(func=_delegate("station.headless", "main"))
+    r.set_defaults(func=_delegate("station.headless", "main"), robot_chain=True)
 
     st = sub.add_parser("study", help="Monte Carlo calibrations over robots drawn around the "
                         "nominal, on Dask (docs/design.md)")
     st.add_argument("--method", required=True)
     st.add_argument("--robot", help="the method's robot (default: the one it is for)")
+    add_chain_arguments(st)
     st.add_argument("--robots", type=int, required=True, help="robots to draw")
     st.add_argument("--design", default="optimal,random",
                     help="pose designs to compare, comma-separated (optimal, random)")
@@ -441,17 +454,17 @@ def build_parser() -> argparse.ArgumentParser:
                     "a local cluster)")
     st.add_argument("--workers", type=int, help="local cluster: worker processes (default: cores)")
     st.add_argument("--out", required=True, help="folder for study.jsonl and summary.json")
-    st.set_defaults(func=_delegate("station.simulation.study", "cli"))
+    st.set_defaults(func=_delegate("station.simulation.study", "cli"), robot_chain=True)
 
-    from station.simulation.truth_cli import add_parser as add_truth_parser
 
     add_truth_parser(sub)       # truth draw: a simulated robot around a nominal
 
     gui = sub.add_parser("gui", help="the operator's Qt wizard")
     gui.add_argument("--simulate", action="store_true")
     gui.add_argument("--config")
-    gui.add_argument("--robot", help="preselect the robot: agebot-sm, agebot-pm or a robot "
-                                     "file (TOML)")
+    gui.add_argument("--robot", help="preselect the robot: agebot-sm, agebot-pm, a robot "
+                                     "file (TOML) or a URDF (with --base-link, --tip-link)")
+    add_chain_arguments(gui)
     gui.add_argument("--truth", help="with --simulate and a robot file: the simulated arm's "
                                      "truth file")
     gui.add_argument("--check", action="store_true",
@@ -461,7 +474,7 @@ def build_parser() -> argparse.ArgumentParser:
     doc = sub.add_parser("doctor", help="check this machine: Python packages, the wizard's "
                                         "system libraries (with the apt-get command), display")
     doc.set_defaults(func=_delegate("station.doctor", "main"))
-    gui.set_defaults(func=_delegate("station.gui.app", "main"))
+    gui.set_defaults(func=_delegate("station.gui.app", "main"), robot_chain=True)
     return p
 
 
@@ -530,6 +543,10 @@ def main(argv=None) -> int:
         print(f"warning: {_one_line(message)}", file=file or sys.stderr)
     try:
         _check_args(args)
+        if getattr(args, "robot_chain", False) and args.robot:   # a URDF with its chain
+            from drivers.robot_file import robot_ref
+
+            args.robot = robot_ref(args.robot, args.base_link, args.tip_link)
         return int(args.func(args) or 0)
     except StationError as e:
         print(f"error: {_one_line(e)}", file=sys.stderr)

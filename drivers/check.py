@@ -11,6 +11,7 @@ answered.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -18,6 +19,7 @@ from calibration.errors import ConfigError, StationError
 from drivers.config import load_station_config
 from drivers.endpoints import load_endpoints, with_endpoints
 from drivers.errors import DeviceError, DeviceTimeout
+from drivers.mocap import AXES, MotionCapture
 from drivers.rig import Rig
 
 HINTS = {
@@ -26,6 +28,8 @@ HINTS = {
     "inclinometer": "check the serial cable, inclinometer.port and inclinometer.baudrate",
     "draw-wire": "check the Modbus link (drawwire.host/port or serial_port), device_id "
                  "and that the sensor is powered",
+    "motion capture": "check that QTM runs with real-time output on mocap.host/port, is "
+                      "measuring, and labels the markers as mocap.labels says",
 }
 
 
@@ -42,6 +46,19 @@ def hint_for(device: str, simulated: bool = False) -> str:
         if device.startswith(key):
             return text
     return "check the device's cable and its section of the station config"
+
+
+def reading_text(device, sample) -> str:
+    """One device's reading for people: a motion capture's markers by label in mm ("not
+    seen" where NaN), any other device's channels."""
+    if isinstance(device, MotionCapture):
+        out = []
+        for k, label in enumerate(device.labels, start=1):
+            xyz = [sample.values[f"m{k}_{a}"] * 1e3 for a in AXES]
+            out.append(f"{label} not seen" if any(math.isnan(v) for v in xyz)
+                       else f"{label} ({xyz[0]:.1f}, {xyz[1]:.1f}, {xyz[2]:.1f}) mm")
+        return "; ".join(out)
+    return ", ".join(f"{ch} {v:.6g}" for ch, v in sample.values.items())
 
 
 def _config(args):
@@ -89,8 +106,7 @@ def check(config, seconds: float = 3.0, out=None, failed: list | None = None) ->
                 if ok[d.name] is not None:
                     continue
                 try:
-                    s = d.read()
-                    parts.append(", ".join(f"{ch} {v:.6g}" for ch, v in s.values.items()))
+                    parts.append(reading_text(d, d.read()))
                 except (DeviceError, DeviceTimeout) as e:
                     ok[d.name] = str(e)
             print(" | ".join(parts) if parts else "(no device answers)", file=out, flush=True)
@@ -115,7 +131,13 @@ def main(args: argparse.Namespace) -> int:
     if getattr(args, "simulate", False):
         from drivers.sim.server import SimulatorProcess
 
-        with SimulatorProcess(args.robot, config=args.config) as sim:
+        from drivers.robot_file import is_robot_file
+        from drivers.sim.server import truth_of
+
+        truth = getattr(args, "truth", None)
+        if is_robot_file(args.robot):       # its truth (a URDF robot needs one): one line
+            truth_of(args.robot, truth)
+        with SimulatorProcess(args.robot, truth=truth, config=args.config) as sim:
             good = check(sim.station_config(), args.seconds, failed=failed)
     else:
         good = check(_config(args), args.seconds, failed=failed)

@@ -14,6 +14,8 @@ errors, missing required keys are named. Layout (see
     [inclinometer.axes]  channel = { raw = "pitch", sign = 1, offset_rad = 0.0, range_rad = 1.05 }
                      (range_rad optional: the sensor reads |value| up to it)
     [drawwire]       mode "tcp" | "rtu", host/port or serial_port, device_id, ...
+    [mocap]          host, port, labels, frames, timeout, volume = {min, max}, viewpoint,
+                     view_angle_deg, outward (QTM motion capture; drivers/config_mocap.py)
     [snapshot]       samples, period, settle, timeout
     [snapshot.std_limits] / [snapshot.drift_limits] / [snapshot.noise_floor]
     [session]        retry_window: s a failing pose is retried before its device is
@@ -45,6 +47,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from calibration.errors import ConfigError
+from drivers.config_mocap import MocapConfig, _mocap
 from drivers.config_reader import (PLACEHOLDER, KeyReader, decode_text, frozen_map,
                                    load_json, parse_toml)
 
@@ -185,7 +188,7 @@ class SnapshotConfig:
 
 #: default tolerances of the envelope's live watch (channel units: m, rad)
 ENVELOPE_TOLERANCE = {"distance": 0.05, "tilt": 0.0873, "roll": 0.0873, "pitch": 0.0873,
-                      "yaw": 0.0873}
+                      "yaw": 0.0873, "marker": 0.05}   # marker: each coordinate of a point
 
 
 @dataclass(frozen=True)
@@ -257,6 +260,7 @@ class StationConfig:
     snapshot: SnapshotConfig
     inclinometer: InclinometerConfig | None = None
     drawwire: DrawwireConfig | None = None
+    mocap: MocapConfig | None = None
     source: str | None = None
     unresolved: tuple[str, ...] = ()
     display: DisplayConfig = DisplayConfig()
@@ -300,7 +304,7 @@ def parse_station_config(data: Mapping[str, Any], source: str | None = None, *,
         from drivers.robot_file import load_robot_file
 
         base = Path(source).parent if source else Path(".")
-        spec = load_robot_file(base / top.str("robot_file"))
+        spec = load_robot_file(_robot_file_ref(top, base))
     if spec is not None:
         robot = top.str("robot", default=spec.name)
         if robot != spec.name:
@@ -313,6 +317,7 @@ def parse_station_config(data: Mapping[str, Any], source: str | None = None, *,
     canopen = _canopen(top.table("canopen"), n, unresolved)
     incl = top.table("inclinometer", required=False)
     dw = top.table("drawwire", required=False)
+    mc = top.table("mocap", required=False)
     snap = top.table("snapshot", required=False)
     disp = top.table("display", required=False)
     env = top.table("envelope", required=False)
@@ -321,6 +326,7 @@ def parse_station_config(data: Mapping[str, Any], source: str | None = None, *,
         robot=robot, canopen=canopen,
         inclinometer=_inclinometer(incl, unresolved) if incl else None,
         drawwire=_drawwire(dw, unresolved) if dw else None,
+        mocap=_mocap(mc, unresolved) if mc else None,
         snapshot=_snapshot(snap) if snap else SnapshotConfig(),
         source=source, unresolved=tuple(unresolved),
         display=_display(disp) if disp else DisplayConfig(), envelope=_envelope(env, n) if env else EnvelopeConfig(),
@@ -461,16 +467,39 @@ def _snapshot(r: KeyReader) -> SnapshotConfig:
     return cfg
 
 
+def _robot_file_ref(top: KeyReader, base: Path) -> str:
+    """The config's ``robot_file`` (relative to the config's folder) as the station names
+    it: a URDF with its chain, ``base_link`` and ``tip_link`` (:func:`drivers.robot_file.
+    urdf_ref`), else the robot file's path."""
+    from drivers.robot_file import urdf_ref
+    from drivers.urdf_file import is_urdf
+
+    path = base / top.str("robot_file")
+    if is_urdf(str(path)):
+        return urdf_ref(path, top.str("base_link"), top.str("tip_link"))
+    for key in ("base_link", "tip_link"):
+        if key in top.data:
+            top.fail(key, "chooses the chain of a URDF robot; robot_file is not a URDF")
+    return str(path)
+
+
 def robot_of_config(path) -> str:
     """The robot of the station config ``path``: a built-in name, or the path of the robot
-    file it names (``robot_file``, relative to the config's folder)."""
+    file it names (``robot_file``, relative to the config's folder; a URDF's with its
+    chain, :func:`drivers.robot_file.urdf_ref`)."""
     import tomllib
 
     config = load_station_config(path)
     if config.spec is not None:      # read already: the path as the config gives it
         with open(path, "rb") as f:
-            return str(Path(path).parent / tomllib.load(f)["robot_file"])
+            data = tomllib.load(f)
+        return _robot_file_ref(KeyReader(data, "", str(path)), Path(path).parent)
     return config.robot
+
+
+def _chain(spec) -> tuple:
+    """A URDF robot's chain ``(base_link, tip_link)`` (a robot file's: empty)."""
+    return tuple(spec.source.get(k) for k in ("base_link", "tip_link") if k in spec.source)
 
 
 def check_config_robot(config: StationConfig, robot: str) -> None:
@@ -482,7 +511,8 @@ def check_config_robot(config: StationConfig, robot: str) -> None:
         from drivers.robot_file import load_robot_file
 
         spec = load_robot_file(robot)
-        if config.spec is None or config.spec.source["sha256"] != spec.source["sha256"]:
+        if config.spec is None or config.spec.source["sha256"] != spec.source["sha256"] or \
+                _chain(config.spec) != _chain(spec):
             raise ConfigError(f"the station config is for {config.robot}, not the robot "
                               f"file {robot}", source=config.source, key="robot_file")
     elif config.robot != robot:

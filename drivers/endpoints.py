@@ -30,7 +30,7 @@ def with_endpoints(config: StationConfig, endpoints: Mapping[str, Any],
 
     ``endpoints`` as in cli.md: ``canopen`` {interface, host, port, channel, nodes},
     ``inclinometer`` {port, baudrate}, ``drawwire`` {host, port, device_id} (TCP) or
-    {mode: "rtu", port: "/dev/pts/N", baudrate}; mode defaults to TCP where a host
+    {mode: "rtu", port: "/dev/pts/N", baudrate}, ``mocap`` {host, port}; mode defaults to TCP where a host
     is given, else to the config's. Given values replace the config's
     (placeholder or not); keys this station does not know are ignored.
     """
@@ -69,6 +69,10 @@ def with_endpoints(config: StationConfig, endpoints: Mapping[str, Any],
             take(r, "host", r.str, "drawwire")
             take(r, "port", lambda k: r.int(k, lo=1, hi=65535), "drawwire")
         take(r, "device_id", lambda k: r.int(k, lo=0, hi=247), "drawwire")
+    r = top.table("mocap", required=False)
+    if r is not None and getattr(config, "mocap", None) is not None:
+        take(r, "host", r.str, "mocap")
+        take(r, "port", lambda k: r.int(k, lo=1, hi=65535), "mocap")
     sections = {k: dataclasses.replace(getattr(config, k), **v) for k, v in changes.items()}
     dw = sections.get("drawwire")
     for key in (("host", "port") if dw and dw.mode == "tcp" else ("serial_port",) if dw else ()):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 from pathlib import Path
 
 from calibration.errors import ConfigError
@@ -131,14 +132,69 @@ def parse_robot_file(text: str, source: str = "<robot file>", name: str | None =
     return spec
 
 
-def load_robot_file(path) -> SerialSpec:
-    """Read and parse a robot file; errors name the file."""
+def urdf_ref(path, base_link: str | None, tip_link: str | None) -> str:
+    """The station's name of a URDF robot: the file and the chain in it,
+    ``"arm.urdf (base_link to tool0)"``. It goes wherever a robot file's path goes
+    (``--robot``, the simulator's command line, messages), and :func:`load_robot_file`
+    reads it back; refused in one line where a link is not given."""
+    if not base_link or not tip_link:
+        raise ConfigError("a URDF robot needs --base-link and --tip-link (the chain to "
+                          "calibrate)", source=str(path))
+    return f"{path} ({base_link} to {tip_link})"
+
+
+_REF = re.compile(r"^(?P<path>.+\.(?:urdf|xml|xacro)) \((?P<base>\S+) to (?P<tip>\S+)\)$",
+                  re.IGNORECASE)
+
+
+def split_urdf_ref(robot) -> tuple[str, str, str] | None:
+    """``(path, base_link, tip_link)`` of a :func:`urdf_ref`, else None."""
+    m = _REF.match(str(robot))
+    return (m["path"], m["base"], m["tip"]) if m else None
+
+
+def robot_args(robot: str) -> list[str]:
+    """The command-line options that name ``robot`` (a URDF's :func:`urdf_ref`:
+    ``--robot PATH --base-link B --tip-link T``)."""
+    ref = split_urdf_ref(robot)
+    if ref is None:
+        return ["--robot", str(robot)]
+    return ["--robot", ref[0], "--base-link", ref[1], "--tip-link", ref[2]]
+
+
+def robot_ref(robot: str, base_link: str | None = None, tip_link: str | None = None) -> str:
+    """``--robot`` with ``--base-link``/``--tip-link`` as the station names the robot: a
+    URDF's :func:`urdf_ref`, anything else as given (links given with a robot that is not a
+    URDF: refused in one line)."""
+    from drivers.urdf_file import is_urdf
+
+    if split_urdf_ref(robot) is not None:
+        if base_link or tip_link:
+            raise ConfigError("the robot names its chain already; leave out --base-link and "
+                              "--tip-link", source=str(robot))
+        return robot
+    if is_urdf(robot):
+        return urdf_ref(robot, base_link, tip_link)
+    if base_link or tip_link:
+        raise ConfigError("--base-link and --tip-link choose the chain of a URDF robot; this "
+                          "robot is not a URDF", source=str(robot))
+    return robot
+
+
+def load_robot_file(path):
+    """Read and parse a robot file (a :class:`SerialSpec`) or a URDF robot's
+    :func:`urdf_ref` (a :class:`calibration.robots.urdf.UrdfSpec`); errors name the file."""
     path = str(path)
-    if path.lower().endswith(".urdf"):
-        raise ConfigError("a URDF robot is calibrated from its measurements: trace import "
-                          "--robot FILE.urdf --base-link B --tip-link T --method sm-markers, then "
-                          "batch (docs/urdf-robots.md); sessions, the simulator and studies take "
-                          "AGEBOT and robot files (TOML)", source=path)
+    ref = split_urdf_ref(path)
+    if ref is not None:
+        from drivers.urdf_file import load_urdf
+
+        return load_urdf(*ref)
+    from drivers.urdf_file import is_urdf
+
+    if is_urdf(path):
+        raise ConfigError("a URDF robot needs --base-link and --tip-link (the chain to "
+                          "calibrate)", source=path)
     return parse_robot_file(read_text_file(path, "the robot file"), path)
 
 
@@ -162,8 +218,9 @@ def spec_from_source(src, where: str = "robot_file"):
 
 
 def is_robot_file(robot: str) -> bool:
-    """Whether a ``--robot`` value names a robot file (not a built-in robot)."""
-    return robot.endswith(".toml") or Path(robot).is_file()
+    """Whether a ``--robot`` value names a robot file or a URDF robot (not a built-in robot)."""
+    return (robot.endswith(".toml") or split_urdf_ref(robot) is not None
+            or Path(robot).is_file())
 
 
 def format_float(v: float) -> str:

@@ -101,7 +101,7 @@ def main(args: argparse.Namespace) -> int:
         from station.simulation.simulated_station import (engineer_measurements,
                                                           simulated_station)
 
-        config = load_sim_config(args.robot, args.config)
+        config = load_sim_config(args.robot, args.config, args.truth)
         if not is_robot_file(args.robot) and config.robot != args.robot:
             raise ConfigError(f"the station config is for {config.robot}, not {args.robot}",
                               source=config.source, key="robot")
@@ -246,6 +246,14 @@ def _session(config, method, out, request, nominal, touch, measured, station, pr
             if v["rms_before"] is None and note and note not in said:
                 print(f"validation: no RMS before calibration: {note}")
                 said.add(note)
+            pts = v.get("points")      # points on the tool: their 3D errors, per point
+            if pts is not None:
+                before = ("n/a" if pts.get("rms_before") is None
+                          else units.text(pts["rms_before"], v["unit"]))
+                print(f"validation {v['channel']}: points' 3D RMS {before} -> "
+                      f"{units.text(pts['rms_after'], v['unit'])} over {pts['n']} held-out "
+                      f"points of {pts['poses']} {held}")
+                continue
             before = ("n/a" if v["rms_before"] is None
                       else units.text(v["rms_before"], v["unit"]))
             print(f"validation {v['channel']}: RMS {before} -> "

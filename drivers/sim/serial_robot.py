@@ -175,12 +175,19 @@ def is_robot_file(robot: str) -> bool:
 
 
 def sim_config_data(spec, *, velocity: float = VELOCITY,
-                    acceleration: float = ACCELERATION) -> dict:
+                    acceleration: float = ACCELERATION, truth: SimTruth | None = None) -> dict:
     """The default simulated station of a robot file, as a station config document:
     drives at node ids 1..n (2^17 increments per actuator unit), the draw-wire on
-    Modbus TCP, a dual-axis inclinometer on the tool mapped to ``roll`` and ``pitch``."""
+    Modbus TCP, a dual-axis inclinometer on the tool mapped to ``roll`` and ``pitch``;
+    a URDF robot's ``truth`` with points on the tool adds the motion capture of its room
+    (:func:`drivers.sim.mocap_room.room_section`)."""
     n = len(spec.joints)
-    return {
+    extra = {}
+    if truth is not None and truth.points is not None:
+        from drivers.sim.mocap_room import room_section
+
+        extra["mocap"] = room_section(truth)
+    return extra | {
         "robot": spec.name,
         "canopen": {"mode": "cia402", "interface": "socketcand", "channel": "can0",
                     "host": "@endpoints", "port": "@endpoints", "nodes": list(range(1, n + 1)),
@@ -200,14 +207,15 @@ def sim_config_data(spec, *, velocity: float = VELOCITY,
     }
 
 
-def sim_config(robot_file: str | Path):
-    """:func:`sim_config_data` of a robot file as a :class:`~drivers.config.StationConfig`."""
+def sim_config(robot_file: str | Path, truth: SimTruth | None = None):
+    """:func:`sim_config_data` of a robot file (a URDF robot, with its ``truth``) as a
+    :class:`~drivers.config.StationConfig`."""
     from drivers.config import parse_station_config
     from drivers.robot_file import load_robot_file
 
     spec = load_robot_file(robot_file)
-    return parse_station_config(sim_config_data(spec), f"default station of {robot_file}",
-                                spec=spec)
+    return parse_station_config(sim_config_data(spec, truth=truth),
+                                f"default station of {robot_file}", spec=spec)
 
 
 def nominal_truth(robot_file: str | Path) -> SimTruth:

@@ -19,6 +19,8 @@ and demos inject faults and look at the simulated truth::
                         draw-wire request from now gets no answer; FaultPlan's fields)
     {"move": [qm...]}  (the robot's own controller, for CiA 406 encoders)
     {"drop_drawwire": true}  (close the Modbus TCP connections once)
+    {"mocap": {"occluded": ["tool1"], "late_s": 2.0, "drop_next": true, "drop_prob": 0.1}}
+                       (the motion capture's faults: drivers/sim/mocap_sim.py)
     {"contact": true}  (what a feeler gauge and the operator's eye tell: the true
                         tool tip and its signed distance to the truth's plane)
 
@@ -61,6 +63,7 @@ from drivers.sim.cia402_drive import start_canopen_sim
 from drivers.sim.drawwire_sim import SimDrawWire
 from drivers.sim.faults import FaultPlan
 from drivers.sim.inclinometer_sim import SimInclinometer
+from drivers.sim.mocap_room import start_mocap
 from drivers.sim.robot import LIMIT_NAMES, SimulatedAgebot
 from drivers.sim.serial_robot import LIMIT_NAMES as SERIAL_LIMITS
 from drivers.sim.serial_robot import SimulatedSerial, is_robot_file, nominal_truth, sim_config
@@ -92,23 +95,32 @@ class SimStation:
     def __init__(self, truth: SimTruth, config: StationConfig, *, seed: int | None = None,
                  inclinometer_hz: float = 100.0, rtu: bool = True, control: bool = True,
                  pose_noise: bool = False):
-        if config.robot != truth.robot:
+        if truth.robot == "urdf":        # the true URDF: the config's robot, as built
+            from drivers.sim.urdf_truth import same_chain
+
+            why = ("the station config's robot is not a URDF" if config.spec is None or
+                   not hasattr(config.spec, "base_link") else same_chain(truth.spec, config.spec))
+            if why:
+                raise ConfigError(f"the truth file's robot is not the station config's: {why}",
+                                  source=config.source, key="robot_file")
+        elif config.robot != truth.robot:
             raise ConfigError(f"the station config is for {config.robot}, the truth file for "
                               f"{truth.robot}", source=config.source, key="robot")
+        elif truth.spec is not None and (config.spec is None or config.spec.source["sha256"]
+                                         != truth.spec.source["sha256"]):
+            raise ConfigError("the truth file's robot file is not the station config's",
+                              source=config.source, key="robot_file")
         self.truth, self.config = truth, config
         self.plan = FaultPlan(seed=seed)
         cc = config.canopen
-        if truth.spec is not None and (config.spec is None or
-                                       config.spec.source["sha256"] != truth.spec.source["sha256"]):
-            raise ConfigError("the truth file's robot file is not the station config's",
-                              source=config.source, key="robot_file")
         sim = SimulatedSerial if truth.spec is not None else SimulatedAgebot
         self.robot = sim(truth, faults=self.plan, seed=seed,
                                      velocity=cc.profile_velocity or None,
                                      acceleration=cc.profile_acceleration or None,
                                      pose_noise=pose_noise, qm_range=config.envelope.qm_range)
         self._inclinometer_hz, self._rtu, self._control = inclinometer_hz, rtu, control
-        self.canopen = self.inclinometer = self.drawwire = None
+        self.canopen = self.inclinometer = self.drawwire = self.mocap = None
+        self._seed = seed
         self._server: socketserver.ThreadingTCPServer | None = None
         self._stopped = threading.Event()
 
@@ -132,6 +144,8 @@ class SimStation:
                     metres_per_count=dw.metres_per_count, offset_m=dw.offset_m,
                     word_order=WORD_ORDER[dw.word_order], device_id=dw.device_id,
                     rtu=self._rtu, baudrate=dw.baudrate, faults=self.plan).start()
+            if self.config.mocap is not None:
+                self.mocap = start_mocap(self.robot, self.truth, self.config.mocap, self._seed)
             if self._control:
                 self._server = _ControlServer(("127.0.0.1", 0), _ControlHandler)
                 self._server.station = self
@@ -155,13 +169,13 @@ class SimStation:
             self._server.shutdown()
             self._server.server_close()
             self._server = None
-        for dev in (self.drawwire, self.inclinometer, self.canopen):
+        for dev in (self.mocap, self.drawwire, self.inclinometer, self.canopen):
             if dev is not None:
                 try:
                     dev.stop()
                 except Exception as e:
                     log.warning("stopping %s: %s", type(dev).__name__, e)
-        self.canopen = self.inclinometer = self.drawwire = None
+        self.canopen = self.inclinometer = self.drawwire = self.mocap = None
         self._stopped.set()
 
     def __enter__(self):
@@ -182,6 +196,8 @@ class SimStation:
             out["drawwire"] = {"host": self.drawwire.host, "port": self.drawwire.port,
                                "device_id": self.drawwire.device_id,
                                "rtu_port": self.drawwire.rtu_port}
+        if self.mocap is not None:
+            out["mocap"] = {"host": "127.0.0.1", "port": self.mocap.port}
         if self._server is not None:
             host, port = self._server.server_address[:2]
             out["control"] = {"host": host, "port": port}
@@ -191,7 +207,7 @@ class SimStation:
         """One control command (module docstring); raises ValueError/KeyError/TypeError."""
         if not isinstance(cmd, dict):
             raise TypeError("a command is a JSON object")
-        known = {"faults", "clear", "state", "move", "drop_drawwire", "contact"}
+        known = {"faults", "clear", "state", "move", "drop_drawwire", "contact", "mocap"}
         unknown = set(cmd) - known
         if unknown:
             raise KeyError(f"unknown command {sorted(unknown)} (known: {sorted(known)})")
@@ -212,6 +228,12 @@ class SimStation:
             self.robot.move_to(qm)
         if cmd.get("drop_drawwire") and self.drawwire is not None:
             self.drawwire.drop_connections()
+        if self.mocap is not None and cmd.get("clear"):
+            self.mocap.clear_faults()
+        if "mocap" in cmd:
+            if self.mocap is None:
+                raise ValueError("mocap: this simulated station has no motion capture")
+            self.mocap.set_faults(**cmd["mocap"])
         answer: dict[str, Any] = {"ok": True, "faults": self.plan.as_dict()}
         if cmd.get("state"):
             answer.update(qm=self.robot.qm().tolist(), pose=self.robot.ee_pose().tolist(),
@@ -219,6 +241,11 @@ class SimStation:
                           target_reached=self.robot.target_reached(),
                           drawwire_zero_calls=getattr(self.drawwire, "zero_calls", 0),
                           drawwire_offset=getattr(self.drawwire, "offset_m", None))
+        if cmd.get("state") and self.truth.points is not None:
+            from drivers.sim.urdf_truth import true_points
+
+            answer["points"] = true_points(self.truth, self.robot.model, self.robot._xi,
+                                           self.robot.qm()).tolist()
         if cmd.get("contact"):
             answer["contact"] = self.contact()
         return answer
@@ -307,7 +334,7 @@ def write_endpoints(path: str | Path, endpoints: dict) -> None:
 def build(robot: str, truth: str | None = None, config: str | None = None, *,
           seed: int | None = None, pose_noise: bool = False) -> SimStation:
     """A :class:`SimStation` from file names (defaults: the fixtures), not started."""
-    c = load_sim_config(robot, config)
+    c = load_sim_config(robot, config, truth)
     return SimStation(truth_of(robot, truth, c), c, seed=seed, pose_noise=pose_noise)
 
 
@@ -321,6 +348,8 @@ def truth_of(robot: str, truth: str | None, config: StationConfig | None = None)
             from drivers.robot_file import load_robot_file
 
             spec = load_robot_file(robot)
+        if hasattr(spec, "base_link"):      # a URDF robot: its truth is a true URDF
+            return _urdf_truth_of(robot, spec, truth)
         t = load_truth(truth) if truth else nominal_truth(robot)
         if t.spec is None or t.spec.source["sha256"] != spec.source["sha256"]:
             raise ConfigError(f"the truth file is not of the robot file {robot}"
@@ -334,13 +363,34 @@ def truth_of(robot: str, truth: str | None, config: StationConfig | None = None)
     return t
 
 
-def load_sim_config(robot: str, config: str | None = None) -> StationConfig:
+def _urdf_truth_of(robot: str, spec, truth: str | None) -> SimTruth:
+    """The truth file of a URDF robot: needed (what the robot really is, where the room
+    is), refused in one line where its robot is another."""
+    from drivers.sim.urdf_truth import same_chain
+
+    if not truth:
+        raise ConfigError(f"a simulated {robot} needs --truth: a truth file of the URDF robot "
+                          "(its true URDF, the motion-capture room, the points on the tool)")
+    t = load_truth(truth)
+    why = ("it is of " + t.robot if t.robot != "urdf" else same_chain(t.spec, spec))
+    if why:
+        raise ConfigError(f"the truth file is not of the URDF robot {robot}: {why}",
+                          source=t.source, key="urdf")
+    return t
+
+
+def load_sim_config(robot: str, config: str | None = None,
+                    truth: str | None = None) -> StationConfig:
     """The simulated station's config: ``config``, else the fixture of a built-in robot
-    or the default station of a robot file (:func:`drivers.sim.serial_robot.sim_config`)."""
+    or the default station of a robot file (:func:`drivers.sim.serial_robot.sim_config`;
+    a URDF robot's with its ``truth`` file's motion-capture room)."""
     if config:
         return load_station_config(config)
     if is_robot_file(robot):
-        return sim_config(robot)
+        from drivers.robot_file import split_urdf_ref
+
+        t = load_truth(truth) if truth and split_urdf_ref(robot) is not None else None
+        return sim_config(robot, t if t is not None and t.robot == "urdf" else None)
     return load_station_config(default_config_path(robot))
 
 
@@ -406,7 +456,10 @@ class SimulatorProcess:
         import subprocess
 
         self.robot, self.config_path = robot, (Path(config) if config else None)
-        cmd = [sys.executable, str(ROOT / "app.py"), "simulate", "--robot", robot,
+        self.truth = truth
+        from drivers.robot_file import robot_args
+
+        cmd = [sys.executable, str(ROOT / "app.py"), "simulate", *robot_args(robot),
                "--exit-with-parent"]
         if truth:
             cmd += ["--truth", str(truth)]
@@ -459,8 +512,8 @@ class SimulatorProcess:
 
     def station_config(self) -> StationConfig:
         """The station config it was started with, its endpoints filled from this simulator."""
-        return with_endpoints(load_sim_config(self.robot, self.config_path), self.endpoints,
-                              source="simulator")
+        return with_endpoints(load_sim_config(self.robot, self.config_path, self.truth),
+                              self.endpoints, source="simulator")
 
     def stop(self) -> None:
         import subprocess

@@ -3,7 +3,7 @@
 A JSON object, so that a test can hand the simulator values the code has never
 seen::
 
-    {"robot": "agebot-sm" | "agebot-pm",
+    {"robot": "agebot-sm" | "agebot-pm",   # "urdf": drivers/sim/urdf_truth.py
      "parameters": {name: value, ...},   # every parameter of the robot model,
                                          # names as in docs/models.md;
                                          # agebot-sm may add plane_a, plane_b, plane_c
@@ -67,8 +67,10 @@ class SimTruth:
     inclinometer_mount: tuple[float, float] = (0.0, 0.0)
     comment: str | None = None
     source: str | None = None
-    spec: Any = None  # the robot file's SerialSpec, or None for a built-in robot
+    spec: Any = None  # the robot file's SerialSpec (a URDF robot's true UrdfSpec), or None
     robot_file: str | None = None  # its path as the truth file gives it
+    frame: tuple | None = None    # a URDF robot's measurement frame ((x, y, z), (r, p, y))
+    points: tuple | None = None   # a URDF robot's points on the tool (M, 3) tip link frame
 
     def model(self):
         """The robot model (built-in or the robot file's)."""
@@ -97,6 +99,10 @@ def report_truth(robot: str) -> SimTruth:
 def parse_truth(data: Any, source: str | None = None) -> SimTruth:
     """Parse a decoded truth JSON object; errors name ``source`` and the key path."""
     top = KeyReader(data, "", source)
+    if isinstance(data, dict) and data.get("robot") == "urdf":
+        from drivers.sim.urdf_truth import parse_urdf_truth
+
+        return SimTruth(**parse_urdf_truth(top, source))
     spec, file_path = None, None
     if "robot_file" in top.data:
         from drivers.robot_file import load_robot_file
@@ -155,6 +161,10 @@ def load_truth(path: str | Path) -> SimTruth:
 
 def truth_to_dict(truth: SimTruth) -> dict:
     """The JSON object of ``truth`` (inverse of :func:`parse_truth`)."""
+    if truth.robot == "urdf":
+        from drivers.sim.urdf_truth import urdf_truth_dict
+
+        return urdf_truth_dict(truth)
     params = dict(truth.parameters)
     if truth.plane is not None:
         params.update(zip(PLANE_KEYS, truth.plane))
@@ -173,7 +183,11 @@ def truth_to_dict(truth: SimTruth) -> dict:
 
 
 def save_truth(truth: SimTruth, path: str | Path) -> None:
-    """Write ``truth`` as JSON atomically (:func:`drivers.atomic.write_atomic`)."""
+    """Write ``truth`` as JSON atomically (:func:`drivers.atomic.write_atomic`); a URDF
+    robot's true URDF first, beside it (its ``robot_file``, relative to ``path``)."""
+    if truth.robot == "urdf":
+        write_atomic(Path(path).parent / truth.robot_file,
+                     truth.spec.source["text"].encode("utf-8"))
     write_atomic(path, (json.dumps(truth_to_dict(truth), indent=2) + "\n").encode("utf-8"))
 
 

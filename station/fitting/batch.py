@@ -36,6 +36,8 @@ def make_model(trace: Trace, *, method: str | None = None, residual: str | None 
     mi = METHODS[method]
     robot = trace.robot_model()
     nominal = trace.nominal_vector(robot, trace.extra_params(method))
+    if method == "sm-markers":
+        nominal = registered_start(trace, robot, nominal)
     options = {}
     if residual:
         if method not in ("sm-distance", "sm-distance-tilt"):
@@ -45,6 +47,27 @@ def make_model(trace: Trace, *, method: str | None = None, residual: str | None 
         given = all(k in (trace.header.get("nominal") or {}) for k in mi.extra_params)
         options["plane_given"] = given
     return build(method, robot, trace.method_data(method), nominal, **options), nominal
+
+
+def registered_start(trace: Trace, robot, nominal: np.ndarray) -> np.ndarray:
+    """sm-markers recorded at the station: the header knows the robot, not the instrument's
+    frame nor the points on the tool (measured after the header was written); their
+    start values are estimated from the fit poses as an import estimates them
+    (:func:`station.recording.import_markers.start_values`: the reference-free start,
+    with its checks). A trace whose header gives them (an import) keeps its own."""
+    from calibration.methods.sm_markers import marker_names
+    from station.recording.import_markers import pose_arrays, spread, start_values
+
+    names = marker_names(trace.n_markers)
+    if all(n in (trace.header.get("nominal") or {}) for n in names):
+        return nominal
+    start = start_values(robot, *pose_arrays(spread(trace.fit_poses)), str(trace.path))
+    out = np.array(nominal, dtype=float)
+    for name, v in start.items():
+        k = (robot.index(name) if name in robot.param_names
+             else robot.n_params + names.index(name))
+        out[k] = v
+    return out
 
 
 def calibrate_trace(trace_path: str, *, out: str | None = None, method: str | None = None,

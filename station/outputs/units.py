@@ -38,6 +38,8 @@ def channel_si(channel: str) -> str:
         return CHANNEL_SI[channel]
     if channel[:2] == "qm" and channel[2:].isdigit():
         return "u"
+    if channel[:1] == "m" and channel[-2:] in ("_x", "_y", "_z") and channel[1:-2].isdigit():
+        return "m"              # a point on the tool (the motion capture's m1_x, ...)
     return ""
 
 

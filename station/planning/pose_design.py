@@ -27,10 +27,10 @@ DESIGNS = ("optimal", "random")
 
 #: std of one reading per solver row channel where the caller gives none: the
 #: station's devices (draw-wire 10 um, inclinometer 1.7e-4 rad, a tracker 0.1 mm,
-#: the wrist's orientation sensor 1e-3 rad, a touch 0.1 mm).
+#: the wrist's orientation sensor 1e-3 rad, a touch 0.1 mm, a point on the tool 0.1 mm).
 DEFAULT_NOISE = {"distance": 1e-5, "tilt": 1.7e-4, "roll": 1.7e-4, "pitch": 1.7e-4,
                  "x": 1e-4, "y": 1e-4, "z": 1e-4, "phi": 1e-4, "plane": 1e-4,
-                 "alpha": 1e-3, "beta": 1e-3, "gamma": 1e-3}
+                 "alpha": 1e-3, "beta": 1e-3, "gamma": 1e-3, "marker": 1e-4}
 
 #: how many candidates the planner draws per pose asked for
 POOL_FACTOR = 10
@@ -87,12 +87,17 @@ def row_noise(method: str, noise: dict | None) -> dict:
 def pool_model(method: str, robot, x_plan, qm, *, reference_qm=None, group=None,
                components=None, mount=(0.0, 0.0), plane=None, distance_zero="exact"):
     """The measurement model of ``method`` over the candidate poses ``qm``, with the
-    readings the planning model ``x_plan`` predicts there (so the model fits them)."""
+    readings the planning model ``x_plan`` predicts there (so the model fits them).
+    sm-markers: ``x_plan`` carries the points on the tool after the robot's parameters
+    (``marker{j}_x, _y, _z``, the method's own)."""
     mi = METHODS[method]
-    x_plan = np.asarray(x_plan, dtype=float)[:robot.n_params]
+    x_all = np.asarray(x_plan, dtype=float)
+    x_plan = x_all[:robot.n_params]
+    points = x_all[robot.n_params:] if method == "sm-markers" else None
     qm = np.atleast_2d(np.asarray(qm, dtype=float))
     if getattr(robot, "spec", None) is not None:     # a robot file's serial arm
-        channels = readings(robot, method, x_plan, qm, reference_qm=reference_qm, mount=mount)
+        channels = readings(robot, method, x_plan, qm, reference_qm=reference_qm, mount=mount,
+                            points=points)
     else:
         channels = simulate.measure(method, robot, x_plan, qm, reference_qm=reference_qm,
                                     mount=mount)
@@ -111,16 +116,26 @@ def pool_model(method: str, robot, x_plan, qm, *, reference_qm=None, group=None,
         options["plane_given"] = True
     elif method == "pm-tilt":
         extras = list(mount)
+    elif method == "sm-markers":
+        extras = list(points)
     if mi.kind == "parallel-wrist":
         options["start"] = "nominal"
     return build(method, robot, data, np.r_[x_plan, extras], **options)
 
 
-def readings(robot, method: str, xi, qm, *, reference_qm=None, mount=(0.0, 0.0)) -> dict:
+def readings(robot, method: str, xi, qm, *, reference_qm=None, mount=(0.0, 0.0),
+             points=None) -> dict:
     """The noise-free readings of ``method``'s channels of the robot file's ``robot``
     with parameters ``xi`` at actuator values ``qm (m, n)`` (none for the touching
-    methods: their constraint is the measurement)."""
+    methods: their constraint is the measurement); sm-markers: ``points`` on the tool
+    (``(M, 3)`` in the tip link's frame, or flat) in the instrument's frame."""
     qm = np.atleast_2d(np.asarray(qm, dtype=float))
+    if method == "sm-markers":
+        u = np.asarray(points if points is not None else (), dtype=float).reshape(-1, 3)
+        if not len(u):
+            raise CalibrationError("sm-markers' readings need the points on the tool")
+        T = robot.frames(qm, np.asarray(xi, dtype=float)[:robot.n_params])
+        return {"markers": T[:, None, :3, 3] + np.einsum("mij,kj->mki", T[:, :3, :3], u)}
     if method in ("sm-full-pose", "sm-position"):
         X = robot.fk(qm, xi)
         return {"position": X[:, :3]} if method == "sm-position" else {"pose": X}

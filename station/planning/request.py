@@ -10,7 +10,7 @@ from calibration.methods import METHODS
 
 # methods a session measures unattended (the wizard offers these) and those that
 # need guided touching (a session with a ``touch`` callback)
-SESSION_METHODS = ("sm-distance", "sm-distance-tilt", "pm-ik", "pm-fk", "pm-tilt")
+SESSION_METHODS = ("sm-distance", "sm-distance-tilt", "pm-ik", "pm-fk", "pm-tilt", "sm-markers")
 TOUCH_METHODS = ("sm-self-redundancy", "sm-plane")
 # not identifiable, influencing the model: the session's start values must be right
 MUST_KNOW = {"sm-plane": ("L4", "theta0", "a0", "plane_a", "plane_b", "plane_c"),

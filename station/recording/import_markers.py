@@ -84,8 +84,8 @@ def import_markers(csv_path, robot_path, *, base_link, tip_link, length_unit="m"
     check_pose_set(poses, reader.lines, str(csv_path))
     fit = [p for p in poses if p.get("use", "fit") == "fit"]
     held = [p for p in poses if p.get("use") == "validation"]
-    nominal = start_values(robot, *_arrays(_spread(fit)), str(csv_path),
-                           held=(*_arrays(_spread(held)), str(validation)) if held else None)
+    nominal = start_values(robot, *pose_arrays(spread(fit)), str(csv_path),
+                           held=(*pose_arrays(spread(held)), str(validation)) if held else None)
     imported = {"file": Path(str(csv_path)).name, "sha256": digests[str(csv_path)]}
     if validation:
         imported["validation"] = {"file": Path(str(validation)).name,
@@ -113,14 +113,14 @@ MIN_FIT_POSES = 3
 START_POSES = 2000
 
 
-def _spread(poses: list) -> list:
+def spread(poses: list) -> list:
     """At most :data:`START_POSES` of ``poses``, spread over them in order."""
     if len(poses) <= START_POSES:
         return poses
     return [poses[int(k)] for k in np.linspace(0, len(poses) - 1, START_POSES)]
 
 
-def _arrays(poses) -> tuple[np.ndarray, np.ndarray]:
+def pose_arrays(poses) -> tuple[np.ndarray, np.ndarray]:
     """``(qm (n, N), points (n, M, 3))`` of pose records, nan where a point is not seen."""
     qm = np.array([p["qm"] for p in poses], dtype=float)
     pts = np.array([[[math.nan] * 3 if c is None else c for c in p["markers"]] for p in poses],

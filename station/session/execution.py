@@ -10,6 +10,8 @@ one is measured. :meth:`ExecutionLoop.pause`, :meth:`ExecutionLoop.resume` and
 """
 from __future__ import annotations
 
+import math
+
 import dataclasses
 import time
 from dataclasses import dataclass, field
@@ -218,7 +220,7 @@ class ExecutionLoop:
         beyond the config's actuator limits is skipped unmoved; the arm's move is watched
         against its current model, and where it departs the arm stops, the pose is
         skipped and the round re-planned. False where the pose was not reached."""
-        env = self.config.envelope
+        env = self.kind.envelope(self.config.envelope)
         why = limit_violation(pose.qm, env)
         if why is not None:
             self._skip(pose, f"pose {pose.index} skipped before moving: {why}", resume.DROPPED)
@@ -293,7 +295,8 @@ class ExecutionLoop:
         qm = [m[f"qm{i + 1}"] for i in range(n)]
         rec = {"record": "pose", "index": self._next_index, "plan_index": pose.index,
                "qm": qm, "target": list(pose.target), "use": pose.use, "t": snap.t_start,
-               "samples": snap.samples, "std": {k: v for k, v in snap.std.items()}}
+               "samples": snap.samples,
+               "std": {k: (v if math.isfinite(v) else None) for k, v in snap.std.items()}}
         if pose.group is not None:
             rec["group"] = int(pose.group)
         rec.update(self.kind.reading_record(m))

@@ -48,6 +48,11 @@ def check_config(config, method: str) -> None:
         raise ConfigError(f"{method} measures distances, and the station config has no "
                           "[drawwire] section (the draw-wire's link, scale and word order)",
                           source=config.source, key="drawwire")
+    if method == "sm-markers" and getattr(config, "mocap", None) is None:
+        raise ConfigError("sm-markers measures points on the tool with a point instrument, and "
+                          "the station config has no [mocap] section (the motion capture's "
+                          "link, the labels of the points, its measuring volume)",
+                          source=config.source, key="mocap")
     axes = INCLINOMETER_AXES.get(method, ())
     if method == "sm-distance-tilt" and getattr(config, "spec", None) is not None:
         axes = ("roll", "pitch")

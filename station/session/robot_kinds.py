@@ -11,7 +11,9 @@
   pitch, and a URDF of the calibration beside the parameter file.
 
 The session (:class:`station.session.session.Session`) holds one (``session.kind``,
-:func:`robot_kind`) and asks it; a new robot kind is a class here.
+:func:`station.session.kinds.robot_kind`) and asks it; a new robot kind is a class here
+(or beside: :class:`station.session.marker_kind.MarkersKind`, a URDF robot measured by a
+point instrument).
 """
 from __future__ import annotations
 
@@ -93,6 +95,14 @@ class RobotKind:
 
     #: a URDF of the calibration is written beside the parameter file
     urdf = False
+
+    def envelope(self, env):
+        """The envelope a move is watched in (the config's)."""
+        return env
+
+    def header(self) -> dict:
+        """What the kind adds to the trace's header (sm-markers: the points' count)."""
+        return {}
 
     def export(self, doc: dict) -> None:
         """What the kind adds to the parameter file ``doc`` before it is written."""
@@ -349,12 +359,3 @@ class SerialKind(RobotKind):
 
     def export(self, doc: dict) -> None:
         doc["robot_file"] = dict(self.s.config.spec.source)   # the calibration keeps it
-
-
-def robot_kind(session) -> RobotKind:
-    """The kind of ``session``'s robot: a robot file's arm, the wrist or the arm."""
-    if session.config.spec is not None:
-        return SerialKind(session)
-    if session.robot.name == "agebot-pm":
-        return WristKind(session)
-    return ArmKind(session)

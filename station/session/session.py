@@ -74,7 +74,7 @@ from station.session.folder import PARAMS, REPORT, TRACE, URDF
 from station.session.planning_step import PlanningStep
 from station.session.reference import ReferenceStep
 from station.session.retries import REFERENCE_RETRIES, FaultPolicy, Retries, retry_then_skip
-from station.session.robot_kinds import robot_kind
+from station.session.kinds import robot_kind
 
 log = logging.getLogger("station.session")
 
@@ -116,6 +116,11 @@ class Session(ReferenceStep, PlanningStep, ExecutionLoop, ConfirmStep, Calibrati
         if robot.kind != mi.kind:
             raise ConfigError(f"the station is for {config.robot} (a {robot.kind} robot), method "
                               f"{method} needs a {mi.kind} one", source=config.source, key="robot")
+        if mi.urdf_only and not hasattr(config.spec, "base_link"):
+            raise ConfigError(f"{method} calibrates a URDF robot (its instrument frame is a free "
+                              f"rigid frame); the station is for {config.robot}: "
+                              "robot_file = \"arm.urdf\" with base_link and tip_link",
+                              source=config.source, key="robot")
         plausibility.check_config(config, method)     # before any motion
         self.config, self.method, self.info = config, method, mi
         self.units = units_from_config(config)         # numbers for people
@@ -233,6 +238,7 @@ class Session(ReferenceStep, PlanningStep, ExecutionLoop, ConfirmStep, Calibrati
                                   else [], **self.station_record}}
             if self.components:
                 header["components"] = list(self.components)
+            header.update(self.kind.header())
             self._writer = TraceWriter.create(self.trace_path, header)
         return self._writer
 

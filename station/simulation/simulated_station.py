@@ -31,7 +31,9 @@ def simulated_station(robot: str, truth: str | None, sim_seed: int | None):
 
 def draw_command(robot: str) -> str:
     """The command line that draws a truth file around ``robot`` (``app.py truth draw``)."""
-    return shlex.join(["python", "app.py", "truth", "draw", "--robot", robot, "--seed", "1",
+    from drivers.robot_file import robot_args
+
+    return shlex.join(["python", "app.py", "truth", "draw", *robot_args(robot), "--seed", "1",
                        "--out", "truth.json"])
 
 

@@ -59,12 +59,13 @@ class StudySpec:
     length: float = 0.05
     offset: float = 0.03
     noise: dict = field(default_factory=dict)
+    robot: str | None = None      # a robot file's path or a URDF robot (None: the built-in)
 
     def robot_name(self) -> str:
         from calibration.methods import METHODS
         from calibration.robots import BUILTIN
 
-        return BUILTIN[METHODS[self.method].kind]
+        return self.robot or BUILTIN[METHODS[self.method].kind]
 
 
 def is_angle(name: str, robot) -> bool:
@@ -98,6 +99,10 @@ def run_one(spec: dict, index: int, design: str) -> dict:
     from station.simulation.tracegen import generate
 
     s = StudySpec(**{**spec, "designs": tuple(spec["designs"])})
+    if s.robot is not None:           # a robot file's or URDF robot's arm
+        from station.simulation.study_files import run_one as run_file
+
+        return run_file(s, index, design, STATION_NOISE, HELD_OUT)
     mi = METHODS[s.method]
     robot = get_robot(BUILTIN[mi.kind])
     rng = np.random.default_rng([s.seed, index])
@@ -188,9 +193,12 @@ def _json_safe(v):
 
 
 def format_summary(spec: StudySpec, summary: dict) -> str:
-    lines = [f"study {spec.method} on {spec.robots} robots drawn around the nominal (gear "
-             f"+-{spec.gear:.0%}, lengths +-{spec.length:.0%}, offsets +-{spec.offset:g}), "
-             f"seed {spec.seed}"]
+    drawn = (f"gear +-{spec.gear:.0%}, lengths +-{spec.length:.0%}, offsets +-{spec.offset:g}"
+             if spec.method != "sm-markers" else
+             "joint origins by mm and mrad, joint zeros by mrad, an instrument and points on "
+             "the tool")
+    lines = [f"study {spec.method} on {spec.robots} robots drawn around the nominal of "
+             f"{spec.robot_name()} ({drawn}), seed {spec.seed}"]
     lines.append(f"{'design':<9}{'poses':>6}{'success':>9}{'RMS z':>8}{'max |z|':>9}"
                  f"{'in 1 std':>10}{'in 2 std':>10}  held-out RMS (median / 95 %)")
     for d, s in summary.items():
@@ -299,6 +307,19 @@ def run_study(spec: StudySpec, out_dir, *, scheduler: str | None = None,
     return summary
 
 
+def _check_file_study(args) -> None:
+    """A study of a robot file's or URDF robot's arm: a method it is simulated with."""
+    from calibration.robots import get_robot
+    from drivers.robot_file import load_robot_file
+
+    robot = get_robot(load_robot_file(args.robot))     # unreadable: one line
+    urdf = hasattr(robot.spec, "base_link")
+    known = ("sm-markers",) if urdf else ("sm-distance", "sm-distance-tilt")
+    if args.method not in known:
+        raise StationError(f"a study of {args.robot} simulates {', '.join(known)}, not "
+                           f"{args.method}")
+
+
 def cli(args) -> int:
     """``app.py study``: check the options, run, print the summary."""
     from calibration.methods import METHODS
@@ -310,17 +331,28 @@ def cli(args) -> int:
 
     if args.method not in METHODS:
         raise StationError(f"unknown method {args.method!r} (known: {', '.join(METHODS)})")
-    if args.method not in NR_P:
-        raise StationError(f"study draws AGEBOT's arm and wrist: method {args.method} is not "
-                           f"one of theirs (study takes {', '.join(NR_P)})")
+    from drivers.robot_file import is_robot_file
+
+    file_robot = None
+    if args.robot and is_robot_file(args.robot):     # a robot file's or URDF robot's arm
+        file_robot = args.robot
+        _check_file_study(args)
+    elif args.method not in NR_P:
+        raise StationError(f"study draws AGEBOT's arm and wrist, or a robot file's or URDF "
+                           f"robot's arm (--robot FILE): method {args.method} is not one of "
+                           f"AGEBOT's (they take {', '.join(NR_P)})")
     robot = BUILTIN[METHODS[args.method].kind]
-    if args.robot and args.robot != robot:
+    if args.robot and not file_robot and args.robot != robot:
         raise StationError(f"method {args.method} is for {robot}, not {args.robot}")
     designs = tuple(d.strip() for d in args.design.split(",") if d.strip())
     bad = [d for d in designs if d not in DESIGNS]
     if bad or not designs:
         raise StationError(f"--design {args.design!r}: expected a comma-separated list of "
                            f"{', '.join(DESIGNS)}")
+    if file_robot and args.method != "sm-markers" and "optimal" in designs:
+        print("note: a robot file's distance methods are studied with poses drawn at random "
+              "(the optimal design is planned by the sessions: app.py run)")
+        designs = ("random",)
     if args.robots < 1:
         raise StationError("--robots must be at least 1")
     for name in ("gear", "length", "offset"):
@@ -334,7 +366,7 @@ def cli(args) -> int:
     out = Path(args.out)
     spec = StudySpec(method=args.method, robots=args.robots, designs=designs, count=args.count,
                      seed=args.seed, gear=args.gear, length=args.length, offset=args.offset,
-                     noise=parse_noise(args.noise, method=args.method))
+                     noise=parse_noise(args.noise, method=args.method), robot=file_robot)
     summary = run_study(spec, out, scheduler=args.scheduler, workers=args.workers)
     print(format_summary(spec, summary))
     print(f"results written to {out / 'study.jsonl'} and {out / 'summary.json'}")

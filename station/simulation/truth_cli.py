@@ -32,6 +32,21 @@ def draw_truth_file(robot: str, out, seed: int, *, gear: float | None = None,
                                                                   else math.inf)):
             raise ConfigError(f"--{name} {v:g}: expected a spread >= 0"
                               + (" and < 1 (relative)" if name != "offset" else " (rad)"))
+    from drivers.robot_file import split_urdf_ref
+
+    if split_urdf_ref(robot) is not None:        # a URDF robot: its own kind of draw
+        if any(v is not None for v in given.values()):
+            raise ConfigError("--gear, --length and --offset are a robot file's spreads; a "
+                              "URDF robot's joint origins are drawn by millimetres and "
+                              "milliradians, its joint zeros by milliradians")
+        from drivers.sim.truth import save_truth
+        from station.simulation.urdf_sessions import truth_beside, urdf_truth
+
+        out = Path(out)
+        truth, _x = urdf_truth(robot, int(seed), f"drawn by app.py truth draw, seed {seed}")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        save_truth(truth_beside(truth, out), out)
+        return out
     if is_robot_file(robot):
         from drivers.robot_file import load_robot_file
 
@@ -58,11 +73,28 @@ def cli(args: argparse.Namespace) -> int:
                            length=args.length, offset=args.offset)
     spread = {k: DRAW_SPREAD[k] if getattr(args, k) is None else getattr(args, k)
               for k in ("gear", "length", "offset")}
+    from drivers.robot_file import split_urdf_ref
+
+    if split_urdf_ref(args.robot) is not None:
+        from drivers.sim.truth import load_truth
+
+        t = load_truth(path)
+        print(f"truth written to {path} and its true URDF to {path.parent / t.robot_file}: "
+              f"{args.robot} drawn around its nominal (seed {args.seed}; joint origins by mm "
+              f"and mrad, joint zeros by mrad), a motion-capture room and {len(t.points)} markers "
+              f"on the tool; use it with --truth {path}")
+        return 0
     print(f"truth written to {path}: {args.robot} drawn around its nominal (seed {args.seed}; "
           f"gear ratios +-{spread['gear']:.3g}, lengths +-{spread['length']:.3g} relative, "
           f"offsets +-{math.degrees(spread['offset']):.3g}\u00b0); use it with --truth "
           f"{path}")
     return 0
+
+
+def add_chain_arguments(p) -> None:
+    """``--base-link``/``--tip-link``: a URDF robot's chain (``--robot FILE.urdf``)."""
+    p.add_argument("--base-link", help="URDF robot: the link the chain starts at")
+    p.add_argument("--tip-link", help="URDF robot: the link the chain ends at")
 
 
 def add_parser(sub) -> None:
@@ -74,7 +106,9 @@ def add_parser(sub) -> None:
     d = tsub.add_parser("draw", help="draw a simulated robot around a robot file's (or "
                                      "AGEBOT's) nominal, for --truth")
     d.add_argument("--robot", required=True, metavar="ROBOT",
-                   help="a robot file (TOML), agebot-sm or agebot-pm")
+                   help="a robot file (TOML), a URDF (with --base-link, --tip-link), "
+                        "agebot-sm or agebot-pm")
+    add_chain_arguments(d)
     d.add_argument("--seed", type=int, default=0, help="seed of the draw and of the "
                    "simulator's noise (default 0)")
     d.add_argument("--out", required=True, help="the truth file to write (JSON)")
@@ -84,4 +118,4 @@ def add_parser(sub) -> None:
                    f"{DRAW_SPREAD['length']:g})")
     d.add_argument("--offset", type=float, help="offsets and angles within +-OFFSET (rad; "
                    f"default {DRAW_SPREAD['offset']:g})")
-    d.set_defaults(func=cli)
+    d.set_defaults(func=cli, robot_chain=True)

@@ -99,10 +99,35 @@ def test_study_bad_options_one_line(tmp_path):
                       (["--method", "sm-distance", "--design", "best"], "--design"),
                       (["--method", "sm-distance", "--gear", "1.5"], "--gear"),
                       (["--method", "sm-distance", "--robot", "agebot-pm"], "is for agebot-sm"),
-                      (["--method", "sm-markers"], "not one of theirs")):
+                      (["--method", "sm-markers"], "not one of AGEBOT's")):
         r = _app("study", *args, "--robots", "2", "--out", str(tmp_path / "x"))
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1
     r = _app("study", "--method", "sm-distance", "--robots", "1", "--scheduler",
              f"tcp://127.0.0.1:{_free_port()}", "--out", str(tmp_path / "y"))
     assert r.returncode == 2 and "cannot reach the Dask scheduler" in r.stderr, r.stderr
+
+
+def test_study_of_a_urdf_robot_and_a_robot_file(tmp_path):
+    """A study takes a robot file's and a URDF robot's arm: drawn around their nominal,
+    calibrated, the reported std honest (|z| RMS near 1) and the held-out error small."""
+    urdf = str(ROOT / "fixtures" / "robots" / "m10ia-like.urdf")
+    r = _app("study", "--method", "sm-markers", "--robot", urdf, "--base-link", "base_link",
+             "--tip-link", "tool0", "--robots", "2", "--workers", "1", "--out",
+             str(tmp_path / "u"))
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "u" / "summary.json").read_text())["summary"]
+    for design in ("optimal", "random"):
+        s = summary[design]
+        assert s["success_rate"] == 1.0 and 0.5 < s["rms_z"] < 2.0, s
+        assert s["heldout_rms"]["marker"]["p95"] < 2e-4          # m: 0.1 mm readings
+    toml = str(ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml")
+    r = _app("study", "--method", "sm-distance", "--robot", toml, "--robots", "2",
+             "--workers", "1", "--out", str(tmp_path / "f"))
+    assert r.returncode == 0, r.stderr
+    assert "drawn at random" in r.stdout
+    s = json.loads((tmp_path / "f" / "summary.json").read_text())["summary"]["random"]
+    assert s["success_rate"] == 1.0 and 0.5 < s["rms_z"] < 2.0, s
+    r = _app("study", "--method", "sm-distance", "--robot", urdf, "--base-link", "base_link",
+             "--tip-link", "tool0", "--robots", "2", "--out", str(tmp_path / "x"))
+    assert r.returncode == 2 and "simulates sm-markers" in r.stderr, r.stderr
