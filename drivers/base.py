@@ -44,6 +44,9 @@ class Device(ABC):
     """
 
     channels: tuple[str, ...] = ()
+    #: a NaN reading is a value the device did not see (a motion capture's occluded
+    #: marker), not a fault; every other device's NaN is one
+    unseen_is_nan: bool = False
 
     def __init__(self, name: str, timeout: float = 1.0):
         self.name = name
@@ -83,7 +86,8 @@ class Device(ABC):
             raise DeviceError("device is not open", device=self.name)
         sample = self._read_internal(self.timeout if timeout is None else float(timeout))
         for ch, v in sample.values.items():
-            if not isinstance(v, (int, float)) or not math.isfinite(v):
+            if not isinstance(v, (int, float)) or math.isinf(v) or (
+                    math.isnan(v) and not self.unseen_is_nan):
                 raise DeviceError(f"channel {ch!r} gave a non-finite value {v!r}", device=self.name)
         return sample
 

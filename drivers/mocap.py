@@ -100,6 +100,8 @@ class MotionCapture(Device):
                 before :class:`DeviceTimeout`.
     """
 
+    unseen_is_nan = True      # a marker not seen reads NaN: a pose with fewer points
+
     def __init__(self, host: str, port: int = DEFAULT_PORT, labels=(), frames: int = 20,
                  timeout: float = 1.0, name: str = "motion capture"):
         labels = tuple(labels)
@@ -161,17 +163,6 @@ class MotionCapture(Device):
                 "std": {lab: tuple(map(float, s)) for lab, s in zip(self.labels, std)},
                 "drift": {lab: tuple(map(float, d)) for lab, d in zip(self.labels, drift)}}
         return Sample(time.monotonic(), values, self._seq, info)
-
-    def read(self, timeout: float | None = None) -> Sample:
-        """:meth:`Device.read`, but NaN is a marker not seen, not a fault (the base
-        refuses every non-finite value); an infinite or non-number value still is."""
-        if not self.is_open:
-            raise DeviceError("device is not open", device=self.name)
-        sample = self._read_internal(self.timeout if timeout is None else float(timeout))
-        for ch, v in sample.values.items():
-            if not isinstance(v, (int, float)) or math.isinf(v):
-                raise DeviceError(f"channel {ch!r} gave an invalid value {v!r}", device=self.name)
-        return sample
 
     # -- the event loop ---------------------------------------------------------------------
     def _start_loop(self) -> None:

@@ -53,21 +53,25 @@ def check_validation(quality, validation: list[dict]) -> None:
         extra = {"points": dict(pts)} if pts else {}
         quality.check("validation", ok, text, channel=v["channel"], rms_before=before,
                       rms_after=after, **extra)
-    for v in validation:
-        out = v.get("outside_range")
-        if out:
-            named = ", ".join(f"{pose_name(p)}: {p['why']}" if p.get("where") else
-                              f"pose {p['pose']} ({p['why']})" for p in out["poses"][:3])
-            more = f" and {len(out['poses']) - 3} more" if len(out["poses"]) > 3 else ""
-            unit = "mm" if v.get("points") else v["unit"]
-            fig = ((mm(out["rms"]), mm(out["max"])) if v.get("points")
-                   else (f"{out['rms']:.4g}", f"{out['max']:.4g}"))
-            quality.check("extrapolation", True,
-                          f"validation: {len(out['poses'])} held-out pose(s) lie outside "
-                          f"the fitted poses' joint ranges: {named}{more}; their errors "
-                          f"(RMS {fig[0]}, max {fig[1]} {unit}) are an extrapolation, "
-                          "reported and not judged", channel=v["channel"],
-                          outside_range=out)
+    beyond = [v for v in validation if v.get("outside_range")]
+    if beyond:             # the same poses for every channel: one line, each channel's errors
+        out = beyond[0]["outside_range"]
+        named = ", ".join(f"{pose_name(p)}: {p['why']}" if p.get("where") else
+                          f"pose {p['pose']} ({p['why']})" for p in out["poses"][:3])
+        more = f" and {len(out['poses']) - 3} more" if len(out["poses"]) > 3 else ""
+        figs = []
+        for v in beyond:
+            o = v["outside_range"]
+            if v.get("points"):
+                figs.append(f"points RMS {mm(o['rms'])}, max {mm(o['max'])} mm")
+            else:
+                figs.append(f"{v['channel']} RMS {people(o['rms'], v['channel'], v['unit'])}, "
+                            f"max {people(o['max'], v['channel'], v['unit'])}")
+        quality.check("extrapolation", True,
+                      f"validation: {len(out['poses'])} held-out pose(s) lie outside "
+                      f"the fitted poses' joint ranges: {named}{more}; their errors "
+                      f"({'; '.join(figs)}) are an extrapolation, reported and not judged",
+                      channel=beyond[0]["channel"], outside_range=out)
     for v in validation:
         o = v.get("outlier")
         if o:

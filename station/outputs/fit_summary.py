@@ -188,8 +188,10 @@ def scale_note(outcome) -> list[str]:
     if src:
         return [f"note: the draw-wire's scale {s:.8g} +- {u:.2g} ({src}) is in every "
                 "calibrated length and its std"]
+    which = ("1 % of L2..L4 and k1" if outcome.trace.robot == "agebot-sm"
+             else "1 % of every length")
     return ["note: distance and tilt do not observe the draw-wire's scale: the calibrated "
-            "lengths and ratios carry its error (1 % of scale, 1 % of L2..L4 and k1); pin "
+            f"lengths and ratios carry its error (1 % of scale, {which}); pin "
             "it with batch --distance-scale S,STD from its certificate or a known length"]
 
 
