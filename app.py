@@ -11,6 +11,7 @@
     python app.py run --config FILE --robot R --method M --out DIR   (docs/real-station.md)
     python app.py study --method M --robots N --out DIR
     python app.py truth draw --robot R --seed N --out TRUTH.json
+    python app.py compensate PARAMS.json --program IN.csv --out OUT.csv
     python app.py doctor               what this machine lacks, and how to install it
 
 Every command exits 0 on success and non-zero with a one-line reason on stderr
@@ -458,6 +459,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
     add_truth_parser(sub)       # truth draw: a simulated robot around a nominal
+
+    cp = sub.add_parser("compensate", help="a program's joint values rewritten so that the "
+                        "calibrated robot reaches the nominal targets (docs/compensation.md)")
+    cp.add_argument("params", help="the parameter file")
+    cp.add_argument("--program", required=True, metavar="IN.csv",
+                    help="joint values as the nominal controller runs them, a row per target "
+                         "(other columns are passed through)")
+    cp.add_argument("--out", required=True, metavar="OUT.csv")
+    cp.add_argument("--angle-unit", choices=("rad", "deg"),
+                    help="URDF robots: unit of the revolute joints' columns (default rad)")
+    cp.add_argument("--length-unit", choices=("m", "mm"),
+                    help="URDF robots: unit of the prismatic joints' columns (default m)")
+    cp.add_argument("--joint-map", metavar="FILE",
+                    help="URDF robots: how the URDF's joints follow from the controller's "
+                         "columns (docs/urdf-robots.md); written back into them")
+    cp.set_defaults(func=_delegate("station.outputs.compensate", "main"))
 
     gui = sub.add_parser("gui", help="the operator's Qt wizard")
     gui.add_argument("--simulate", action="store_true")
