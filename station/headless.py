@@ -134,7 +134,13 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError("give --config FILE (the station's devices) or --simulate")
     config = load_station_config(args.config)
     want = getattr(args, "robot", None)
-    if want and not _same_robot(want, config.robot):
+    from drivers.robot_file import is_robot_file
+
+    if want and is_robot_file(want):   # a robot file or a URDF robot: its checksum and chain
+        from drivers.config import check_config_robot
+
+        check_config_robot(config, want)
+    elif want and not _same_robot(want, config.robot):
         raise ConfigError(f"the station config is for {config.robot}, not {want} (--robot): "
                           "give the config of this robot's station, or leave --robot out",
                           source=config.source, key="robot")

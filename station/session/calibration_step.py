@@ -128,14 +128,23 @@ class CalibrationStep:
 
     def _export_urdf(self, doc: dict) -> str | None:
         """A robot file's calibration as URDF (``calibrated.urdf``,
-        station/outputs/export.py); None, said in an event, where a calibrated ratio k is
-        not 1."""
+        station/outputs/export.py): a URDF robot's own URDF with its joint origins
+        calibrated (:func:`station.outputs.export_urdf.calibrated_urdf`, as ``app.py export
+        --urdf``; its links, joint names and the rest of the file as written), a robot
+        file's chain written as URDF (:func:`~station.outputs.export.urdf_text`). None, said
+        in an event, where a calibrated ratio k is not 1."""
         from drivers.atomic import write_atomic
         from station.outputs.export import calibrated_model, urdf_text
 
         path = self.out / URDF
         try:
-            text = urdf_text(*calibrated_model(doc, str(self.out / PARAMS)))
+            robot, xi = calibrated_model(doc, str(self.out / PARAMS))
+            if hasattr(robot, "calibrated_origins"):       # a URDF robot
+                from station.outputs.export_urdf import calibrated_urdf
+
+                text = calibrated_urdf(robot, xi)
+            else:
+                text = urdf_text(robot, xi)
         except ConfigError as e:
             self._event("warning", f"no URDF: {e}")
             return None

@@ -113,10 +113,12 @@ class SimRun:
 
 
 def simulated_session(truth: SimTruth, folder: Path, method: str, request, config: Path,
-                      seed: int) -> SimRun:
+                      seed: int, robot: str | None = None) -> SimRun:
     """Run one unattended session on the simulated ``truth`` (its own process, the
     station ``config``) in ``folder / "run"``; the traceback of a failure is kept in
-    ``folder / "error.txt"``. Shared by the arm's and the wrist's Monte Carlo."""
+    ``folder / "error.txt"``. Shared by the arm's, the wrist's and the URDF robot's
+    Monte Carlo (``robot``: the simulator's ``--robot``, a URDF robot's
+    :func:`~drivers.robot_file.urdf_ref`; default the truth's robot file or robot)."""
     from drivers.sim.server import SimulatorProcess
     from station.session.session import Session
 
@@ -124,7 +126,7 @@ def simulated_session(truth: SimTruth, folder: Path, method: str, request, confi
     truth_file = folder / "truth.json"
     t0 = time.monotonic()
     completed, error, refused = False, "", False
-    with SimulatorProcess(truth.robot_file or truth.robot, truth=str(truth_file),
+    with SimulatorProcess(robot or truth.robot_file or truth.robot, truth=str(truth_file),
                           config=str(config), seed=seed) as sim:
         cfg = with_endpoints(load_station_config(config), sim.endpoints, source="simulator")
         s = Session(cfg, method, folder / "run", request=request)
