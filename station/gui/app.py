@@ -12,7 +12,8 @@ from calibration.errors import ConfigError
 def create(simulate: bool = False, config: str | None = None, settings=None,
            robot: str | None = None, truth: str | None = None):
     """The controller and main window (the Qt application must exist); ``robot``
-    preselected on the setup page (a built-in name or a robot file)."""
+    preselected on the setup page (a built-in name, a robot file or a URDF robot's
+    :func:`drivers.robot_file.urdf_ref`, its links chosen)."""
     from PySide6.QtCore import QSettings
 
     from station.gui.controller import Controller
@@ -29,7 +30,7 @@ def create(simulate: bool = False, config: str | None = None, settings=None,
         setup.set_choice(robot, "")
         if setup.robot_key is None or (setup.robot_key != robot and not setup.robot_file):
             raise ConfigError(f"--robot {robot}: not a robot the wizard knows (agebot-sm, "
-                              "agebot-pm or a robot file)")
+                              "agebot-pm, a robot file or a URDF)")
     return window
 
 
@@ -65,10 +66,13 @@ def main(args: argparse.Namespace) -> int:
     app.setApplicationName("Calibration station")
     app.setOrganizationName("calstation")
     robot = getattr(args, "robot", None)
+    from drivers.robot_file import split_urdf_ref
     from drivers.sim.serial_robot import is_robot_file
 
-    if robot and is_robot_file(robot) and not Path(robot).is_file():
-        raise ConfigError(f"no such robot file: {robot}", source=robot)
+    ref = split_urdf_ref(robot) if robot else None
+    path = ref[0] if ref is not None else robot       # a URDF robot: its file
+    if robot and is_robot_file(robot) and not Path(path).is_file():
+        raise ConfigError(f"no such robot file: {path}", source=path)
     window = create(bool(getattr(args, "simulate", False)), config,
                     robot=robot, truth=getattr(args, "truth", None))
     window.show_fitted()

@@ -23,6 +23,8 @@ from station.outputs.units import MM_DEG
 
 INK, ARM, TARGET, CABLE, OK, BAD = ("#202124", "#3c6e9f", "#d35400", "#6a1b9a", "#1b7a2f",
                                      "#b3261e")
+# the points on the tool (sm-markers): where the estimate puts them, and read now
+MARKER_EST, MARKER_SEEN = "#e67e22", "#117a65"
 NEAR_M = 0.01            # end effector this close to the target counts as there (m, nominal)
 FAR_M = 0.05             # a reference captured farther from the mark is warned about (m)
 MOUNT_TOLERANCE = math.radians(2.0)

@@ -152,11 +152,14 @@ class WorkspacePlot(Canvas):
         super().__init__(260, parent)
         self.count = 0
 
-    def _poses(self, ax, poses, measured, scale: float) -> None:
+    def _poses(self, ax, poses, measured, scale: float, at=None) -> None:
+        """The poses' tool positions (their targets, or ``at`` ``(m, 3)``), fit and held
+        out, measured filled, and the line of travel."""
         measured = set(measured)
+        at = np.array([p.target[:3] for p in poses], dtype=float) if at is None else at
         for use, color, name in (("fit", "#1f77b4", "fit"), ("validation", "#ff7f0e", "held out")):
             for done in (False, True):
-                P = np.array([p.target[:3] for p in poses
+                P = np.array([x for p, x in zip(poses, at)
                               if p.use == use and (p.index in measured) == done], dtype=float)
                 if P.size == 0:
                     continue
@@ -165,7 +168,7 @@ class WorkspacePlot(Canvas):
                            edgecolors=color, linewidths=1.2,
                            label=f"{name} ({'measured' if done else 'to measure'})")
         if len(poses) > 1:
-            T = np.array([p.target[:3] for p in poses], dtype=float) * scale
+            T = at * scale
             ax.plot(T[:, 0], T[:, 1], T[:, 2], color="#999", lw=0.6, alpha=0.7)
 
     @staticmethod
@@ -200,10 +203,15 @@ class WorkspacePlot(Canvas):
             ax.legend(fontsize=7, loc="upper left", frameon=False)
         self.draw_idle()
 
-    def show_arm_plan(self, poses, robot, xi, reference_qm=None, measured=()) -> None:
+    def show_arm_plan(self, poses, robot, xi, reference_qm=None, measured=(),
+                      from_qm: bool = False) -> None:
         """A robot file's plan: the tool origins of the poses (model ``xi``, base frame),
-        the reference point with the arm there (grey) and the floor ``z = 0``."""
-        from station.gui.arm_drawing import draw_arm, draw_floor, setup_axes, stick, view_box
+        the reference point with the arm there (grey) and the floor ``z = 0``. ``from_qm``
+        (a URDF robot measured by a point instrument, whose targets are in the instrument's
+        frame once it is estimated): the tool origins of the poses' actuator values, in
+        the base link's frame."""
+        from station.gui.arm_drawing import (base_frame, draw_arm, draw_floor, setup_axes,
+                                             stick, view_box)
         from station.gui.widgets import display_units
 
         fig = self.figure
@@ -212,6 +220,10 @@ class WorkspacePlot(Canvas):
         ax.view_init(elev=22, azim=-60)
         self.count = len(poses)
         unit, scale = display_units().unit("m")
+        xi = base_frame(robot, xi)
+        tools = None
+        if from_qm and poses:
+            tools = robot.frames(np.array([p.qm for p in poses], dtype=float), xi)[:, :3, 3]
         at = reference_qm if reference_qm is not None else (poses[0].qm if poses else None)
         if at is not None:
             lo, hi = view_box(robot, xi, at)
@@ -222,7 +234,7 @@ class WorkspacePlot(Canvas):
             if reference_qm is not None:
                 self._reference(ax, arm.tool[:3, 3], scale)
             setup_axes(ax, lo, hi, scale, unit)
-        self._poses(ax, poses, measured, scale)
+        self._poses(ax, poses, measured, scale, tools)
         ax.set_title("planned tool positions (line: order of travel)", fontsize=9)
         if poses:
             ax.legend(fontsize=7, loc="upper left", frameon=False)

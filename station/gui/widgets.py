@@ -46,6 +46,35 @@ def channel_text(channel: str, value: float, units=None) -> tuple[str, str]:
     return fixed(value * factor, DECIMALS.get(label, 4)), label
 
 
+def is_marker(channel: str) -> bool:
+    """Whether ``channel`` is a coordinate of a point on the tool (``m1_x``: the motion
+    capture's, m in its frame; NaN where it does not see the point)."""
+    return channel_si(channel) == "m" and channel[:1] == "m" and channel[-2:-1] == "_"
+
+
+def marker_channels(count: int) -> tuple[str, ...]:
+    """``m1_x, m1_y, m1_z, ... mM_z``: the motion capture's channels of ``count`` points."""
+    return tuple(f"m{k}_{a}" for k in range(1, count + 1) for a in "xyz")
+
+
+def markers_text(values: dict, labels=(), units=None) -> str:
+    """The points on the tool read now, for people: ``m1 tool1 (x, y, z) mm; m2 tool2 not
+    seen`` in the display units (a point not seen is said so: not an error)."""
+    u = units or _UNITS[0]
+    unit, _ = u.unit("m")
+    out, k = [], 1
+    while f"m{k}_x" in values:
+        xyz = [values.get(f"m{k}_{a}") for a in "xyz"]
+        name = f"m{k}" + (f" {labels[k - 1]}" if k <= len(labels) else "")
+        if any(v is None or not math.isfinite(v) for v in xyz):
+            out.append(f"{name} not seen")
+        else:
+            out.append(f"{name} (" + ", ".join(u.number(v, "m", ".5g") for v in xyz)
+                       + f") {unit}")
+        k += 1
+    return "; ".join(out)
+
+
 def channel_label(channel: str) -> str:
     return {"tilt": "tilt (last link)", "distance": "distance (draw-wire)"}.get(channel, channel)
 
@@ -80,36 +109,65 @@ class ReadingsPanel(QFrame):
     """Channel -> value in large type, updated live (``set_values``).
 
     channels: the channels to show, in order (others are added as they come).
+    marker_grid: a point on the tool (``m1_x, m1_y, m1_z``) in one row, its x, y, z side
+    by side under a header (where nine rows of them would not fit).
     """
 
-    def __init__(self, channels=(), large: bool = True, parent=None):
+    def __init__(self, channels=(), large: bool = True, parent=None,
+                 marker_grid: bool = False):
         super().__init__(parent)
         self.setFrameShape(QFrame.Shape.StyledPanel)
         self._grid = QGridLayout(self)
         self._grid.setHorizontalSpacing(12)
         self._rows: dict[str, tuple[QLabel, QLabel]] = {}
         self._large = large
+        self._marker_grid = marker_grid
+        self._marker_rows: dict[str, tuple[int, QLabel]] = {}    # "m1" -> (row, its name)
+        self._next = 0                                            # the next free row
         self.values: dict[str, float] = {}
         for ch in channels:
             self._row(ch)
 
+    def _value_label(self, ch: str) -> QLabel:
+        value = QLabel("\u2013")
+        value.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+        value.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        value.setAccessibleName(f"{ch} reading")
+        # the motion capture's 3 coordinates a point: in the label's size (15 rows of
+        # an arm with 3 markers in sight at 1366x768 less a taskbar and a title bar)
+        if self._large and not is_marker(ch):
+            f = QFont(value.font())
+            f.setPointSizeF(f.pointSizeF() * 1.5)
+            f.setFamily("DejaVu Sans Mono")
+            value.setFont(f)
+        value.setMinimumWidth(80 if self._marker_grid and is_marker(ch) else 120)
+        return value
+
     def _row(self, ch: str):
-        if ch not in self._rows:
+        if ch in self._rows:
+            return self._rows[ch]
+        value = self._value_label(ch)
+        if self._marker_grid and is_marker(ch):
+            point = ch[:-2]
+            if not self._marker_rows:       # the header of the points' coordinates
+                for c, axis in enumerate("xyz", start=1):
+                    head = QLabel(axis)
+                    head.setAlignment(Qt.AlignmentFlag.AlignRight)
+                    self._grid.addWidget(head, self._next, c)
+                self._next += 1
+            if point not in self._marker_rows:
+                name = QLabel(point)
+                self._grid.addWidget(name, self._next, 0)
+                self._marker_rows[point] = (self._next, name)
+                self._next += 1
+            r, name = self._marker_rows[point]
+            self._grid.addWidget(value, r, 1 + "xyz".index(ch[-1]))
+        else:
             name = QLabel(channel_label(ch))
-            value = QLabel("\u2013")
-            value.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
-            value.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
-            value.setAccessibleName(f"{ch} reading")
-            if self._large:
-                f = QFont(value.font())
-                f.setPointSizeF(f.pointSizeF() * 1.5)
-                f.setFamily("DejaVu Sans Mono")
-                value.setFont(f)
-            value.setMinimumWidth(120)
-            r = len(self._rows)
-            self._grid.addWidget(name, r, 0)
-            self._grid.addWidget(value, r, 1)
-            self._rows[ch] = (name, value)
+            self._grid.addWidget(name, self._next, 0)
+            self._grid.addWidget(value, self._next, 1)
+            self._next += 1
+        self._rows[ch] = (name, value)
         return self._rows[ch]
 
     def set_channels(self, channels) -> None:
@@ -121,7 +179,10 @@ class ReadingsPanel(QFrame):
             if ch in self._rows or not self._rows:
                 self.values[ch] = v
                 text, unit = channel_text(ch, v)
-                self._row(ch)[1].setText(f"{text} {unit}")
+                if is_marker(ch) and text == "\u2013" and v is not None:
+                    # the motion capture's NaN: no fault; said once a point in the grid
+                    text, unit = ("" if self._marker_grid and ch[-1] != "x" else "not seen"), ""
+                self._row(ch)[1].setText(f"{text} {unit}".strip())
 
     def text_of(self, ch: str) -> str:
         return self._rows[ch][1].text() if ch in self._rows else ""
@@ -151,8 +212,11 @@ class DeviceTable(QTableWidget):
             self.states[dev.name] = dev.ok
             state = QTableWidgetItem("\u2713 OK" if dev.ok else "\u2717 fault")
             state.setForeground(QColor(OK_COLOR if dev.ok else BAD_COLOR))
-            text = (", ".join(f"{ch} {' '.join(channel_text(ch, v))}"
-                              for ch, v in dev.values.items()) if dev.ok else dev.text)
+            if dev.ok and any(is_marker(ch) for ch in dev.values):    # the motion capture
+                text = markers_text(dev.values, getattr(dev, "labels", ()))
+            else:
+                text = (", ".join(f"{ch} {' '.join(channel_text(ch, v))}"
+                                  for ch, v in dev.values.items()) if dev.ok else dev.text)
             for c, item in enumerate((QTableWidgetItem(dev.name), state, QTableWidgetItem(text))):
                 item.setToolTip(text)
                 self.setItem(r, c, item)

@@ -26,10 +26,12 @@ from station.gui.pages.reference import ReferencePage
 from station.gui.pages.setup import SetupPage
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
-GUIDE = ("1 Setup: choose the robot (AGEBOT or a robot file) and the method, a session folder, "
+GUIDE = ("1 Setup: choose the robot (AGEBOT, a robot file, or a URDF with the base and tip "
+         "links of the chain to calibrate) and the method, a session folder, "
          "then Connect; what is missing is listed above the Connect button.\n"
          "2 Reference: jog the robot to the suggested point (or press Go to), attach the "
-         "draw-wire there and Capture: a small test move checks the sensors first.\n"
+         "draw-wire there and Capture: a small test move checks the sensors first (a URDF "
+         "robot measured by a motion capture has no reference: check it sees the markers).\n"
          "3 Plan: the poses to measure; regenerate or edit them before measuring.\n"
          "4 Execute: Start measuring; every pose is in the trace at once, so closing loses "
          "none and reopening the folder resumes.\n"

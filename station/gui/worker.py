@@ -130,12 +130,14 @@ class LockedRig:
 
 @dataclass
 class DeviceReading:
-    """One device in one polling round: ``ok``, its values or what is wrong."""
+    """One device in one polling round: ``ok``, its values or what is wrong; a motion
+    capture's ``labels`` of its points (channels ``m1_x ..``)."""
 
     name: str
     ok: bool
     values: dict = field(default_factory=dict)
     text: str = ""
+    labels: tuple = ()
 
 
 def poll_devices(rig, timeout: float = 0.3,
@@ -159,7 +161,8 @@ def poll_devices(rig, timeout: float = 0.3,
             except (DeviceError, OSError) as e:
                 out.append(DeviceReading(d.name, False, text=f"{e}; {hint_for(d.name, simulated)}"))
                 continue
-            out.append(DeviceReading(d.name, True, dict(s.values)))
+            out.append(DeviceReading(d.name, True, dict(s.values),
+                                     labels=tuple(getattr(d, "labels", ()) or ())))
         return out
     finally:
         rig.lock.release()

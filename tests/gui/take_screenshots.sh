@@ -16,4 +16,5 @@ WM=$!
 sleep 1
 DISPLAY="$DISPLAY_NO" QT_QPA_PLATFORM=xcb CALSTATION_SCREENSHOTS=root \
   python -m pytest -q -m "slow or not slow" tests/gui/test_wizard_sm.py \
-  tests/gui/test_wizard_pm.py tests/gui/test_wizard_arm.py -k "not setup_reference_and_plan" "$@"
+  tests/gui/test_wizard_pm.py tests/gui/test_wizard_arm.py tests/gui/test_wizard_urdf.py \
+  -k "not setup_reference_and_plan" "$@"

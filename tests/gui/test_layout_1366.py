@@ -1,14 +1,16 @@
 """What the operator found cut or scrolling twice at 1366x768: the live pictures'
 captions (the Execute page's "rail (seen fron", the bubble level's), the results'
 tables scrolling inside the scrolling page, and the identifiability strip's 45 columns
-in one row. (A robot file's Reference buttons half off the screen: test_wizard_arm.)"""
+in one row. (A robot file's Reference buttons half off the screen: test_wizard_arm.)
+A URDF robot's Execute and Reference pages with the motion capture's markers in sight."""
 from __future__ import annotations
 
 import math
 from types import SimpleNamespace
 
 import pytest
-from PySide6.QtCore import QPoint, QPointF, Qt
+import numpy as np
+from PySide6.QtCore import QPoint, QPointF, QRect, Qt
 from PySide6.QtGui import QWheelEvent
 from PySide6.QtWidgets import QApplication, QScrollArea
 
@@ -16,9 +18,10 @@ from calibration.robots import get_robot
 from drivers.robot_file import load_robot_file
 from station.gui.pages import PageId
 from station.outputs.report_context import IDENT_SYMBOL, group_of
-from tests.gui.helpers import ROOT, SCREEN, cut_texts, overlapping_texts
+from tests.gui.helpers import FRAMED, ROOT, SCREEN, cut_texts, overlapping_texts
 
 HAYATI = ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml"
+URDF = ROOT / "fixtures" / "robots" / "m10ia-like.urdf"
 REFERENCE_QM = [36.0, 149.0534, -171.8204, -134.3126]     # AGEBOT's arm, u
 AWAY_QM = [39.217, 144.389, -169.524, -137.556]           # 75 mm from it
 READABLE = 15         # the identifiability strip's parameters a row at most
@@ -129,6 +132,89 @@ def test_the_execute_pictures_cut_no_text_at_any_size(qtbot, size):
     level.set_angles(math.radians(17.6), math.radians(-14.1))
     assert not cut_texts(level), cut_texts(level)
     assert not overlapping_texts(level), overlapping_texts(level)
+
+
+def _urdf_markers():
+    """A stand-in of a URDF robot's sm-markers session (the M-10iA-like arm, three markers
+    on its tool), its estimate of the instrument's frame and the points made."""
+    from drivers.robot_file import urdf_ref
+
+    robot = get_robot(load_robot_file(urdf_ref(URDF, "base_link", "tool0")))
+    xi = robot.nominal.copy()
+    for name, v in (("base_x", 1.4), ("base_y", -1.9), ("base_z", 0.6), ("base_yaw", 2.2)):
+        xi[robot.index(name)] = v
+    points = np.array([[0.05, 0.02, 0.04], [-0.03, 0.05, 0.06], [0.0, -0.06, 0.05]])
+    kind = SimpleNamespace(labels=("tool1", "tool2", "tool3"), _estimate=(xi, points, 8))
+    return SimpleNamespace(method="sm-markers", serial=True, robot=robot, nominal=robot.nominal,
+                           reference_qm=None, kind=kind, needs_reference=False,
+                           reference_target=lambda: (None, "no reference", ""))
+
+
+def _in_sight(widget, area) -> bool:
+    top_left = widget.mapTo(area.viewport(), QPoint(0, 0))
+    return area.viewport().rect().contains(QRect(top_left, widget.size()))
+
+
+@pytest.mark.parametrize("size", [SCREEN, FRAMED])
+def test_a_urdf_robot_s_execute_and_reference_pages_fit(window, qtbot, size):
+    """A URDF robot measured by a motion capture at 1366x768 (and less a taskbar and a
+    title bar): the Execute page's 15 readings (6 joints, 3 markers' x, y, z) and its 3D
+    picture, the Reference page's jog panel, markers and picture, each in sight without
+    scrolling the page; a marker not seen reads "not seen"."""
+    from station.gui.arm3d import ArmFigure, show_estimate
+    from station.gui.widgets import marker_channels
+
+    s = _urdf_markers()
+    window.resize(*size)
+    ex = _show(qtbot, window, PageId.EXECUTE)
+    ex.readings.set_channels([f"qm{i}" for i in range(1, 7)] + list(marker_channels(3)))
+    ex._build_picture(s)
+    pic = ex.picture
+    assert isinstance(pic, ArmFigure) and pic.labels == ("tool1", "tool2", "tool3")
+    show_estimate(pic, s)
+    qm = [0.3, 0.2, -0.1, 0.4, 1.2, 0.0]
+    T = s.robot.frames(np.array([qm]), s.kind._estimate[0])[0]
+    seen = s.kind._estimate[1] @ T[:3, :3].T + T[:3, 3]
+    values = {f"qm{i + 1}": v for i, v in enumerate(qm)}
+    values.update({f"m{k + 1}_{a}": (math.nan if k == 1 else float(seen[k, j]))
+                   for k in range(3) for j, a in enumerate("xyz")})
+    ex._values(values)
+    pic.set_state(qm=qm)            # as _show_robot does with a session's readings
+    pic.set_markers(values)
+    assert ex.readings.text_of("m2_y") == "not seen"
+    assert ex.readings.text_of("m1_x") == f"{seen[0, 0] * 1e3:.3f} mm"
+    assert any(text == "not seen: tool2" for text, _ in pic.marker_lines())
+    # the lines over the picture never squeeze the 3D axes (a line wider than the
+    # picture collapsed them to a dot): with the estimate and before it
+    for est in (s.kind._estimate[:2], (None, None)):
+        pic.set_estimate(*est)
+        qtbot.waitUntil(lambda: pic._drawn_key == pic._key(), timeout=5000)
+        pic.canvas.draw()
+        box = pic.ax.get_position()
+        assert box.width > 0.6 and box.height > 0.6, (size, est[0] is None, box)
+    show_estimate(pic, s)
+    qtbot.waitUntil(lambda: pic.draws >= 1 and pic._drawn_key == pic._key(), timeout=5000)
+    area = ex.findChild(QScrollArea)
+    qtbot.wait(100)
+    assert area.verticalScrollBar().maximum() == 0, size
+    assert area.horizontalScrollBar().maximum() == 0, size
+    for w in (ex.readings, pic, ex.status, ex.start_button):
+        assert _in_sight(w, area), (size, w)
+
+    ref = _show(qtbot, window, PageId.REFERENCE)
+    ref._build(s)
+    ref._values(values)
+    assert ref.readings.text_of("m2_x") == "not seen"
+    qtbot.wait(200)
+    area = ref.findChild(QScrollArea)
+    try:                          # the 3D picture's first paint takes a while
+        qtbot.waitUntil(lambda: area.verticalScrollBar().maximum() == 0, timeout=3000)
+    except qtbot.TimeoutError:
+        pass
+    assert area.verticalScrollBar().maximum() == 0, size
+    for w in (ref.jog.stop, ref.readings, ref.picture, ref.status):
+        assert _in_sight(w, area), (size, w)
+    window.resize(*SCREEN)
 
 
 def _ur5_trace(path, method="sm-distance-tilt"):

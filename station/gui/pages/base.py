@@ -33,7 +33,7 @@ class Page(QWidget):
         outer = QVBoxLayout(self)
         outer.setContentsMargins(12, 8, 12, 4)
         outer.addWidget(heading(self.title))
-        sub = QLabel(self.subtitle)
+        sub = self.subtitle_label = QLabel(self.subtitle)
         sub.setWordWrap(True)
         outer.addWidget(sub)
         self.body = QWidget()

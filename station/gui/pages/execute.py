@@ -1,6 +1,8 @@
 """Page 4, Execute: measure the planned poses with progress, the current pose
 and live readings; pause, resume, abort; a device fault asks Retry / Skip /
-Abort. Every recorded pose is in the trace at once (closing loses none)."""
+Abort. Every recorded pose is in the trace at once (closing loses none). A URDF robot
+measured by a motion capture (sm-markers): its markers live, in mm, a marker not seen
+said so (no fault), and in the picture where the current estimate puts them."""
 from __future__ import annotations
 
 import time
@@ -11,8 +13,8 @@ from PySide6.QtWidgets import (QGroupBox, QHBoxLayout, QListWidget, QListWidgetI
                                QMessageBox, QProgressBar, QPushButton, QVBoxLayout)
 
 from station.gui.pages.base import Page, error_text
-from station.gui.widgets import (BAD_COLOR, OK_COLOR, WARN_COLOR, ReadingsPanel, note,
-                                 target_coords)
+from station.gui.widgets import (BAD_COLOR, OK_COLOR, WARN_COLOR, ReadingsPanel,
+                                 marker_channels, markers_text, note, target_coords)
 
 #: the same fault this many times on one pose: Skip is suggested (the default button)
 REPEATED_FAULT = 3
@@ -93,6 +95,8 @@ class ExecutePage(Page):
                                    + list(self._channels(s)))
         if self._picture_for != id(s):
             self._build_picture(s)
+        if s.method == "sm-markers" and not self.running and not self.controller.jobs.busy:
+            self.controller.run(lambda s: s.kind.estimate(), lambda _: self._estimated())
         if not self.running and s.plan_poses and not s.pending and s.rounds_complete:
             self.finished = True
         self._update_progress()
@@ -110,7 +114,9 @@ class ExecutePage(Page):
             lay.removeWidget(self.picture)
             self.picture.deleteLater()
         units = self.controller.units
-        if s.serial:
+        if getattr(s, "method", None) == "sm-markers":     # the markers on the tool
+            pic = ArmFigure(s.robot, s.nominal, units=units, labels=tuple(s.kind.labels))
+        elif s.serial:
             pic = ArmFigure(s.robot, s.nominal, target_label="reference", units=units)
         elif s.robot.name == "agebot-sm":
             pic = ArmPicture(s.robot, s.nominal, target_label="reference", units=units)
@@ -135,14 +141,24 @@ class ExecutePage(Page):
             if "roll" in values:
                 pic.set_angles(values["roll"], values.get("pitch", 0.0))
             return
+        if isinstance(pic, ArmFigure) and pic.labels:
+            pic.set_markers(values)
         qm = [values.get(f"qm{i + 1}") for i in range(s.robot.n_actuators)]
         if None not in qm:
             pic.set_state(qm=qm)
             if isinstance(pic, ArmFigure) and "roll" in values:
                 pic.set_tilt(values["roll"], values.get("pitch", 0.0))
 
+    def _estimated(self) -> None:
+        """The picture's markers where the session's current estimate puts them."""
+        from station.gui.arm3d import show_estimate
+
+        show_estimate(self.picture, self.session)
+
     @staticmethod
     def _channels(s):
+        if getattr(s, "method", None) == "sm-markers":
+            return marker_channels(len(s.kind.labels))
         if s.serial:
             return (("roll", "pitch") if "tilt" in s.info.channels else ()) + ("distance",)
         if s.robot.name == "agebot-sm":
@@ -150,7 +166,7 @@ class ExecutePage(Page):
         return ("roll", "pitch", "yaw")
 
     def _session_changed(self) -> None:
-        self._faults_seen = {}
+        self._faults_seen, self._markers = {}, ""
         self.finished = False
         self.running = False
         self.log.clear()
@@ -343,7 +359,14 @@ class ExecutePage(Page):
             target = ", ".join(f"{k} {u.text(v, si, '.4g')}"
                                for k, v, si in zip(names, p.pose.target, sis))
             use = "held out" if p.pose.use == "validation" else "fit"
-            self.current.setText(f"Pose {p.pose.index} ({use}): {p.message}; target {target}")
+            text = f"Pose {p.pose.index} ({use}): {p.message}; target {target}"
+            if s is not None and s.method == "sm-markers":     # kept while moving on
+                seen = markers_text(p.readings or {}, tuple(s.kind.labels), u)
+                self._markers = seen or getattr(self, "_markers", "")
+                text += f"\nmarkers (the last pose recorded): {self._markers}" \
+                    if self._markers else ""
+                self._estimated()
+            self.current.setText(text)
 
     def _event(self, ev: dict, stamp: str | None = None) -> None:
         if ev.get("kind") == "plan":

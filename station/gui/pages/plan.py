@@ -151,7 +151,8 @@ class PlanPage(Page):
         t.setColumnCount(len(heads))
         t.setHorizontalHeaderLabels(heads)
         t.setRowCount(len(poses))
-        rounds = s.robot.name == "agebot-pm" or s.rounds is not None
+        markers = s.method == "sm-markers"      # a URDF robot's scout, middle, last rounds
+        rounds = s.robot.name == "agebot-pm" or s.rounds is not None or markers
         for r, p in enumerate(poses):
             state = ("measured" if p.index in s.measured else
                      "skipped" if p.index in s.skipped else "to measure")
@@ -175,7 +176,8 @@ class PlanPage(Page):
         elif s.reference_qm is not None and s.robot.name == "agebot-sm":
             ref = s.robot.fk(s.reference_qm, s.nominal)[0]
         if s.serial:        # the tool's targets in the robot file's base frame, the arm
-            self.plot.show_arm_plan(poses, s.robot, s.nominal, s.reference_qm, s.measured.keys())
+            self.plot.show_arm_plan(poses, s.robot, s.nominal, s.reference_qm, s.measured.keys(),
+                                    from_qm=markers)
         else:
             self.plot.show_plan(poses, s.robot.name, s.measured.keys(), ref)
         n_fit = sum(p.use == "fit" for p in poses)
@@ -188,6 +190,13 @@ class PlanPage(Page):
                      "is measured the box grows round by round, each planned from the fit of "
                      f"the poses recorded so far, up to +-20 deg, for {want} fit poses in all.")
             ok = want >= need
+        elif markers and all(p.round == 0 for p in poses):
+            text += (f" This is the scout round ({len(poses)} poses near home): the motion "
+                     "capture's frame and the markers on the tool are estimated from it, then "
+                     "two rounds are planned from that estimate (60 % of the joints' box, then "
+                     f"all of it) for {s.request.count or 2 * need} fit poses and the held-out "
+                     "ones, every marker in the volume and facing the cameras.")
+            ok = (s.request.count or 2 * need) >= need
         elif s.rounds is not None and all(p.round == 0 for p in poses):
             want, held = s.rounds.fit_total(), s.rounds.totals()[1]
             text += (f" This is the scout round ({len(poses)} poses a small step from the "

@@ -1,18 +1,21 @@
 """Page 2, Reference: jog the actuators (step or continuous, under a speed
 limit), watch distance and tilt live, see what to do, capture the reference;
-for the wrist, the inclinometer mounting check."""
+for the wrist, the inclinometer mounting check; for a URDF robot measured by a motion
+capture (sm-markers: no reference), the markers on the tool seen live."""
 from __future__ import annotations
 
+import numpy as np
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import (QButtonGroup, QCheckBox, QDoubleSpinBox, QFormLayout,
                                QGridLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton,
                                QRadioButton, QVBoxLayout, QWidget)
 
 from station.gui.pages.base import Page
-from station.gui.arm3d import ArmFigure
+from station.gui.arm3d import ArmFigure, marker_steps, show_estimate
 from station.gui.level_picture import LevelPicture
 from station.gui.pictures import FAR_M, ArmPicture, ReferenceSteps
-from station.gui.widgets import OK_COLOR, WARN_COLOR, ReadingsPanel, channel_text, note
+from station.gui.widgets import (OK_COLOR, WARN_COLOR, ReadingsPanel, channel_text,
+                                 marker_channels, note)
 
 
 class JogPanel(QGroupBox):
@@ -135,19 +138,33 @@ class ReferencePage(Page):
             vel = vel * n
         sm = session.robot.name == "agebot-sm"
         serial = session.serial                 # a robot file's arm
+        labels = tuple(session.kind.labels) if session.method == "sm-markers" else ()
         self.jog = JogPanel(self, n, vel, 0.05 if serial else 1.0 if sm else 10.0)
         left.addWidget(self.jog)
         box = QGroupBox("Live readings")
-        channels = (("distance", "roll", "pitch") if serial else ("distance", "tilt") if sm
+        channels = (marker_channels(len(labels)) if labels else
+                    ("distance", "roll", "pitch") if serial else ("distance", "tilt") if sm
                     else ("roll", "pitch", "yaw"))
-        QVBoxLayout(box).addWidget(ReadingsPanel(channels))
+        QVBoxLayout(box).addWidget(ReadingsPanel(channels, large=not labels,
+                                                 marker_grid=bool(labels)))
         self.readings = box.findChild(ReadingsPanel)
         left.addWidget(box)
         left.addStretch(1)
         lay.addLayout(left, 0)
         right = QVBoxLayout()
         _, _, text = session.reference_target()
-        if serial:
+        self.subtitle_label.setText(
+            "No reference to capture for sm-markers: check that the motion capture sees the "
+            "markers on the tool (jog the robot if needed), then press Next." if labels
+            else self.subtitle)
+        if labels:              # the markers on the tool, no reference
+            self.picture = ArmFigure(session.robot, session.nominal, units=self.controller.units,
+                                     labels=labels)
+            self.picture.steps = marker_steps(labels)
+            text = ("The motion capture measures the markers in its own frame; the robot's "
+                    "base is placed in that frame from the scout round's poses, so the picture "
+                    "shows the markers from then on.")
+        elif serial:
             _, role, _ = session.reference_target()
             self.picture = ArmFigure(session.robot, session.nominal,
                                      target_label=(role or "reference").replace("-", " "),
@@ -177,7 +194,7 @@ class ReferencePage(Page):
                       self.rezero_button):
                 b.setAutoDefault(False)
                 buttons.addWidget(b)
-        else:
+        elif not labels:
             self.confirm = QCheckBox("I &checked: mounted flat, x axis along the platform's x axis")
             self.confirm.toggled.connect(lambda _: self._refresh())
             buttons.addWidget(self.confirm)
@@ -196,6 +213,8 @@ class ReferencePage(Page):
             qm, _, _ = s.reference_target()
             self.picture.set_state(target_qm=qm, captured=s.reference_qm is not None,
                                    captured_qm=s.reference_qm)
+        if s.method == "sm-markers" and not self.controller.jobs.busy:   # a resumed session's
+            self.controller.run(lambda s: s.kind.estimate(), lambda _: self._estimated())
         self._values(self.controller.last_readings)
         self._refresh()
 
@@ -235,6 +254,19 @@ class ReferencePage(Page):
                 self._say(text, WARN_COLOR if far else OK_COLOR)
             else:
                 self._say("Reference not captured yet.", None)
+        elif s.method == "sm-markers":
+            readings = self.picture.readings
+            seen = 0 if readings is None else int(np.all(np.isfinite(readings), axis=1).sum())
+            total = len(self.picture.labels)
+            if readings is None:
+                self._say("Waiting for the motion capture's first reading.", None)
+            elif seen == total:
+                self._say(f"\u2713 The motion capture sees the {total} markers. No reference "
+                          "to capture: press Next.", OK_COLOR)
+            else:
+                self._say(f"The motion capture sees {seen} of the {total} markers now: a "
+                          "marker not seen at a pose leaves it with fewer points (no fault). "
+                          "Press Next when ready.", WARN_COLOR)
         else:
             level = self.picture.level
             if self.confirm.isChecked():
@@ -256,6 +288,8 @@ class ReferencePage(Page):
             return False
         if s.needs_reference:
             return s.reference_qm is not None
+        if s.method == "sm-markers":        # no reference: the markers seen here, by eye
+            return self._built_for == id(s)
         return bool(self.confirm is not None and self.confirm.isChecked())
 
     def leave_page(self) -> None:
@@ -306,6 +340,11 @@ class ReferencePage(Page):
         self.readings.set_values(values)
         n = len(self.jog.values)
         qm = [values.get(f"qm{i + 1}") for i in range(n)]
+        if isinstance(self.picture, ArmFigure) and self.picture.labels and "m1_x" in values:
+            was = self.picture.readings
+            self.picture.set_markers(values)
+            if was is None or (np.isfinite(was) != np.isfinite(self.picture.readings)).any():
+                self._refresh()          # a marker seen or lost
         if isinstance(self.picture, ReferenceSteps) and None not in qm:
             self.picture.set_state(qm=qm)
             if isinstance(self.picture, ArmFigure) and "roll" in values:
@@ -315,6 +354,9 @@ class ReferencePage(Page):
             self.picture.set_angles(values["roll"], values.get("pitch", 0.0))
             if was != self.picture.level:
                 self._refresh()
+
+    def _estimated(self) -> None:
+        show_estimate(self.picture, self.session)
 
     def _busy(self, _busy: bool) -> None:
         if self.isVisible():

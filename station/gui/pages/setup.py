@@ -2,7 +2,6 @@
 connection with live status; what is missing is said in words with the fix."""
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QFileDialog, QFormLayout, QGroupBox,
@@ -16,6 +15,7 @@ from station.gui.pages.setup_choices import (DEFAULT_METHOD, METHOD_TEXT,  # noq
                                              ROBOT_FILES, ROUNDS_TEXT, RobotMethodChoice,
                                              default_folder, draw_truth_file, robot_model,
                                              sessions_root)
+from station.gui.pages.setup_urdf import URDF_FILTER
 from station.gui.widgets import BAD_COLOR, OK_COLOR, DeviceTable, note
 from station.planning.request import PlanRequest
 
@@ -43,11 +43,12 @@ class SetupPage(RobotMethodChoice, Page):
         self.robot = QComboBox()
         for key, text in ROBOTS.items():
             self.robot.addItem(text, key)
-        for path in sorted(ROBOT_FILES.glob("*.toml")):
+        for path in sorted(ROBOT_FILES.glob("*.toml")) + sorted(ROBOT_FILES.glob("*.urdf")):
             self.add_robot_file(str(path))
         browse_robot = self.robot_file_button = QPushButton("Robot fi&le\u2026")
         browse_robot.setProperty("tip", "any serial arm described by a robot file "
-                                        "(docs/robot-files.md)")
+                                        "(docs/robot-files.md) or a URDF "
+                                        "(docs/urdf-robots.md)")
         browse_robot.setToolTip(browse_robot.property("tip"))
         browse_robot.clicked.connect(self.browse_robot_file)
         self.method = QComboBox()
@@ -58,6 +59,7 @@ class SetupPage(RobotMethodChoice, Page):
         form.addRow("&Robot:", _row(self.robot, browse_robot))
         form.addRow("&Method:", self.method)
         form.addRow("", self.method_text)
+        self._build_urdf_rows(form)          # a URDF robot's chain and instrument
         self.layout_.addWidget(box)
 
         box = QGroupBox("Station")
@@ -77,7 +79,7 @@ class SetupPage(RobotMethodChoice, Page):
         browse_truth.clicked.connect(self.browse_truth)
         self.draw_truth_button = QPushButton("Dra&w one")
         self.draw_truth_button.setToolTip("a simulated arm drawn around the robot file's "
-                                          "nominal, saved in the session folder")
+                                          "(or URDF's) nominal, saved in the session folder")
         self.draw_truth_button.clicked.connect(self.draw_truth)
         self.truth_row = _row(self.truth, browse_truth, self.draw_truth_button)
         if c.simulate:
@@ -174,6 +176,7 @@ class SetupPage(RobotMethodChoice, Page):
             w.setEnabled(not locked and (w is not self.truth_row and w is not
                                          self.draw_truth_button or self.robot_file))
         self.robot.setEnabled(not locked and not self._robot_fixed)
+        self.links_row.setEnabled(not locked and not self._robot_fixed)
         self.robot_file_button.setEnabled(not locked and not self._robot_fixed)
         self.folder_row.setEnabled(not locked)
         self._show_rounds()
@@ -206,8 +209,7 @@ class SetupPage(RobotMethodChoice, Page):
             self.update_missing()
 
     def browse_robot_file(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Robot file", str(ROBOT_FILES),
-                                              "Robot file (*.toml);;All files (*)")
+        path, _ = QFileDialog.getOpenFileName(self, "Robot file", str(ROBOT_FILES), URDF_FILTER)
         if path:
             self.robot.setCurrentIndex(self.robot.findData(self.add_robot_file(path)))
 
@@ -216,22 +218,6 @@ class SetupPage(RobotMethodChoice, Page):
                                               "Truth file (*.json);;All files (*)")
         if path:
             self.truth.setText(path)
-
-    def draw_truth(self) -> None:
-        """Draw a simulated arm of the chosen robot file into the session folder."""
-        folder = self.folder.text().strip()
-        if not self.robot_file or not folder:
-            self.update_missing()
-            return
-        seed = self.controller.sim_seed if self.controller.sim_seed is not None \
-            else int(time.time()) % 100000
-        try:
-            path = draw_truth_file(self.robot_key, Path(folder).expanduser(), seed)
-        except Exception as e:  # noqa: BLE001 - said to the operator
-            self._error = f"No truth drawn: {error_text(e)}"
-            self.update_missing()
-            return
-        self.truth.setText(str(path))
 
     def browse_endpoints(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Simulator endpoints", "",
@@ -247,6 +233,7 @@ class SetupPage(RobotMethodChoice, Page):
     # -- what is missing, in words -------------------------------------------------------
     def missing_items(self) -> list[str]:
         c, out = self.controller, []
+        self.update_instrument()        # a URDF robot's (cached)
         if not c.simulate and not self.config.text().strip():
             out.append("No station config: choose the station's config file (Browse\u2026 "
                        "next to Station config), or start the station with --simulate.")
@@ -256,7 +243,7 @@ class SetupPage(RobotMethodChoice, Page):
         if c.simulate and self.robot_file and not self.truth.text().strip():
             out.append("No truth for the simulated arm: choose a truth file of the robot file "
                        "(Browse\u2026 next to Simulated truth), or press Draw one.")
-        for error in (self._robot_error, self._error):
+        for error in (self._robot_error, self._station_error, self._error):
             if error:
                 out.append(error)
         if c.session is None and not self._connecting and not out:
@@ -309,6 +296,9 @@ class SetupPage(RobotMethodChoice, Page):
             self.update_missing()
             return
         if self.controller.simulate and self.robot_file and not self.truth.text().strip():
+            self.update_missing()
+            return
+        if self._robot_error or self._station_error:     # said in the list
             self.update_missing()
             return
         folder = Path(self.folder.text().strip()).expanduser()
