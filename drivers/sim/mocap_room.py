@@ -1,11 +1,15 @@
 """The simulated motion-capture room of a URDF robot's truth: what the cameras see.
 
 Each frame's markers are the truth's points on the tool with the true robot where its
-axes are now (:func:`drivers.sim.urdf_truth.true_points`); a point outside the
+axes are now (:func:`drivers.sim.urdf_truth.true_points`) and the truth's ``marker``
+noise, drawn as the simulated robot draws every reading's: a new draw per frame, or with
+``--pose-noise`` (which ``run --simulate`` uses) at rest a function of the seed and the
+pose, the same in every frame, of the std the mean of the config's ``frames`` has, so
+that the same command reads the same values; a point outside the
 station config's measuring volume or facing away from its viewpoint by more than its
 angle is not seen (NaN), as a real room would not see it
 (:func:`drivers.sim.urdf_truth.seen_mask`). The QTM real-time server
-(:mod:`drivers.sim.mocap_sim`) adds the noise and the faults.
+(:mod:`drivers.sim.mocap_sim`) adds the faults.
 """
 from __future__ import annotations
 
@@ -29,6 +33,10 @@ def points_function(robot, truth, cfg):
     def points() -> np.ndarray:
         qm = robot.qm()
         p = true_points(truth, robot.model, robot._xi, qm)
+        noise = robot._noise("marker", p.shape)
+        if robot.pose_noise and robot.target_reached():
+            noise = noise / math.sqrt(cfg.frames)    # the mean of the N frames the station takes
+        p = p + noise
         seen = seen_mask(truth, robot.model, robot._xi, qm, volume, cfg.viewpoint, angle,
                          cfg.outward)
         p[~seen] = np.nan
@@ -51,8 +59,7 @@ def start_mocap(robot, truth, cfg, seed: int | None):
                           f"{len(truth.points)} points on the tool", source=truth.source,
                           key="points_on_tool")
     rng = np.random.default_rng(None if seed is None else [seed, 0x5155])
-    return SimQTM(points_function(robot, truth, cfg), labels=tuple(cfg.labels),
-                  noise=truth.sigma("marker"), rng=rng,
+    return SimQTM(points_function(robot, truth, cfg), labels=tuple(cfg.labels), rng=rng,
                   extra={ROOM_MARKER: tuple(float(v) for v in cfg.volume_min)}).start()
 
 

@@ -236,10 +236,9 @@ def marker_estimate(session):
     (:meth:`station.session.marker_kind.MarkersKind.estimate` keeps it); None before the
     estimate placed the frame (fewer than 3 fit poses), or for another session. Read,
     not computed: safe while the session's worker measures."""
-    est = getattr(getattr(session, "kind", None), "_estimate", None)
-    if session is None or session.method != "sm-markers" or est is None or est[2] < 3:
+    if session is None or session.method != "sm-markers":
         return None
-    return est[0], est[1]
+    return session.kind.last_estimate
 
 
 def show_estimate(pic, session) -> None:

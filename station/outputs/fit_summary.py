@@ -177,10 +177,11 @@ def scale_note(outcome) -> list[str]:
     draw-wire's) and points measured in an instrument's frame (a tracker's, a motion
     capture's)."""
     if hasattr(outcome.model, "measured_points"):
+        imported = "imported_from" in (outcome.trace.header.get("station") or {})
         return ["note: the instrument's scale is not observed: every calibrated length "
                 "carries it (a 1 % scale error of the tracker or motion capture is 1 % of "
                 "every length, with every check passed); its calibration certificate is the "
-                "reference (units are checked at import)"]
+                "reference" + (" (units are checked at import)" if imported else "")]
     if "distance" not in getattr(outcome.model, "channels", ()):
         return []
     s, u = outcome.trace.distance_scale

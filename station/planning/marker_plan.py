@@ -202,7 +202,7 @@ def too_few(robot, tally, got: int, need: int) -> CalibrationError:
         f"only {got} of {tally['drawn']} poses of {robot.name} drawn within its joint limits "
         f"keep every point visible, {need} needed: most failed on {worst} ({tally[worst]} "
         f"poses with {FAILS[worst]}; volume {tally['volume']}, facing {tally['facing']}, "
-        f"floor {tally['floor']}): widen the measuring volume or max_angle, move the "
+        f"floor {tally['floor']}): widen the measuring volume or view_angle_deg, move the "
         "instrument or the points, or check the instrument's frame")
 
 

@@ -51,7 +51,8 @@ def sight_of(cfg) -> marker_plan.Sight:
     return marker_plan.Sight(volume_min=tuple(cfg.volume_min), volume_max=tuple(cfg.volume_max),
                              viewpoint=tuple(cfg.viewpoint),
                              max_angle=math.radians(cfg.view_angle_deg),
-                             outward=None if cfg.outward is None else tuple(map(tuple, cfg.outward)))
+                             outward=(None if cfg.outward is None
+                                      else tuple(map(tuple, cfg.outward))))
 
 
 class MarkersKind(SerialKind):
@@ -113,6 +114,14 @@ class MarkersKind(SerialKind):
         self._estimate = (xi, u, len(fit))
         return xi, u
 
+    @property
+    def last_estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(xi, points)`` as :meth:`estimate` last made it from three fit poses or more,
+        else None. Read, not computed: safe from another thread while the session's
+        worker measures (the wizard's picture)."""
+        est = self._estimate
+        return None if est is None or est[2] < 3 else (est[0], est[1])
+
     # -- rounds ----------------------------------------------------------------------------
     def _rounds_planned(self) -> list[int]:
         return [int(e["markers_round"]) for e in self.s.events
@@ -124,7 +133,9 @@ class MarkersKind(SerialKind):
         the URDF's values. The instrument's frame is not known yet, so the points are
         required to face up (within :data:`SCOUT_FACING` of the config's angle of the
         base link's z: cameras above the robot, as in a motion-capture room) rather than
-        to face a viewpoint."""
+        to face a viewpoint, where the config states the points' outward directions
+        (``[mocap] outward``; without them nothing is known of where the points face
+        before they are seen, and the scout is planned for the joints alone)."""
         s = self.s
         up = marker_plan.Sight(volume_min=(-1e3,) * 3, volume_max=(1e3,) * 3,
                                viewpoint=(0.0, 0.0, 1e3),
@@ -188,9 +199,10 @@ class MarkersKind(SerialKind):
     def plan_text(self, poses, n_val: int, unit: str, how: str, box_scale) -> str:
         rnd = poses[0].round if poses else 0
         if rnd == 0:
+            facing = "the points facing up; " if self.sight.outward is not None else ""
             return (f"scout round: planned {len(poses)} poses near home (the URDF's zero), "
-                    "the points facing up; the instrument's frame and the points on the tool estimated from them "
-                    "plan the next rounds, each in a wider box")
+                    f"{facing}the instrument's frame and the points on the tool estimated "
+                    "from them plan the next rounds, each in a wider box")
         return (f"round {rnd}: planned {len(poses)} poses ({n_val} held out for validation), "
                 f"every point inside the measuring volume and facing the instrument, "
                 f"{len(self.s.plan_poses)} in all so far")

@@ -20,9 +20,12 @@ def simulated_station(robot: str, truth: str | None, sim_seed: int | None):
     from drivers.sim.server import truth_of
 
     if is_robot_file(robot) and not truth:
-        raise ConfigError(f"a simulated {robot} needs --truth: a truth file of the "
-                          "robot file (what the simulated arm really is); draw one with: "
-                          f"{draw_command(robot)}")
+        from drivers.robot_file import split_urdf_ref
+
+        what = ("URDF robot (its true URDF, the motion-capture room, the points on the tool)"
+                if split_urdf_ref(robot) else "robot file (what the simulated arm really is)")
+        raise ConfigError(f"a simulated {robot} needs --truth: a truth file of the {what}; "
+                          f"draw one with: {draw_command(robot)}")
     truth_of(robot, truth)          # of this robot: refused here in one line
     truth = str(truth or default_truth_path(robot))
     seed = simulator_seed(truth, sim_seed)
