@@ -12,6 +12,7 @@
     python app.py study --method M --robots N --out DIR
     python app.py truth draw --robot R --seed N --out TRUTH.json
     python app.py compensate PARAMS.json --program IN.csv --out OUT.csv
+    python app.py accuracy --simulate --robot R --truth T --params PARAMS.json --out ACC.csv
     python app.py doctor               what this machine lacks, and how to install it
 
 Every command exits 0 on success and non-zero with a one-line reason on stderr
@@ -475,6 +476,30 @@ def build_parser() -> argparse.ArgumentParser:
                     help="URDF robots: how the URDF's joints follow from the controller's "
                          "columns (docs/urdf-robots.md); written back into them")
     cp.set_defaults(func=_delegate("station.outputs.compensate", "main"))
+
+    ac = sub.add_parser("accuracy", help="pose accuracy and repeatability as ISO 9283 defines "
+                        "them, before and after the calibration (docs/accuracy.md)")
+    ac.add_argument("--simulate", action="store_true")
+    ac.add_argument("--robot", required=True, metavar="ROBOT",
+                    help="the URDF (with --base-link, --tip-link)")
+    add_chain_arguments(ac)
+    ac.add_argument("--truth", help="with --simulate: the simulated robot's truth file")
+    ac.add_argument("--config", help="the station config (with --simulate: the simulated "
+                    "station's; default the URDF robot's own)")
+    ac.add_argument("--endpoints", help="without --simulate: fill --config's \"@endpoints\" "
+                    "from a running simulator's endpoints file")
+    ac.add_argument("--params", required=True, help="the parameter file (sm-markers)")
+    ac.add_argument("--out", required=True, metavar="ACCURACY.csv",
+                    help="every measured cycle (written atomically)")
+    ac.add_argument("--cycles", type=int, default=30,
+                    help="cycles of each program (the standard's 30; fewer with a note)")
+    ac.add_argument("--cube", metavar="X,Y,Z,SIZE",
+                    help="the test cube's centre and edge, mm in the base link frame "
+                         "(default: the largest that fits where the instrument sees the tool)")
+    ac.add_argument("--seed", type=int, default=0, help="seed of the cube's search")
+    ac.add_argument("--sim-seed", type=int, help="seed of the simulated noise (default: the "
+                    "truth file's)")
+    ac.set_defaults(func=_delegate("station.accuracy", "main"), robot_chain=True)
 
     gui = sub.add_parser("gui", help="the operator's Qt wizard")
     gui.add_argument("--simulate", action="store_true")

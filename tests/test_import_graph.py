@@ -191,6 +191,7 @@ _BELOW = ["calibration", "drivers", "station.recording", "station.outputs", "sta
 STATION_ROOMS = {room: set(_BELOW[:i]) for i, room in enumerate(_BELOW) if i >= 2}
 STATION_ROOMS["station.doctor"] = {"calibration", "drivers", "station.outputs"}  # app.py doctor
 STATION_ROOMS["station.headless"] = set(_BELOW)                        # app.py run
+STATION_ROOMS["station.accuracy"] = set(_BELOW)                        # app.py accuracy
 STATION_ROOMS["station.gui"] = set(_BELOW) | {"station.doctor"}        # the wizard
 
 

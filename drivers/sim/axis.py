@@ -2,6 +2,16 @@
 
 The simulated drives (CiA 402) command it; the simulated robot reads its
 position to compute every sensor value. Time is ``time.monotonic()``.
+
+Repeatability (off unless a truth file's ``repeatability`` asks for it,
+:mod:`drivers.sim.truth`): between the motor, whose encoder the drive reads
+(:meth:`SimAxis.position`), and the link the robot's kinematics sees
+(:meth:`SimAxis.link_position`) there is a *play*, set anew by each move that
+goes somewhere: ``-direction * backlash / 2`` (the link trails the motor by half
+the backlash, so a position approached from above and from below differs by the
+backlash) plus a random positioning error ``N(0, positioning)`` (the gear train's
+friction and elasticity, the servo's settling), drawn from the axis's own
+generator. The encoder does not see the play. Both 0: the link is the motor.
 """
 from __future__ import annotations
 
@@ -28,13 +38,22 @@ class SimAxis:
     limits:       ``(lo, hi)`` physical travel range (actuator units), or None; a target
                   outside it is refused (:class:`AxisLimit`) and the axis stays where it is.
     name:         what the axis moves, for messages (e.g. ``"rail (axis 1)"``).
+    backlash, positioning: the play between motor and link (module docstring; actuator
+                  units, the whole backlash and the std of the random error per move);
+                  ``rng`` a numpy Generator for the latter (needed where it is not 0).
     """
 
     def __init__(self, position: float = 0.0, velocity: float = 2000.0,
                  acceleration: float = 8000.0, clock=time.monotonic, *,
-                 limits: tuple[float, float] | None = None, name: str = "axis"):
+                 limits: tuple[float, float] | None = None, name: str = "axis",
+                 backlash: float = 0.0, positioning: float = 0.0, rng=None):
         self.limits = None if limits is None else (float(limits[0]), float(limits[1]))
         self.name = name
+        self.backlash, self.positioning = float(backlash), float(positioning)
+        if self.positioning and rng is None:
+            raise ValueError(f"{name}: a positioning error needs a random generator (rng)")
+        self._rng = rng
+        self.play = 0.0          # link minus motor position (module docstring)
         self._clock = clock
         self._lock = threading.Lock()
         self._start = float(position)
@@ -57,6 +76,10 @@ class SimAxis:
             now = self._clock()
             start = self._position_at(now)
             self._supersede(now)
+            if float(target) != start and (self.backlash or self.positioning):
+                direction = 1.0 if float(target) > start else -1.0
+                self.play = -direction * self.backlash / 2 + (
+                    float(self._rng.normal(0.0, self.positioning)) if self.positioning else 0.0)
             self._start = start
             self._target = float(target)
             self._t0 = now
@@ -135,8 +158,15 @@ class SimAxis:
         return _profile(self._start, self._target, self._v, self._a, now - self._t0)
 
     def position(self) -> float:
+        """The motor's position now (what its encoder reads)."""
         with self._lock:
             return self._position_at(self._clock())
+
+    def link_position(self, t: float | None = None) -> float:
+        """The link's position now (or at clock time ``t``): the motor's plus the play of
+        the move under way (module docstring)."""
+        with self._lock:
+            return self._position_at(self._clock() if t is None else t) + self.play
 
     @property
     def target(self) -> float:

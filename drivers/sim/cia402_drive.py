@@ -16,7 +16,9 @@ the plan field is reset to 0 when it fires); ``drop_prob`` and
 ``late_s`` delays every frame a node sends.
 
 Positions: increments = round(axis position [units] * resolution
-[increments/unit]); 0x6081 in increments/s and 0x6083 in increments/s^2.
+[increments/unit]); 0x6081 in increments/s and 0x6083 in increments/s^2. The axis
+position is the motor's: a truth's ``repeatability`` (backlash, a random positioning
+error per move) is between it and the link (:mod:`drivers.sim.axis`), unseen here.
 
 Layout: the node classes are in :mod:`drivers.sim.sim_nodes`, the faulty,
 delaying network in :mod:`drivers.sim.sim_network`; this module starts them

@@ -74,6 +74,7 @@ from calibration.robots.agebot_pm import (beyond_envelope, envelope_hit,
                                           rot_xyz, sensor_heading)
 from drivers.sim.axis import SimAxis
 from drivers.sim.faults import FaultPlan
+from drivers.sim.repeatability import axis_play
 from drivers.sim.truth import SimTruth
 
 log = logging.getLogger("drivers.sim")
@@ -145,8 +146,9 @@ class SimulatedAgebot:
         acc = np.broadcast_to(ACCELERATION[truth.robot] if acceleration is None
                               else acceleration, (n,))
         self.qm_limits = self.physical_limits()
+        play = axis_play(truth, self.model, self._xi, self._seed)
         self.axes = tuple(SimAxis(float(p), float(v), float(a), clock=clock, limits=lim,
-                                  name=f"axis {i + 1}")
+                                  name=f"axis {i + 1}", **play[i])
                           for i, (p, v, a, lim) in enumerate(zip(self.home_qm, vel, acc,
                                                                  self.qm_limits)))
         self._last_pose = self.home_pose.copy()  # PM: keeps the FK's assembly mode
@@ -188,15 +190,16 @@ class SimulatedAgebot:
         return self._xi.copy()
 
     def qm(self) -> np.ndarray:
-        """True actuator values ``(n,)`` now (actuator units)."""
-        return np.array([a.position() for a in self.axes])
+        """True actuator values ``(n,)`` now (actuator units): the links' (the encoders
+        read the motors': they differ by the truth's repeatability, :mod:`drivers.sim.axis`)."""
+        return np.array([a.link_position() for a in self.axes])
 
     def ee_pose(self, ago: float = 0.0) -> np.ndarray:
         """True generalized coordinates now (``ago`` s before now): SM ``[x, y, z, phi]``
         (m, rad), PM ``[alpha, beta, gamma]`` (rad)."""
         if ago > 0.0:
             t = self.axes[0].now() - ago
-            qm = np.array([a.position_at(t) for a in self.axes])
+            qm = np.array([a.link_position(t) for a in self.axes])
         else:
             qm = self.qm()
         if self.model.name == "agebot-sm":

@@ -11,6 +11,10 @@ noise, the draw-wire's zero and the encoders are the AGEBOT simulator's
 * the inclinometer reads :func:`calibration.robots.agebot_pm.gravity_tilt` of the
   tool's orientation, mounted by the truth's ``inclinometer_mount`` (``Rx Ry``),
   noise channels ``roll``/``pitch`` (``tilt`` where those are not given); yaw 0;
+* repeatability (a truth's ``repeatability``; :mod:`drivers.sim.axis`): the links are
+  where the motors are plus each move's play (backlash, a random positioning error);
+  the kinematics, the sensors and the motion capture see the links, the drives'
+  encoders the motors;
 * physical limits, checked along every motion (:meth:`SimulatedSerial.supervise`,
   steps of at most :data:`SUPERVISE_STEP` rad or actuator units): a joint beyond
   its robot-file ``limits`` (``JLIM``) or the tool origin below the floor ``z = 0``
@@ -34,6 +38,7 @@ from calibration.errors import ConfigError
 from calibration.robots.agebot_pm import gravity_tilt
 from drivers.sim.axis import SimAxis
 from drivers.sim.faults import FaultPlan
+from drivers.sim.repeatability import axis_play
 from drivers.sim.robot import SimulatedAgebot
 from drivers.sim.truth import SimTruth
 
@@ -83,8 +88,9 @@ class SimulatedSerial(SimulatedAgebot):
         self.home_pose = self.model.fk(self.home_qm, self._xi)[0]
         vel = np.broadcast_to(VELOCITY if velocity is None else velocity, (n,))
         acc = np.broadcast_to(ACCELERATION if acceleration is None else acceleration, (n,))
-        self.axes = tuple(SimAxis(float(p), float(v), float(a), clock=clock)
-                          for p, v, a in zip(self.home_qm, vel, acc))
+        play = axis_play(truth, self.model, self._xi, self._seed)
+        self.axes = tuple(SimAxis(float(p), float(v), float(a), clock=clock, **kw)
+                          for p, v, a, kw in zip(self.home_qm, vel, acc, play))
         self._checked = (clock(), self.home_qm.copy(), False)   # (t, qm, found inside)
         self._anchor = self.ee_position()
 

@@ -15,6 +15,9 @@ seen::
      "inclinometer_mount": [rx, ry],     # optional, agebot-pm only: the inclinometer's
                                          # mounting rotation on the platform,
                                          # R_mount = Rx(rx) Ry(ry), rad (default 0, 0)
+     "repeatability": {"backlash": 2e-5, "positioning": 5e-6},
+                                         # optional (default: none, the link is where
+                                         # the motor is), see below
      "comment": "..."}                   # optional, free text
 
 A robot file's truth (docs/robot-files.md, "Truth files of a robot file") adds
@@ -22,6 +25,17 @@ A robot file's truth (docs/robot-files.md, "Truth files of a robot file") adds
 is the file's name; names left out of ``parameters`` take the file's nominal;
 ``inclinometer_mount`` is the tool inclinometer's; noise also takes ``position`` [m] and ``pose``
 (a number or 6 values: m, m, m, rad, rad, rad).
+
+``repeatability`` (any robot, a URDF robot's too) makes the simulated drives position
+as a real robot's do (:mod:`drivers.sim.axis`): ``backlash`` is each joint's whole play
+(rad; m for a prismatic joint or the rail: the link's position approached from above
+and from below differs by this), ``positioning`` the std of a random error of the link
+at the end of each move (rad, m); each one number for every joint or a list of one per
+joint, each at most 0.01 (:mod:`drivers.sim.repeatability`). The drives' encoders do
+not see either (they are between the motor and the link); the random error is drawn
+from the simulator's seed.
+Left out (the default), every simulated session is as it was: the link is the motor.
+A few arc-seconds (1 arcsec = 4.85e-6 rad) is an industrial arm's.
 
 Unknown keys are errors; every error is a :class:`ConfigError` naming the file
 and the key path (``truth.json: parameters.k3: missing required key``).
@@ -40,6 +54,7 @@ import numpy as np
 from calibration.robots import ROBOTS, get_robot
 from drivers.atomic import write_atomic
 from drivers.config_reader import KeyReader, frozen_map, load_json
+from drivers.sim.repeatability import parse_repeatability, repeatability_dict
 
 NOISE_CHANNELS = ("distance", "tilt", "roll", "pitch", "yaw", "qm", "position", "pose")
 PLANE_KEYS = ("plane_a", "plane_b", "plane_c")
@@ -71,6 +86,8 @@ class SimTruth:
     robot_file: str | None = None  # its path as the truth file gives it
     frame: tuple | None = None    # a URDF robot's measurement frame ((x, y, z), (r, p, y))
     points: tuple | None = None   # a URDF robot's points on the tool (M, 3) tip link frame
+    #: ``{"backlash": (n,), "positioning": (n,)}`` per joint (rad, m), or None (module doc)
+    repeatability: Mapping[str, tuple] | None = None
 
     def model(self):
         """The robot model (built-in or the robot file's)."""
@@ -88,6 +105,7 @@ class SimTruth:
     def without_noise(self) -> "SimTruth":
         """The same robot with every channel noise-free."""
         return dataclasses.replace(self, noise=frozen_map({}))
+
 
 
 def report_truth(robot: str) -> SimTruth:
@@ -147,11 +165,13 @@ def parse_truth(data: Any, source: str | None = None) -> SimTruth:
         mount = top.float_list("inclinometer_mount", length=2)
         if max(abs(m) for m in mount) > math.pi / 4:
             top.fail("inclinometer_mount", "a mounting rotation is small: |rx|, |ry| <= pi/4")
+    repeatability = parse_repeatability(top, model.n_actuators)
     comment = top.str("comment", default=None)
     top.finish()
     return SimTruth(robot=robot, parameters=frozen_map(params), noise=frozen_map(noise),
                     seed=seed, plane=plane, inclinometer_mount=tuple(mount),
-                    comment=comment, source=source, spec=spec, robot_file=file_path)
+                    comment=comment, source=source, spec=spec, robot_file=file_path,
+                    repeatability=repeatability)
 
 
 def load_truth(path: str | Path) -> SimTruth:
@@ -177,6 +197,8 @@ def truth_to_dict(truth: SimTruth) -> dict:
         out["seed"] = truth.seed
     if (truth.robot == "agebot-pm" or truth.spec is not None) and any(truth.inclinometer_mount):
         out["inclinometer_mount"] = list(truth.inclinometer_mount)
+    if truth.repeatability:
+        out["repeatability"] = repeatability_dict(truth)
     if truth.comment:
         out["comment"] = truth.comment
     return out

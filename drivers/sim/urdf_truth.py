@@ -10,7 +10,12 @@ joints as the nominal's; ``measurement_frame`` the base link's pose in the instr
 frame (m, rad; ``R = Rz(yaw) Ry(pitch) Rx(roll)``); ``points_on_tool`` the points in the
 tip link's frame (m), in the instrument's order; ``noise.marker`` the std of each
 coordinate (m). Optional: ``noise`` of the station's own sensors (``distance``, ``roll``,
-``pitch``, ``qm``: as a robot file's truth), ``inclinometer_mount``, ``comment``.
+``pitch``, ``qm``: as a robot file's truth), ``inclinometer_mount``, ``comment``, and
+``repeatability``: ``{"backlash": rad, "positioning": rad}`` (m for a prismatic joint;
+one number or one per joint of the chain): each joint's whole backlash and the std of
+a random positioning error per move, between the drive's encoder and the link
+(:mod:`drivers.sim.truth`, :mod:`drivers.sim.axis`); left out, the link is where the
+motor is, as before.
 
 The simulated robot is the true URDF as it is, in its base link's frame (its floor is
 the base link's ``z = 0``); the instrument sees its points through the measurement frame.
@@ -66,13 +71,16 @@ def parse_urdf_truth(top: KeyReader, source: str | None) -> dict:
         mount = top.float_list("inclinometer_mount", length=2)
         if max(abs(m) for m in mount) > math.pi / 4:
             top.fail("inclinometer_mount", "a mounting rotation is small: |rx|, |ry| <= pi/4")
+    from drivers.sim.repeatability import parse_repeatability
+
+    repeatability = parse_repeatability(top, len(spec.joints))
     comment = top.str("comment", default=None)
     top.finish()
     model = get_robot(spec)
     return dict(robot="urdf", parameters=frozen_map(model.as_dict(model.nominal)),
                 noise=frozen_map(noise), seed=seed, inclinometer_mount=tuple(mount),
                 comment=comment, source=source, spec=spec, robot_file=path,
-                frame=(tuple(xyz), tuple(rpy)), points=points)
+                frame=(tuple(xyz), tuple(rpy)), points=points, repeatability=repeatability)
 
 
 def urdf_truth_dict(truth) -> dict[str, Any]:
@@ -88,6 +96,10 @@ def urdf_truth_dict(truth) -> dict[str, Any]:
         out["seed"] = truth.seed
     if any(truth.inclinometer_mount):
         out["inclinometer_mount"] = list(truth.inclinometer_mount)
+    if truth.repeatability:
+        from drivers.sim.repeatability import repeatability_dict
+
+        out["repeatability"] = repeatability_dict(truth)
     if truth.comment:
         out["comment"] = truth.comment
     return out

@@ -19,9 +19,12 @@ from calibration.errors import ConfigError
 
 
 def draw_truth_file(robot: str, out, seed: int, *, gear: float | None = None,
-                    length: float | None = None, offset: float | None = None) -> Path:
+                    length: float | None = None, offset: float | None = None,
+                    repeatability: str | None = None) -> Path:
     """Draw ``robot`` (seed ``seed``; spreads as the study's, None: its defaults) and
-    write the truth file ``out`` atomically; returns its path."""
+    write the truth file ``out`` atomically; returns its path. ``repeatability``:
+    ``"BACKLASH,POSITIONING"`` (rad, every joint) for the truth's ``repeatability``
+    (:mod:`drivers.sim.repeatability`; None: none, the drives position exactly)."""
     from drivers.sim.serial_robot import is_robot_file
     from drivers.sim.truth import DRAW_SPREAD, save_truth
     from station.simulation.sessions import station_truth
@@ -45,7 +48,7 @@ def draw_truth_file(robot: str, out, seed: int, *, gear: float | None = None,
         out = Path(out)
         truth, _x = urdf_truth(robot, int(seed), f"drawn by app.py truth draw, seed {seed}")
         out.parent.mkdir(parents=True, exist_ok=True)
-        save_truth(truth_beside(truth, out), out)
+        save_truth(_with_play(truth_beside(truth, out), repeatability), out)
         return out
     if is_robot_file(robot):
         from drivers.robot_file import load_robot_file
@@ -59,8 +62,29 @@ def draw_truth_file(robot: str, out, seed: int, *, gear: float | None = None,
     out = Path(out)
     if out.parent and not out.parent.is_dir():
         out.parent.mkdir(parents=True, exist_ok=True)
-    save_truth(truth, out)
+    save_truth(_with_play(truth, repeatability), out)
     return out
+
+
+def _with_play(truth, text: str | None):
+    """``truth`` with ``--repeatability BACKLASH,POSITIONING`` (rad) for every joint."""
+    if not text:
+        return truth
+    import dataclasses
+
+    from drivers.config_reader import frozen_map
+    from drivers.sim.repeatability import MAX_PLAY
+
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 2 or not all(math.isfinite(t) and 0 <= t <= MAX_PLAY for t in v):
+        raise ConfigError(f"--repeatability {text[:40]}: give BACKLASH,POSITIONING in rad, "
+                          f"each 0 to {MAX_PLAY:g} (a few arc-seconds: 2e-5,1e-5)")
+    n = truth.model().n_actuators
+    return dataclasses.replace(truth, repeatability=frozen_map(
+        {"backlash": (v[0],) * n, "positioning": (v[1],) * n}))
 
 
 def cli(args: argparse.Namespace) -> int:
@@ -70,7 +94,8 @@ def cli(args: argparse.Namespace) -> int:
 
     check_writable(args.out, "the truth file", inputs=(args.robot,))
     path = draw_truth_file(args.robot, args.out, args.seed, gear=args.gear,
-                           length=args.length, offset=args.offset)
+                           length=args.length, offset=args.offset,
+                           repeatability=getattr(args, "repeatability", None))
     spread = {k: DRAW_SPREAD[k] if getattr(args, k) is None else getattr(args, k)
               for k in ("gear", "length", "offset")}
     from drivers.robot_file import split_urdf_ref
@@ -118,4 +143,8 @@ def add_parser(sub) -> None:
                    f"{DRAW_SPREAD['length']:g})")
     d.add_argument("--offset", type=float, help="offsets and angles within +-OFFSET (rad; "
                    f"default {DRAW_SPREAD['offset']:g})")
+    d.add_argument("--repeatability", metavar="BACKLASH,POSITIONING",
+                   help="the drives' backlash and random positioning error per move (rad, "
+                        "every joint, e.g. 2e-5,1e-5: a few arc-seconds; default none: the "
+                        "simulated robot positions exactly; docs/accuracy.md)")
     d.set_defaults(func=cli, robot_chain=True)
