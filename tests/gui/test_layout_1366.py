@@ -144,7 +144,7 @@ def _urdf_markers():
     for name, v in (("base_x", 1.4), ("base_y", -1.9), ("base_z", 0.6), ("base_yaw", 2.2)):
         xi[robot.index(name)] = v
     points = np.array([[0.05, 0.02, 0.04], [-0.03, 0.05, 0.06], [0.0, -0.06, 0.05]])
-    kind = SimpleNamespace(labels=("tool1", "tool2", "tool3"), _estimate=(xi, points, 8))
+    kind = SimpleNamespace(labels=("tool1", "tool2", "tool3"), last_estimate=(xi, points))
     return SimpleNamespace(method="sm-markers", serial=True, robot=robot, nominal=robot.nominal,
                            reference_qm=None, kind=kind, needs_reference=False,
                            reference_target=lambda: (None, "no reference", ""))
@@ -173,8 +173,8 @@ def test_a_urdf_robot_s_execute_and_reference_pages_fit(window, qtbot, size):
     assert isinstance(pic, ArmFigure) and pic.labels == ("tool1", "tool2", "tool3")
     show_estimate(pic, s)
     qm = [0.3, 0.2, -0.1, 0.4, 1.2, 0.0]
-    T = s.robot.frames(np.array([qm]), s.kind._estimate[0])[0]
-    seen = s.kind._estimate[1] @ T[:3, :3].T + T[:3, 3]
+    T = s.robot.frames(np.array([qm]), s.kind.last_estimate[0])[0]
+    seen = s.kind.last_estimate[1] @ T[:3, :3].T + T[:3, 3]
     values = {f"qm{i + 1}": v for i, v in enumerate(qm)}
     values.update({f"m{k + 1}_{a}": (math.nan if k == 1 else float(seen[k, j]))
                    for k in range(3) for j, a in enumerate("xyz")})
@@ -186,7 +186,7 @@ def test_a_urdf_robot_s_execute_and_reference_pages_fit(window, qtbot, size):
     assert any(text == "not seen: tool2" for text, _ in pic.marker_lines())
     # the lines over the picture never squeeze the 3D axes (a line wider than the
     # picture collapsed them to a dot): with the estimate and before it
-    for est in (s.kind._estimate[:2], (None, None)):
+    for est in (s.kind.last_estimate, (None, None)):
         pic.set_estimate(*est)
         qtbot.waitUntil(lambda: pic._drawn_key == pic._key(), timeout=5000)
         pic.canvas.draw()

@@ -144,7 +144,7 @@ def _truth_cycles(truth, rows, program: str, cycles: int):
     return {k: np.array(v) for k, v in got.items()}
 
 
-@pytest.mark.heavy
+@pytest.mark.slow       # a whole simulated session and 8 cycles of the test: CI runs it
 def test_the_simulated_test_improves_ap_by_the_calibration_s_factor_and_keeps_rp(
         calibrated, tmp_path, capsys):
     folder, truth = calibrated

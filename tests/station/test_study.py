@@ -108,6 +108,7 @@ def test_study_bad_options_one_line(tmp_path):
     assert r.returncode == 2 and "cannot reach the Dask scheduler" in r.stderr, r.stderr
 
 
+@pytest.mark.slow       # four calibrations of a URDF arm and two of a robot file: CI runs it
 def test_study_of_a_urdf_robot_and_a_robot_file(tmp_path):
     """A study takes a robot file's and a URDF robot's arm: drawn around their nominal,
     calibrated, the reported std honest (|z| RMS near 1) and the held-out error small."""
