@@ -40,8 +40,8 @@ from calibration.identifiability import minimum_poses
 from calibration.methods.sm_markers import FRAME_PARAMS
 from station.planning import pose_design
 from station.planning.arm_rounds import EARLY_SHARE, SCOUT_SCALE
-from station.planning.serial_plan import FLOOR_MARGIN, POOL, SPARE, joint_box, path_clear, \
-    safe_pool
+from station.planning.serial_plan import FLOOR_MARGIN, POOL, SPARE, joint_box, safe_pool, \
+    travel
 
 METHOD = "sm-markers"
 MARGIN = 0.05            # share of each joint's range kept clear of its limits
@@ -318,25 +318,11 @@ def _planned(robot, xi, u, sight, req, box, start, measured, noise, *, volume_on
 
 
 def _visit(robot, xi, cand, fit, val, start, n_fit: int, n_val: int):
-    """The ``fit`` and ``val`` candidates in the travel order from ``start``, a blocked way
-    (:func:`~station.planning.serial_plan.path_clear`) skipped for the next clear one,
+    """The ``fit`` and ``val`` candidates in the travel order from ``start``, each way
+    checked above the floor of the base link (:func:`~station.planning.serial_plan.travel`),
     until ``n_fit`` and ``n_val``: ``(qm (k, n), use list)``."""
-    base = base_model(robot, xi)
-    chosen = np.r_[np.asarray(fit, dtype=int), np.asarray(val, dtype=int)]
-    use = ["fit"] * len(fit) + ["validation"] * len(val)
-    want, n = {"fit": n_fit, "validation": n_val}, {"fit": 0, "validation": 0}
-    todo = list(planning.order_for_travel(cand[chosen], start=start))
-    here, out_q, out_use = np.asarray(start, dtype=float), [], []
-    while todo and n != want:
-        todo = [k for k in todo if n[use[k]] < want[use[k]]]
-        k = next((k for k in todo if path_clear(robot, base, here, cand[chosen[k]])), None)
-        if k is None:
-            break
-        todo.remove(k)
-        here = cand[chosen[k]]
-        out_q.append(here)
-        out_use.append(use[k])
-        n[use[k]] += 1
+    out_q, out_use, _ = travel(robot, base_model(robot, xi), cand, np.asarray(fit, dtype=int),
+                               np.asarray(val, dtype=int), start, n_fit, n_val)
     return np.array(out_q).reshape(-1, robot.n_actuators), out_use
 
 

@@ -205,12 +205,23 @@ def _visit(robot, xi, pool, info, req, rng, spare, n_val, count, ref, start_qm):
                else rng.choice(len(pool), size=spare, replace=False))
     rest = np.setdiff1d(np.arange(len(pool)), fit)
     val = list(rng.choice(rest, size=4 * n_val, replace=False))
-    chosen = fit + val
+    out_q, out_use, n = travel(robot, xi, pool, fit, val, ref if start_qm is None else start_qm,
+                               count, n_val, here=ref)
+    return out_q, out_use, n
+
+
+def travel(robot, xi, pool, fit, val, start, n_fit: int, n_val: int, here=None):
+    """The ``fit`` and ``val`` candidates of ``pool`` (indices) in the travel order from
+    ``start`` (:func:`calibration.planning.order_for_travel`), each way checked from the
+    last pose kept (:func:`path_clear` at ``xi``; the first from ``here``, default
+    ``start``), a blocked way skipped for the next clear one, until ``n_fit`` and
+    ``n_val``: ``(qm list, use list, counts)``."""
+    chosen = list(fit) + list(val)
     use = ["fit"] * len(fit) + ["validation"] * len(val)
-    order = planning.order_for_travel(pool[chosen], start=ref if start_qm is None else start_qm)
-    out_q, out_use, here, n = [], [], ref, {"fit": 0, "validation": 0}
-    want = {"fit": count, "validation": n_val}
-    todo = list(order)
+    todo = list(planning.order_for_travel(pool[chosen], start=start))
+    here = np.asarray(start if here is None else here, dtype=float)
+    out_q, out_use, n = [], [], {"fit": 0, "validation": 0}
+    want = {"fit": n_fit, "validation": n_val}
     while todo and n != want:        # the travel order; a blocked way: the next clear one
         todo = [k for k in todo if n[use[k]] < want[use[k]]]
         k = next((k for k in todo if path_clear(robot, xi, here, pool[chosen[k]])), None)
