@@ -4,7 +4,9 @@
 1. Outliers: the reading with the largest externally studentized residual
    (:mod:`calibration.quality`) beyond the Bonferroni threshold is named by its
    pose index and channel, its pose is left out and the trace refitted; repeated
-   while one is found, up to :func:`max_outliers`.
+   while one is found, up to :func:`max_outliers`. sm-markers: a pose's points are
+   judged as one block, by what the pose does to the fit
+   (:mod:`station.fitting.pose_outliers`).
 2. Noise: per channel with a stated ``sigma`` (trace header), the residual must
    fit that noise (chi-square, upper tail).
 3. Validation: where the trace holds held-out poses, the calibrated parameters
@@ -34,6 +36,8 @@ from station.fitting.gate_checks import (check_explains, check_plausibility, che
                                          check_validation, people)
 from station.fitting.point_check import check_points
 from station.fitting.pose_count import NR_P, parameter_count
+from station.fitting.pose_outliers import (MAX_RESTARTS, applies, judge_poses, lower,
+                                           model_error)
 from station.fitting.verdict import (OUTLIER_MODES, FitQualityError, NotConverged, Quality,
                                      describe, max_outliers)
 
@@ -214,7 +218,7 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=(),
             return got
         got2 = run_gate(trace1, model2, result2, refit=refit, stated_sigma=stated_sigma,
                         validate=validate, outliers=quality.outliers, hold=hold)
-        if got2[0].passed or _lower(got2[2:4], got[2:4]):
+        if got2[0].passed or lower(got2[2:4], got[2:4]):
             # a lower minimum is the fit to judge (and to name what fails in it)
             got2[0].check("start", True, "start: the fit from the start values ended in a "
                           "local minimum; refitted from a robust fit's solution")
@@ -243,18 +247,6 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=(),
                       f"does not fit a robust fit ({worst.t:.3g} robust sigmas), and the fit "
                       "still fails without it", next=entry)
     return got2
-
-
-def _lower(a, b) -> bool:
-    """Does the fit ``a = (model, result)`` end lower than ``b`` on the same trace
-    (both residuals weighted with ``b``'s sigma)?"""
-    (_, ra), (mb, rb) = a, b
-    w = q.row_weights(mb.row_channel, mb.channels, rb.sigma)
-    return float(np.sum(w * ra.residual ** 2)) < float(np.sum(w * rb.residual ** 2))
-
-
-# Refits of every pose from a better start that one run of the gate may make.
-MAX_RESTARTS = 3
 
 
 def _confirmed(model, model_without, result_without, worst: q.Outlier) -> bool:
@@ -317,8 +309,12 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
     for o in outliers:
         excluded |= {o["pose"], *o.get("partners", ())}
     limit = max_outliers(len(trace.fit_poses) + len(excluded))
-    restarts = 0
-    while True:
+    restarts, blocks = 0, applies(model)   # sm-markers: a pose's points judged as one block
+    if blocks and mode != "off":
+        trace, model, result, restarts = judge_poses(
+            quality, trace, model, result, refit=refit, hold=hold, mode=mode, limit=limit,
+            stated_sigma=stated_sigma, excluded=excluded, exclude_from=_excluded)
+    while not blocks:
         if mode == "off" or row_poses(model) is None:
             break                       # (off: not judged, nothing to compute)
         worst, n_test = _worst(model, result)
@@ -369,20 +365,22 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
         quality.check("outliers", True, "outliers: not judged (--outliers off)")
     failed = any(c["check"] == "outliers" and not c["ok"] for c in quality.checks)
     if quality.outliers and not failed:    # (a failure names the excluded ones already)
-        quality.check("outliers", True, f"outliers: {len(quality.outliers)} pose(s) excluded "
-                      "(a reading that does not fit takes its whole pose out) and the trace "
-                      "refitted: " + ", ".join(describe(o) for o in quality.outliers))
-    elif not quality.checks and mode != "off":
+        how = "" if blocks else " (a reading that does not fit takes its whole pose out)"
+        quality.check("outliers", True, f"outliers: {len(quality.outliers)} pose(s) excluded"
+                      f"{how} and the trace refitted: "
+                      + ", ".join(describe(o) for o in quality.outliers))
+    elif not any(c["check"] == "outliers" for c in quality.checks) and mode != "off":
         quality.check("outliers", True, "outliers: none")
     r, h = _statistics(model, result)
+    real = model_error(quality)   # sm-markers: residuals set by the model, not the instrument
     for c in q.chi_square(r, h, model.row_channel, model.channels, stated_sigma or {}):
-        verdict = "fit" if c["ok"] else "do not fit"
-        quality.check("noise", c["ok"],
+        verdict, note = ("fit", "") if c["ok"] else ("do not fit", real)
+        quality.check("noise", c["ok"] or bool(note),
                       f"noise: {c['channel']} residuals {verdict} the stated sigma "
                       f"{people(c['stated_sigma'], c['channel'])} (fitted "
                       f"{people(c['fitted_sigma'], c['channel'])}, "
                       f"{c['ratio']:.3g} times; chi-square {c['chi2']:.4g} on {c['dof']:.1f} "
-                      f"degrees of freedom, p = {c['p']:.2g})",
+                      f"degrees of freedom, p = {c['p']:.2g}){note}", short=bool(note),
                       **{k: c[k] for k in ("channel", "stated_sigma", "fitted_sigma", "ratio",
                                            "chi2", "dof", "p")})
     check_poses(quality, trace, model, result)

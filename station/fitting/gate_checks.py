@@ -72,6 +72,8 @@ def check_validation(quality, validation: list[dict]) -> None:
                       f"the fitted poses' joint ranges: {named}{more}; their errors "
                       f"({'; '.join(figs)}) are an extrapolation, reported and not judged",
                       channel=beyond[0]["channel"], outside_range=out)
+    # sm-markers where the residuals are the model's error: the level the fit's poses show
+    level = next((c["level"] for c in quality.checks if c.get("level")), None)
     for v in validation:
         o = v.get("outlier")
         if o:
@@ -81,6 +83,13 @@ def check_validation(quality, validation: list[dict]) -> None:
                         f"{mm(o['residual'])} mm off the calibration's prediction, "
                         f"{o['t']:.3g} times its predicted std (threshold "
                         f"{o['threshold']:.3g} over {o['rows_tested']} held-out points)")
+                size = o["t"] * level["sigma"] if level else math.inf   # studentized, m
+                if size <= level_limit(level):
+                    quality.check("validation", True, f"{what}, within the model-error level "
+                                  f"the fit's poses show ({mm(size)} mm studentized, an "
+                                  f"outlier beyond {mm(level_limit(level))} mm)",
+                                  channel=v["channel"], heldout=dict(o), short=True)
+                    continue
             else:
                 what = (f"validation: held-out {where} {v['channel']} is "
                         f"{o['residual']:.4g} {v['unit']} off the calibration's "
@@ -90,6 +99,12 @@ def check_validation(quality, validation: list[dict]) -> None:
             quality.check("validation", False, what + ": a bad reading or a model that "
                           "does not predict; check that pose's reading",
                           channel=v["channel"], heldout=dict(o))
+
+
+def level_limit(level) -> float:
+    """A point's studentized 3D size beyond which it stands out of the model-error level
+    (:mod:`station.fitting.pose_outliers`; its limit is per row of x, y, z)."""
+    return level["limit"] * math.sqrt(3.0) if level else -math.inf
 
 
 def people(v, channel: str, si: str | None = None) -> str:

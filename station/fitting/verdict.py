@@ -61,6 +61,9 @@ class Quality:
         out = [f"excluded by the operator: pose {e['pose']} ({e['reason']})"
                for e in self.excluded]
         for o in self.outliers:
+            if "deleted" in o:      # a pose judged whole (station.fitting.pose_outliers)
+                out.append(f"outlier excluded: {describe(o)} ({deleted_text(o)})")
+                continue
             res = (f"{o['residual'] * 1e3:.4g} mm from its prediction" if "point" in o
                    else f"residual {o['residual']:.4g}")
             out.append(f"outlier excluded: {describe(o)} ({res}, studentized {o['t']:.3g} > "
@@ -94,3 +97,19 @@ def describe(o: dict) -> str:
     """``pose 5 marker`` (sm-markers: ``pose 5 point 2``) for an outlier entry."""
     return f"{pose_name(o)} point {o['point']}" if "point" in o else \
         f"{pose_name(o)} {o['channel']}"
+
+
+def deleted_text(o: dict) -> str:
+    """What a pose judged whole did (an outlier entry with ``deleted``): its error from
+    the fit without it, the others' prediction with and without it, its error under
+    the final model."""
+    lead = "" if o.get("level") is None else f" (beyond {o['level'] * 1e3:.3g} mm)"
+    text = (f"{o['deleted'] * 1e3:.4g} mm from the prediction of the fit without it, "
+            f"leverage {o['leverage']:.2g}, studentized {o['t']:.3g} > {o['threshold']:.3g}"
+            f"{lead}")
+    if o.get("others"):
+        was, now = o["others"]
+        text += f"; the others predicted {was * 1e3:.3g} -> {now * 1e3:.3g} mm without it"
+    if o.get("final") is not None:
+        text += f"; {o['final'] * 1e3:.4g} mm off the final model"
+    return text
