@@ -199,7 +199,7 @@ def test_the_readings_say_a_marker_not_seen(qtbot):
     assert text == "m1 tool1 (1250, -500, 2000) mm; m2 tool2 not seen"
 
 
-@pytest.mark.heavy
+@pytest.mark.slow       # a whole session through the wizard (30 s on 2 cores): CI runs it
 def test_a_urdf_session_in_the_wizard(open_window, qtbot, tmp_path, answers):
     from station.simulation.truth_cli import draw_truth_file
     from station.simulation.urdf_sessions import urdf_config
