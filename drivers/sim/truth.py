@@ -181,16 +181,17 @@ def load_truth(path: str | Path) -> SimTruth:
 
 def truth_to_dict(truth: SimTruth) -> dict:
     """The JSON object of ``truth`` (inverse of :func:`parse_truth`)."""
-    if truth.robot == "urdf":
+    if truth.robot == "urdf":          # its true URDF, the room and the points
         from drivers.sim.urdf_truth import urdf_truth_dict
 
-        return urdf_truth_dict(truth)
-    params = dict(truth.parameters)
-    if truth.plane is not None:
-        params.update(zip(PLANE_KEYS, truth.plane))
-    out: dict[str, Any] = {"robot": truth.robot, "parameters": params}
-    if truth.robot_file is not None:
-        out["robot_file"] = truth.robot_file
+        out: dict[str, Any] = urdf_truth_dict(truth)
+    else:
+        params = dict(truth.parameters)
+        if truth.plane is not None:
+            params.update(zip(PLANE_KEYS, truth.plane))
+        out = {"robot": truth.robot, "parameters": params}
+        if truth.robot_file is not None:
+            out["robot_file"] = truth.robot_file
     if truth.noise:
         out["noise"] = dict(truth.noise)
     if truth.seed is not None:

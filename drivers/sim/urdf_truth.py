@@ -84,25 +84,13 @@ def parse_urdf_truth(top: KeyReader, source: str | None) -> dict:
 
 
 def urdf_truth_dict(truth) -> dict[str, Any]:
-    """The JSON object of a URDF robot's truth (inverse of :func:`parse_urdf_truth`)."""
-    out: dict[str, Any] = {"robot": "urdf", "urdf": truth.robot_file,
-                           "base_link": truth.spec.base_link, "tip_link": truth.spec.tip_link,
-                           "measurement_frame": {"xyz": list(truth.frame[0]),
-                                                 "rpy": list(truth.frame[1])},
-                           "points_on_tool": [list(p) for p in truth.points]}
-    if truth.noise:
-        out["noise"] = dict(truth.noise)
-    if truth.seed is not None:
-        out["seed"] = truth.seed
-    if any(truth.inclinometer_mount):
-        out["inclinometer_mount"] = list(truth.inclinometer_mount)
-    if truth.repeatability:
-        from drivers.sim.repeatability import repeatability_dict
-
-        out["repeatability"] = repeatability_dict(truth)
-    if truth.comment:
-        out["comment"] = truth.comment
-    return out
+    """What a URDF robot's truth object has of its own (inverse of
+    :func:`parse_urdf_truth`); :func:`drivers.sim.truth.truth_to_dict` adds the keys every
+    truth has (noise, seed, inclinometer_mount, repeatability, comment)."""
+    return {"robot": "urdf", "urdf": truth.robot_file,
+            "base_link": truth.spec.base_link, "tip_link": truth.spec.tip_link,
+            "measurement_frame": {"xyz": list(truth.frame[0]), "rpy": list(truth.frame[1])},
+            "points_on_tool": [list(p) for p in truth.points]}
 
 
 def frame_matrix(frame) -> np.ndarray:
