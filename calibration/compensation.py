@@ -252,10 +252,10 @@ class SerialCompensation:
         return sp, sa
 
 
-class ArmCompensation:
-    """AGEBOT's arm (:class:`calibration.robots.agebot_sm.AgebotSM`): the targets
-    ``X = [x, y, z, phi]`` of the nominal model, reached by the calibrated model's IK in
-    the elbow of the nominal configuration (its four joints set the point and phi)."""
+class _BuiltinCompensation:
+    """A built-in robot's nominal and calibrated models (its own ``fk`` and ``ik``):
+    ``xi_nom`` puts the targets, ``xi_cal`` reaches them, ``xi_pred`` (default
+    ``xi_cal``) predicts the remaining error."""
 
     orientation = True
 
@@ -266,7 +266,16 @@ class ArmCompensation:
         self.xi_pred = self.xi_cal if xi_pred is None else np.asarray(xi_pred, dtype=float)
 
     def targets(self, qm) -> np.ndarray:
+        """Where the nominal model puts the tool (the arm's ``[x, y, z, phi]``, the wrist's
+        orientation) at ``qm (m, n)``; the wrist raises :class:`CalibrationError` where
+        the nominal wrist cannot assemble at a row's values."""
         return self.robot.fk(np.atleast_2d(qm), self.xi_nom)
+
+
+class ArmCompensation(_BuiltinCompensation):
+    """AGEBOT's arm (:class:`calibration.robots.agebot_sm.AgebotSM`): the targets
+    ``X = [x, y, z, phi]`` of the nominal model, reached by the calibrated model's IK in
+    the elbow of the nominal configuration (its four joints set the point and phi)."""
 
     def errors(self, qm, target) -> tuple[float, float]:
         X = self.robot.fk(np.atleast_2d(qm), self.xi_cal)[0]
@@ -307,23 +316,10 @@ def _columns(J, have, names) -> np.ndarray:
     return out
 
 
-class WristCompensation:
+class WristCompensation(_BuiltinCompensation):
     """AGEBOT's wrist (:class:`calibration.robots.agebot_pm.AgebotPM`): the orientation
     ``[alpha, beta, gamma]`` the nominal model assembles to at ``qm``, reached by the
     calibrated model's IK and inside the passive joints' envelope."""
-
-    orientation = True
-
-    def __init__(self, robot, xi_nom, xi_cal, xi_pred=None):
-        self.robot = robot
-        self.xi_nom = np.asarray(xi_nom, dtype=float)
-        self.xi_cal = np.asarray(xi_cal, dtype=float)
-        self.xi_pred = self.xi_cal if xi_pred is None else np.asarray(xi_pred, dtype=float)
-
-    def targets(self, qm) -> np.ndarray:
-        """Orientations ``(m, 3)``; :class:`CalibrationError` where the nominal wrist cannot
-        assemble at a row's values."""
-        return self.robot.fk(np.atleast_2d(qm), self.xi_nom)
 
     def errors(self, qm, target) -> tuple[float, float]:
         from calibration.robots.agebot_pm import rot_xyz
