@@ -39,7 +39,7 @@ from station.fitting.pose_count import NR_P, parameter_count
 from station.fitting.pose_outliers import (MAX_RESTARTS, applies, judge_poses, lower,
                                            model_error)
 from station.fitting.verdict import (OUTLIER_MODES, FitQualityError, NotConverged, Quality,
-                                     describe, max_outliers)
+                                     describe, max_outliers, stops_judging)
 
 
 def point_of_row(model, row: int) -> int | None:
@@ -321,19 +321,8 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
         if worst is None:
             break
         entry = _entry(trace, model, worst, n_test)
-        if mode != "exclude":
-            if mode == "flag":
-                quality.check("outliers", True, f"outliers: flagged, kept in the fit "
-                              f"(--outliers flag): {describe(entry)} (studentized residual "
-                              f"{worst.t:.3g} > {worst.threshold:.3g})", flagged=entry)
-            break
-        if len(quality.outliers) >= limit:
-            named = ", ".join(describe(o) for o in quality.outliers)
-            quality.check("outliers", False,
-                          f"outliers: more than {limit} readings do not fit the others "
-                          f"({named + ', ' if named else ''}{describe(entry)}: studentized "
-                          f"residual {worst.t:.3g} > "
-                          f"{worst.threshold:.3g})", limit=limit, next=entry)
+        said = f"studentized residual {worst.t:.3g} > {worst.threshold:.3g}"
+        if stops_judging(quality, mode, entry, said, limit, "readings"):
             break
         new_trace, partners = _excluded(trace, excluded | {entry["pose"]})
         try:

@@ -28,7 +28,7 @@ import numpy as np
 
 from calibration import quality as q
 from calibration.errors import CalibrationError
-from station.fitting.verdict import describe
+from station.fitting.verdict import describe, stops_judging
 
 #: the poses' sizes spread this many times wider than noise spreads them: model error
 MODEL_ERROR_SPREAD = 1.5
@@ -134,16 +134,7 @@ def judge_poses(quality, trace, model, result, *, refit, hold, mode: str, stated
         entry = _entry(trace, model, r, b)
         said = (f"{entry['deleted'] * 1e3:.4g} mm from the prediction of the fit without "
                 f"it, studentized {b.t:.3g} > {b.threshold:.3g}")
-        if mode == "flag":
-            quality.check("outliers", True, f"outliers: flagged, kept in the fit (--outliers "
-                          f"flag): {describe(entry)} ({said})", flagged=entry)
-            break
-        if len(quality.outliers) >= limit:
-            named = ", ".join(describe(o) for o in quality.outliers)
-            quality.check("outliers", False,
-                          f"outliers: more than {limit} poses do not fit the others "
-                          f"({named + ', ' if named else ''}{describe(entry)}: {said})",
-                          limit=limit, next=entry)
+        if stops_judging(quality, mode, entry, said, limit, "poses"):
             break
         new_trace, partners = exclude_from(trace, excluded | {entry["pose"]})
         try:

@@ -99,6 +99,25 @@ def describe(o: dict) -> str:
         f"{pose_name(o)} {o['channel']}"
 
 
+def stops_judging(quality, mode: str, entry: dict, said: str, limit: int, what: str) -> bool:
+    """The outlier loop's two ends before a reading or a pose is left out: with
+    ``--outliers flag`` the worst is named and kept; with ``exclude`` more than ``limit``
+    ``what`` (readings, poses) not fitting the others is a failed check. True where the
+    loop stops (the check recorded in ``quality``); ``said`` is why ``entry`` does not fit."""
+    if mode == "flag":
+        quality.check("outliers", True, f"outliers: flagged, kept in the fit (--outliers "
+                      f"flag): {describe(entry)} ({said})", flagged=entry)
+        return True
+    if len(quality.outliers) >= limit:
+        named = ", ".join(describe(o) for o in quality.outliers)
+        quality.check("outliers", False,
+                      f"outliers: more than {limit} {what} do not fit the others "
+                      f"({named + ', ' if named else ''}{describe(entry)}: {said})",
+                      limit=limit, next=entry)
+        return True
+    return False
+
+
 def deleted_text(o: dict) -> str:
     """What a pose judged whole did (an outlier entry with ``deleted``): its error from
     the fit without it, the others' prediction with and without it, its error under
