@@ -180,6 +180,12 @@ def is_robot_file(robot: str) -> bool:
     return robot not in ROBOTS
 
 
+#: the simulated nodes and their socketcand server run in the station's own process, where a
+#: loaded host (the wizard drawing, the CI's two cores) delays their heartbeats by tenths of
+#: a second; a real bus keeps the example's 0.5 s (fixtures/stations/example-real.toml)
+SIM_HEARTBEAT_TIMEOUT = 2.0
+
+
 def sim_config_data(spec, *, velocity: float = VELOCITY,
                     acceleration: float = ACCELERATION, truth: SimTruth | None = None) -> dict:
     """The default simulated station of a robot file, as a station config document:
@@ -199,7 +205,7 @@ def sim_config_data(spec, *, velocity: float = VELOCITY,
                     "host": "@endpoints", "port": "@endpoints", "nodes": list(range(1, n + 1)),
                     "increments_per_unit": [131072] * n, "profile_velocity": [velocity] * n,
                     "profile_acceleration": [acceleration] * n, "sdo_timeout": 0.5,
-                    "move_timeout": 30.0, "heartbeat_period": 0.1, "heartbeat_timeout": 0.5,
+                    "move_timeout": 30.0, "heartbeat_period": 0.1, "heartbeat_timeout": SIM_HEARTBEAT_TIMEOUT,
                     "sync_period": 0.02},
         "inclinometer": {"port": "@endpoints", "baudrate": 115200, "timeout": 1.0,
                          "axes": {"roll": {"raw": "roll"}, "pitch": {"raw": "pitch"}}},

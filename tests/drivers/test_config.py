@@ -163,7 +163,7 @@ def test_optional_sections_and_defaults():
         d.pop(k)
     c = parse_station_config(d)
     assert c.inclinometer is None and c.drawwire is None and c.snapshot == SnapshotConfig()
-    assert c.canopen.heartbeat_timeout == 0.5
+    assert c.canopen.heartbeat_timeout == 2.0
 
 
 def test_file_errors_name_the_file(tmp_path):
