@@ -10,12 +10,19 @@ is vertical feels no torque: its column is zero).
 :func:`compare` fits the trace twice, rigid and compliant, each through the
 fit-quality gate, and says whether the data support the compliances:
 
-* with held-out poses: the compliant model must predict them better, by more than the
-  uncertainty of the difference. Per held-out pose, the squared 3D (or row) errors of
-  the two models differ by ``d_p``; the improvement is supported where ``mean(d) >
-  SUPPORT_Z * std(d) / sqrt(poses)`` (the poses' differences taken as independent);
-* without: a nested-model F test on the fit residuals (the compliant model's extra
-  identified parameters against its residual variance), ``p < SUPPORT_P``.
+* cross-validation over the fit poses (:mod:`calibration.cross_validation`): each fit
+  pose's error as the fit without it predicts it, for both models, compared pose by
+  pose with a signed-rank test; the compliant model is preferred where it predicts
+  better with ``p < PREFER_P``;
+* with held-out poses: per held-out pose, the squared 3D (or row) errors of the two
+  models differ by ``d_p``; the held-out poses prefer the compliant model where
+  ``mean(d) > SUPPORT_Z * std(d) / sqrt(poses)`` (the poses' differences taken as
+  independent), the rigid one where ``mean(d) < -SUPPORT_Z * ...``;
+* the compliances are supported where one of the two prefers them and the other does
+  not prefer the rigid model;
+* with neither (too few poses): a nested-model F test on the fit residuals (the
+  compliant model's extra identified parameters against its residual variance),
+  ``p < SUPPORT_P``.
 
 The calibration written is the supported one; the other's figures go beside it in
 the console, the report and the parameter file (``model_comparison``), so a term the
@@ -29,6 +36,8 @@ import math
 
 import numpy as np
 
+from calibration import cross_validation as cv
+from calibration import quality as q
 from calibration.errors import CalibrationError
 
 # the held-out improvement must exceed this many of its standard errors
@@ -94,6 +103,38 @@ def figures(o) -> dict:
             "gate": "passed" if o.quality is None or o.quality.passed else "failed"}
 
 
+def _unseen(outcome, sigma: dict) -> dict:
+    """Each fit pose's error as the fit without it predicts it
+    (:func:`calibration.cross_validation.unseen_errors`), keyed by the trace's pose
+    index (the two models may have left different poses out as outliers); ``sigma``
+    per channel weighs the rows, one for both models (each fit's own would measure
+    each model's errors against its own residual level)."""
+    from station.fitting.gate import row_poses
+
+    model, res = outcome.model, outcome.result
+    rp = row_poses(model)
+    if rp is None:
+        return {}
+    r, W = model.evaluate(res.x)
+    active = np.array([s.identifiable for s in res.status])
+    w = q.row_weights(model.row_channel, model.channels, sigma)
+    poses = outcome.trace.fit_poses
+    return {int(poses[i]["index"]): v
+            for i, v in cv.unseen_errors(r, W, w, active, rp).items()}
+
+
+def _held_out(rigid, compliant) -> dict | None:
+    """The held-out poses' verdict on the two models (module doc), None with fewer than
+    3 held-out poses both predicted."""
+    a, b = _per_pose_sq(rigid), _per_pose_sq(compliant)
+    if not (a and b and set(a) == set(b) and len(a) >= 3):
+        return None
+    d = np.array([a[k] - b[k] for k in sorted(a)])
+    mean, se = float(d.mean()), float(d.std(ddof=1) / math.sqrt(len(d)))
+    z = mean / se if se > 0 else (math.inf if mean > 0 else 0.0)
+    return {"z": float(z), "poses": len(d)}
+
+
 def judge(rigid, compliant) -> dict:
     """Does the compliant outcome beat the rigid one beyond the uncertainty? A dict
     with both models' figures, ``supported`` and one ``statement`` for people."""
@@ -101,23 +142,41 @@ def judge(rigid, compliant) -> dict:
     names = [n for n, s in zip(compliant.result.names, compliant.result.status)
              if s.identifiable and n.startswith("c") and n[1:].isdigit()]
     out["compliances"] = names
-    a, b = _per_pose_sq(rigid), _per_pose_sq(compliant)
     if not names:
         out.update(supported=False, test="none", statement=(
             "compliance offered: no joint's compliance is identifiable from these poses "
             "(each joint's gravity torque barely changes, or its axis is vertical)"))
         return out
-    if a and b and set(a) == set(b) and len(a) >= 3:
-        d = np.array([a[k] - b[k] for k in sorted(a)])
-        mean, se = float(d.mean()), float(d.std(ddof=1) / math.sqrt(len(d)))
-        z = mean / se if se > 0 else (math.inf if mean > 0 else 0.0)
-        ok = z > SUPPORT_Z
-        ra, rb = out["rigid"]["held_out_rms"], out["compliant"]["held_out_rms"]
-        out.update(test="held-out", z=float(z), supported=bool(ok), statement=(
-            f"compliance {'supported' if ok else 'not supported'} by the held-out poses: "
-            f"their error {_mm(ra)} -> {_mm(rb)} with the compliances of "
-            f"{', '.join(names)}, an improvement of {z:.2g} times its standard error over "
-            f"{len(d)} poses ({'more' if ok else 'not more'} than {SUPPORT_Z:g})"))
+    sigma = dict(rigid.result.sigma)
+    c = cv.compare_models(_unseen(rigid, sigma), _unseen(compliant, sigma))
+    held = _held_out(rigid, compliant)
+    if c is not None or held is not None:
+        cv_ok, cv_bad = c is not None and c.better, c is not None and c.worse
+        held_ok = held is not None and held["z"] > SUPPORT_Z
+        held_bad = held is not None and held["z"] < -SUPPORT_Z
+        ok = (cv_ok and not held_bad) or (held_ok and not cv_bad)
+        parts = []
+        if c is not None:
+            per = math.sqrt(3.0) if hasattr(compliant.model, "point_errors") else 1.0
+            out["cross_validation"] = {"poses": c.poses, "wins": c.wins, "p": c.p,
+                                       "p_worse": c.p_worse, "rms_rigid": c.rms_a * per,
+                                       "rms_compliant": c.rms_b * per}
+            parts.append(
+                f"cross-validation over {c.poses} fit poses (each predicted by the fit "
+                f"without it): {_mm(c.rms_a * per)} -> {_mm(c.rms_b * per)}"
+                f"{' per point' if per != 1.0 else ' RMS'}, smaller for {c.wins} of "
+                f"{c.poses} poses, signed-rank p = {c.p:.2g} "
+                f"({'below' if c.better else 'not below'} {cv.PREFER_P:g})")
+        if held is not None:
+            ra, rb = out["rigid"]["held_out_rms"], out["compliant"]["held_out_rms"]
+            out["z"] = held["z"]
+            parts.append(f"the held-out poses: their error {_mm(ra)} -> {_mm(rb)}, "
+                         f"{held['z']:.2g} times its standard error over {held['poses']} "
+                         f"poses ({'more' if held_ok else 'not more'} than {SUPPORT_Z:g})")
+        out.update(test="cross-validation" if c is not None else "held-out",
+                   supported=bool(ok), statement=(
+                       f"compliance {'supported' if ok else 'not supported'} "
+                       f"(the compliances of {', '.join(names)}) by " + "; by ".join(parts)))
         return out
     rss_a, rss_b = _fit_rss(rigid), _fit_rss(compliant)
     extra = compliant.result.n_identifiable - rigid.result.n_identifiable

@@ -78,6 +78,17 @@ def summary_view(ctx: ReportContext, validation: list) -> list[dict]:
                             else "not better on every channel"
                             if all(_finite(v.get("rms_before")) for v in validation)
                             else "no before values")))
+    cmp = ctx.outcome.comparison
+    if cmp is not None:      # rigid against compliant (station.fitting.compliance)
+        def figures(k, f):
+            held = "-" if f["held_out_rms"] is None else f"{f['held_out_rms'] * 1e3:.4g} mm"
+            return (f"{k}: {f['identifiable']} identifiable, fit RMS "
+                    f"{f['fit_rms'] * 1e3:.4g} mm, held-out {held}")
+
+        written = "compliant" if cmp.get("supported") else "rigid"
+        rows.append(row("Model", f"rigid against compliant: the {written} model written",
+                        (True, f"written: the {written} model"), lines=[cmp["statement"]] + [
+                            figures(k, cmp[k]) for k in ("rigid", "compliant") if cmp.get(k)]))
     if getattr(trace, "truncated_tail", False):
         rows.append(row("Trace warning",
                         "the last line was truncated (recording interrupted) and skipped"))

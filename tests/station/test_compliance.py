@@ -63,14 +63,17 @@ def test_a_rigid_arm_is_unchanged_when_compliance_is_offered(tmp_path, capsys):
     export_and_import(tmp_path, arm(), 7400)
     plain = calibrate_trace(str(tmp_path / "t.jsonl"))
     rc = app_module.main(["batch", str(tmp_path / "t.jsonl"), "--out", str(tmp_path / "p.json"),
-                          "--compliance"])
+                          "--compliance", "--report", str(tmp_path / "r.html")])
     out = capsys.readouterr().out
     assert rc == 0
-    assert "compliance not supported by the held-out poses" in out
+    assert "compliance not supported" in out and "by cross-validation over" in out
     assert "written: the rigid model" in out and "model compliant:" in out
     doc = json.loads((tmp_path / "p.json").read_text())
     assert not any(k.startswith("c") and k[1:].isdigit() for k in doc["parameters"])
     assert doc["model_comparison"]["supported"] is False
+    # the report says which model was written and why (the same sentence)
+    html = (tmp_path / "r.html").read_text()
+    assert "the rigid model written" in html and "by cross-validation over" in html
     for j, n in enumerate(plain.result.names):
         assert doc["parameters"][n]["value"] == plain.result.x[j]
 
@@ -81,6 +84,6 @@ def test_compliance_needs_a_urdf_robot(tmp_path, capsys):
                           "--out", str(tmp_path / "u.jsonl")])
     assert rc == 0
     rc = app_module.main(["batch", str(tmp_path / "u.jsonl"), "--out", str(tmp_path / "p.json"),
-                          "--compliance"])
+                          "--compliance", "--report", str(tmp_path / "r.html")])
     err = capsys.readouterr().err
     assert rc == 2 and err.startswith("error: --compliance needs a URDF robot")
