@@ -80,3 +80,23 @@ def compare_models(a: dict, b: dict) -> Comparison | None:
     p = float(wilcoxon(d, alternative="greater").pvalue)
     p_worse = float(wilcoxon(d, alternative="less").pvalue)
     return Comparison(len(keys), int(np.sum(d > 0)), p, p_worse, rms_a, rms_b)
+
+
+def held_in_turn(r, W, weights, active, row_pose, shifts) -> dict[int, dict]:
+    """Each active column ``j`` of ``shifts`` (``{j: start - estimate}``) held at its start
+    in turn, the others refitted (linearized at the solution): the unseen errors of that
+    model (:func:`unseen_errors`), keyed by ``j``. What a parameter buys the prediction
+    of poses the fit has not seen: :func:`compare_models` of the full model's against
+    these."""
+    w = np.asarray(weights, dtype=float)
+    sw = np.sqrt(w)
+    active = np.asarray(active, bool)
+    out = {}
+    for j, shift in shifts.items():
+        keep = active.copy()
+        keep[j] = False
+        rb = r + W[:, j] * shift
+        A = W[:, keep]
+        d = np.linalg.lstsq(A * sw[:, None], rb * sw, rcond=None)[0]
+        out[j] = unseen_errors(rb - A @ d, W, w, keep, row_pose)
+    return out

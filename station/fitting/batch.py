@@ -283,6 +283,12 @@ def calibrate(trace: Trace, *, out: str | None = None, method: str | None = None
                                                       for c in chains), readings=chains)
     outcome = scale_uncertainty(BatchOutcome(trace, model, result, model.x0, None, quality,
                                              validation))
+    if quality.passed:      # what each robot parameter buys the unseen poses (stated)
+        from station.fitting.selection import judge as judge_selection, statement
+
+        sel = judge_selection(outcome.model, outcome.result)
+        if sel is not None:
+            quality.check("selection", True, statement(sel), selection=sel)
     if not quality.passed:
         if not accept_poor_fit:
             raise FitQualityError(f"the fit failed the quality gate: {quality.summary()} "

@@ -63,3 +63,18 @@ def test_too_few_poses_in_common_make_no_comparison():
     assert cv.compare_models(a, b) is None
     same = cv.compare_models(a, dict(a))
     assert same is not None and not same.better and not same.worse
+
+
+def test_each_column_held_in_turn_shows_what_it_buys():
+    """Held at its start in turn: the column with a large true effect predicts the unseen
+    poses much worse held; the one with none does not (held exactly, as it was fitted)."""
+    J, y, rp = _problem(3, 0.0)
+    y = y + 5.0 * J[:, 0]
+    cols = np.ones(5, bool)
+    x = np.linalg.lstsq(J, y, rcond=None)[0]
+    r = y - J @ x
+    w = np.ones(len(y))
+    full = cv.unseen_errors(r, J, w, cols, rp)
+    held = cv.held_in_turn(r, J, w, cols, rp, {0: -x[0], 4: -x[4]})
+    assert cv.compare_models(full, held[0]).worse
+    assert not cv.compare_models(full, held[4]).worse
