@@ -13,6 +13,7 @@
     python app.py truth draw --robot R --seed N --out TRUTH.json
     python app.py compensate PARAMS.json --program IN.csv --out OUT.csv
     python app.py accuracy --simulate --robot R --truth T --params PARAMS.json --out ACC.csv
+    python app.py accuracy --params PARAMS.json --csv ACC.csv   the test's page again
     python app.py doctor               what this machine lacks, and how to install it
 
 Every command exits 0 on success and non-zero with a one-line reason on stderr
@@ -480,7 +481,7 @@ def build_parser() -> argparse.ArgumentParser:
     ac = sub.add_parser("accuracy", help="pose accuracy and repeatability as ISO 9283 defines "
                         "them, before and after the calibration (docs/accuracy.md)")
     ac.add_argument("--simulate", action="store_true")
-    ac.add_argument("--robot", required=True, metavar="ROBOT",
+    ac.add_argument("--robot", metavar="ROBOT",
                     help="the URDF (with --base-link, --tip-link)")
     add_chain_arguments(ac)
     ac.add_argument("--truth", help="with --simulate: the simulated robot's truth file")
@@ -489,8 +490,14 @@ def build_parser() -> argparse.ArgumentParser:
     ac.add_argument("--endpoints", help="without --simulate: fill --config's \"@endpoints\" "
                     "from a running simulator's endpoints file")
     ac.add_argument("--params", required=True, help="the parameter file (sm-markers)")
-    ac.add_argument("--out", required=True, metavar="ACCURACY.csv",
+    ac.add_argument("--out", metavar="ACCURACY.csv",
                     help="every measured cycle (written atomically)")
+    ac.add_argument("--report", metavar="FILE.html",
+                    help="the test's HTML page (default: the CSV's name with .html); linked "
+                         "from the session's report.html beside --params")
+    ac.add_argument("--csv", metavar="ACCURACY.csv",
+                    help="write the page again from a measured CSV and --params (nothing "
+                         "moves; no --robot, --out)")
     ac.add_argument("--cycles", type=int, default=30,
                     help="cycles of each program (the standard's 30; fewer with a note)")
     ac.add_argument("--cube", metavar="X,Y,Z,SIZE",

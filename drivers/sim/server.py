@@ -23,6 +23,9 @@ and demos inject faults and look at the simulated truth::
                        (the motion capture's faults: drivers/sim/mocap_sim.py)
     {"contact": true}  (what a feeler gauge and the operator's eye tell: the true
                         tool tip and its signed distance to the truth's plane)
+    {"pose_noise": false}  (fresh noise per reading from now on, as a real instrument
+                        reads; true: a reading at rest a function of the pose again,
+                        ``--pose-noise``; the accuracy test reads one pose many times)
 
 ``state`` answers the true ``qm``, ``pose``, the draw-wire's ``anchor`` and its
 ``drawwire_offset`` (m): the noisy length it read when zeroed, so that a reading
@@ -207,7 +210,8 @@ class SimStation:
         """One control command (module docstring); raises ValueError/KeyError/TypeError."""
         if not isinstance(cmd, dict):
             raise TypeError("a command is a JSON object")
-        known = {"faults", "clear", "state", "move", "drop_drawwire", "contact", "mocap"}
+        known = {"faults", "clear", "state", "move", "drop_drawwire", "contact", "mocap",
+                 "pose_noise"}
         unknown = set(cmd) - known
         if unknown:
             raise KeyError(f"unknown command {sorted(unknown)} (known: {sorted(known)})")
@@ -226,6 +230,8 @@ class SimStation:
                 raise ValueError(f"move: need {len(self.robot.axes)} actuator values (finite "
                                  f"numbers), not {str(cmd['move'])[:60]}")
             self.robot.move_to(qm)
+        if "pose_noise" in cmd:
+            self.robot.pose_noise = bool(cmd["pose_noise"])
         if cmd.get("drop_drawwire") and self.drawwire is not None:
             self.drawwire.drop_connections()
         if self.mocap is not None and cmd.get("clear"):

@@ -17,6 +17,7 @@ from PySide6.QtWidgets import (QHBoxLayout, QLabel, QListWidget, QListWidgetItem
 from station.gui.controller import Controller, summarize_folder
 from station.gui.widgets import WARN_COLOR
 from station.gui.pages import TITLES, PageId
+from station.gui.pages.accuracy import AccuracyPage
 from station.gui.pages.calibrate import CalibratePage
 from station.gui.pages.execute import ExecutePage
 from station.gui.pages.export import ExportPage
@@ -37,7 +38,10 @@ GUIDE = ("1 Setup: choose the robot (AGEBOT, a robot file, or a URDF with the ba
          "none and reopening the folder resumes.\n"
          "5 Calibrate: the parameters with their std and identifiability, the held-out "
          "poses before and after.\n"
-         "6 Export: the parameter file for the controller and the report.\n\n"
+         "6 Export: the parameter file for the controller and the report.\n"
+         "7 Accuracy: ISO 9283's pose accuracy and repeatability before and after the "
+         "calibration, measured by the motion capture (a URDF robot's sm-markers session; "
+         "skip it otherwise).\n\n"
          "Numbers are shown in mm and degrees; u is the actuator unit of qm (the drives' "
          "position unit). More: README.md and docs/ (Help > Documentation).")
 #: session events kept above the page until dismissed (the rest: the status bar, the log)
@@ -47,7 +51,8 @@ MAX_NOTICES = 3
 PREFERRED = (1440, 900)        # the window's size where the screen has room for it
 PAGES = {PageId.SETUP: SetupPage, PageId.REFERENCE: ReferencePage, PageId.PLAN: PlanPage,
          PageId.EXECUTE: ExecutePage, PageId.CALIBRATE: CalibratePage,
-         PageId.EXPORT: ExportPage, PageId.OFFLINE: OfflinePage}
+         PageId.EXPORT: ExportPage, PageId.ACCURACY: AccuracyPage,
+         PageId.OFFLINE: OfflinePage}
 WIZARD = [p for p in PageId if p != PageId.OFFLINE]
 
 
@@ -231,7 +236,7 @@ class MainWindow(QMainWindow):
         recorded pose), the setup page is shown with a fresh folder."""
         from station.gui.pages.setup import default_folder
 
-        if self.pages[PageId.EXECUTE].running:
+        if self.pages[PageId.EXECUTE].running or self.pages[PageId.ACCURACY].running:
             QMessageBox.information(self, "New session", "Poses are being measured: abort "
                                     "(or let it finish) first.")
             return
@@ -309,6 +314,7 @@ class MainWindow(QMainWindow):
                 return
         if execute.fault_box is not None:
             execute.fault_box.close()
+        self.pages[PageId.ACCURACY].shut_down()     # a test stops before its next move
         self.busy.setText("Closing: stopping after the current pose\u2026")
         self.controller.shutdown()
         event.accept()

@@ -35,15 +35,38 @@ PROGRAMS = ("nominal", "compensated")
 MAX_CYCLES = 1000
 
 
-def check_file(doc: dict, path: str) -> None:
-    """Refuse (one line) a parameter file the test cannot be measured for."""
-    if doc.get("method") != "sm-markers" or "urdf" not in doc:
-        raise ConfigError(
-            f"the accuracy test measures the tool's position with the station's point "
+def why_not(doc: dict) -> str | None:
+    """Why the test cannot be measured for a parameter file's content ``doc`` (its
+    ``method``, ``robot`` and whether it is a URDF robot's), in one line; None where it
+    can (a URDF robot calibrated by sm-markers)."""
+    if doc.get("method") == "sm-markers" and "urdf" in doc:
+        return None
+    return (f"the accuracy test measures the tool's position with the station's point "
             f"instrument: a URDF robot calibrated by sm-markers at a station with a motion "
             f"capture ([mocap]); this file is {doc.get('robot')}'s by {doc.get('method')}, "
             "whose station measures a draw-wire's one distance and an inclinometer's two "
-            "angles, not the tool's three coordinates (docs/accuracy.md)", source=path)
+            "angles, not the tool's three coordinates (docs/accuracy.md)")
+
+
+def check_file(doc: dict, path: str) -> None:
+    """Refuse (one line) a parameter file the test cannot be measured for."""
+    why = why_not(doc)
+    if why:
+        raise ConfigError(why, source=path)
+
+
+def view_frame(robot, params: dict, xi_cal) -> tuple[np.ndarray, np.ndarray]:
+    """``(x_view, frame (4, 4))``: the robot's parameters with the parameter file's values
+    ``params`` (the calibrated instrument frame ``base_*`` too), and the base link in the
+    instrument's frame, the calibrated model ``xi_cal`` (its ``base_*`` zero) carried
+    there: where the commanded poses are compared with the attained ones."""
+    x_view = robot.nominal.copy()
+    for j, nm in enumerate(robot.param_names):
+        if nm in params:
+            x_view[j] = float(params[nm]["value"])
+    q0 = np.zeros((1, robot.n_actuators))
+    frame = robot.frames(q0, x_view)[0] @ np.linalg.inv(robot.frames(q0, xi_cal)[0])
+    return x_view, frame
 
 
 def parse_cube(text: str | None):
@@ -80,23 +103,6 @@ def attained(tm, cube, points):
                 E = rigid_fit(tm.points, points[c, k]) @ tool
                 ang[c, k] = iso9283.deviation_angles(cmd[k, :3, :3], E[:3, :3], F[:3, :3])
     return pos, ang, cmd
-
-
-def results(tm, cube, readings) -> dict:
-    """program -> ``[PoseResult]`` P1..P5 over the cycles whose reading saw every point."""
-    out = {}
-    for prog, r in readings.items():
-        pos, ang, cmd = attained(tm, cube, r.points)
-        rows = []
-        for k, name in enumerate(iso9283.POINTS):
-            ok = np.all(np.isfinite(pos[:, k]), axis=1)
-            if ok.sum() < 2:
-                raise ConfigError(f"{prog} program, {name}: the instrument saw every point in "
-                                  f"{int(ok.sum())} cycle(s); AP and RP need two at least")
-            rows.append(iso9283.pose_result(name, pos[ok, k], cmd[k, :3, 3],
-                                            None if ang is None else ang[ok, k]))
-        out[prog] = rows
-    return out
 
 
 # -- what is printed -----------------------------------------------------------------------
@@ -171,12 +177,15 @@ def csv_text(tm, cube, readings, names) -> str:
                 row += [_num(v * 1e3) for v in cmd[k, :3, 3]] + [_num(v * 1e3) for v in pos[c, k]]
                 row.append(_num(e * 1e3))
                 if orient:
-                    row += [_num(math.degrees(v)) for v in ang[c, k]]
+                    row += [_num(math.degrees(v), 9) for v in ang[c, k]]
                 row += [_num(v * 1e3) for v in r.points[c, k].reshape(-1)]
-                row += [_num(v) for v in q[k]] + [_num(v) for v in r.qm[c, k]]
+                row += [_num(v, 9) for v in q[k]] + [_num(v, 9) for v in r.qm[c, k]]
                 lines.append(",".join(row))
     return "\n".join(lines) + "\n"
 
 
-def _num(v: float) -> str:
-    return f"{v:.6f}" if math.isfinite(v) else ""
+def _num(v: float, decimals: int = 6) -> str:
+    """mm to the nm; an angle (deg) and a joint's value (rad, m) to 1e-9: the figures
+    rebuilt from the CSV are those of the readings, and the compensated program's values
+    as exact as its solution (a CSV of another calibration is told apart by them)."""
+    return f"{v:.{decimals}f}" if math.isfinite(v) else ""

@@ -38,6 +38,7 @@ from calibration import iso9283
 from calibration.compensation import SerialCompensation
 from calibration.errors import CalibrationError
 from calibration.methods.sm_markers import marker_count, marker_names
+from station.outputs.iso9283 import view_frame
 from station.planning import marker_plan
 from station.planning.serial_plan import FLOOR_MARGIN, PATH_MARGIN, path_clear
 
@@ -89,14 +90,9 @@ def test_model(s, doc: dict, sight, qm_range=None) -> TestModel:
     ``s`` (:func:`station.outputs.compensate.setup` of a URDF robot's ``sm-markers``)."""
     robot, comp = s.robot, s.comp
     params = doc["parameters"]
-    x_view = robot.nominal.copy()
-    for j, nm in enumerate(robot.param_names):
-        if nm in params:
-            x_view[j] = float(params[nm]["value"])
+    x_view, frame = view_frame(robot, params, comp.xi_cal)
     names = marker_names(marker_count(params))
     points = np.array([float(params[nm]["value"]) for nm in names]).reshape(-1, 3)
-    q0 = np.zeros((1, robot.n_actuators))
-    frame = robot.frames(q0, x_view)[0] @ np.linalg.inv(robot.frames(q0, comp.xi_cal)[0])
     box = marker_plan.limit_box(robot, qm_range)
     nominal = SerialCompensation(robot, comp.xi_nom, comp.xi_nom, tool_nom=comp.tool_nom,
                                  tool_cal=comp.tool_nom, orientation=comp.orientation,

@@ -17,4 +17,5 @@ sleep 1
 DISPLAY="$DISPLAY_NO" QT_QPA_PLATFORM=xcb CALSTATION_SCREENSHOTS=root \
   python -m pytest -q -m "slow or not slow" tests/gui/test_wizard_sm.py \
   tests/gui/test_wizard_pm.py tests/gui/test_wizard_arm.py tests/gui/test_wizard_urdf.py \
+  tests/gui/test_wizard_accuracy.py \
   -k "not setup_reference_and_plan" "$@"

@@ -10,7 +10,7 @@ whole simulated test, its figures against what the truth says."""
 from __future__ import annotations
 
 import csv
-import dataclasses
+import html
 import re
 
 import numpy as np
@@ -18,21 +18,13 @@ import pytest
 
 import app as app_module
 from calibration import iso9283
-from calibration.robots import get_robot
-from drivers.config_reader import frozen_map
-from drivers.robot_file import robot_ref
 from drivers.sim.serial_robot import SimulatedSerial
-from drivers.sim.truth import load_truth, save_truth
+from drivers.sim.truth import load_truth
 from drivers.sim.urdf_truth import true_points
-from drivers.urdf_file import load_urdf
 from station.fitting.batch import calibrate_trace
-from station.simulation import tracegen_urdf as tg
-from station.simulation.urdf_sessions import truth_beside, urdf_config, urdf_truth
+from tests.station.iso_helpers import calibrate
 from tests.station.urdf_helpers import ROOT, URDF
 
-SEED = 7
-#: a few arc-seconds of backlash, a couple of random positioning error per move
-REPEATABILITY = {"backlash": (2e-5,) * 6, "positioning": (1e-5,) * 6}
 CHAIN = ["--robot", str(URDF), "--base-link", "base_link", "--tip-link", "tool0"]
 
 
@@ -56,26 +48,7 @@ def calibrated(tmp_path_factory):
     """``(folder, truth)``: the truth file (with repeatability), the station config (its
     axes fast) and ``p.json``, a calibration of a 60-pose trace of the true robot seen by
     the truth's motion capture (0.03 mm per coordinate: 0.1 mm averaged over 10 frames)."""
-    from station.recording.import_markers import start_values
-    from station.recording.trace_writer import write_trace
-
-    tmp = tmp_path_factory.mktemp("accuracy")
-    ref = robot_ref(str(URDF), "base_link", "tool0")
-    truth, x = urdf_truth(ref, SEED, "the accuracy test's arm")
-    truth = dataclasses.replace(truth, repeatability=frozen_map(REPEATABILITY))
-    save_truth(truth_beside(truth, tmp / "truth.json"), tmp / "truth.json")
-    urdf_config(load_truth(tmp / "truth.json"), ref, tmp)
-    robot = get_robot(load_urdf(URDF, "base_link", "tool0"))
-    rng = np.random.default_rng(SEED)
-    qm = tg.draw_poses(robot, 60, rng)
-    P = tg.readings(robot, x, np.asarray(truth.points), qm, rng, 3e-5)
-    header = {"robot": robot.name, "robot_file": dict(robot.spec.source), "method": "sm-markers",
-              "markers": len(truth.points), "nominal": start_values(robot, qm, P, "t.jsonl"),
-              "sigma": {"marker": 3e-5}, "station": {"joints": list(robot.spec.joint_names)}}
-    poses = [{"index": i, "qm": [float(v) for v in q],
-              "markers": [[float(c) for c in p] for p in P[i]]} for i, q in enumerate(qm)]
-    write_trace(tmp / "t.jsonl", header, None, poses)
-    calibrate_trace(str(tmp / "t.jsonl"), out=str(tmp / "p.json"))
+    tmp = calibrate(tmp_path_factory.mktemp("accuracy"))
     return tmp, load_truth(tmp / "truth.json")
 
 
@@ -156,6 +129,13 @@ def test_the_simulated_test_improves_ap_by_the_calibration_s_factor_and_keeps_rp
     table = _table(out)
     assert list(table) == list(iso9283.POINTS), out
     assert f"note: {cycles} cycles, fewer than the standard's 30" in out
+    # the test's page beside the CSV: its position table is the printed one
+    page = html.unescape((tmp_path / "acc.html").read_text()).split('<table class="position">')[1]
+    for k, (apb, apa, rpb, rpa) in table.items():
+        row = re.search(rf"<tr><td class=\"name\">{k}</td>(.*?)</tr>", page)[1]
+        cells = re.findall(r"<td[^>]*>(.*?)</td>", row)
+        assert [cells[1], cells[2], cells[4], cells[5]] == [f"{v:.3f}" for v in
+                                                            (apb, apa, rpb, rpa)], cells
     rows = list(csv.DictReader(open(tmp_path / "acc.csv", newline="")))
     assert len(rows) == 2 * cycles * 5
     assert [r["pose"] for r in rows[:5]] == list(iso9283.CYCLE)

@@ -11,7 +11,8 @@ class PageId(IntEnum):
     EXECUTE = 3
     CALIBRATE = 4
     EXPORT = 5
-    OFFLINE = 6
+    ACCURACY = 6
+    OFFLINE = 7
 
 
 TITLES = {
@@ -21,5 +22,6 @@ TITLES = {
     PageId.EXECUTE: "4  Execute",
     PageId.CALIBRATE: "5  Calibrate",
     PageId.EXPORT: "6  Export",
+    PageId.ACCURACY: "7  Accuracy",
     PageId.OFFLINE: "Offline: a recorded trace",
 }
