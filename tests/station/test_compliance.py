@@ -87,3 +87,18 @@ def test_compliance_needs_a_urdf_robot(tmp_path, capsys):
                           "--compliance", "--report", str(tmp_path / "r.html")])
     err = capsys.readouterr().err
     assert rc == 2 and err.startswith("error: --compliance needs a URDF robot")
+
+
+def test_a_compliant_calibration_is_not_exported_as_a_urdf(tmp_path, capsys):
+    """The URDF holds the geometry alone; a compliant calibration's geometry was fitted
+    with its compliances: refused in one line, nothing written."""
+    export_and_import(tmp_path, compliant_arm(), 7300)
+    p = tmp_path / "p.json"
+    assert app_module.main(["batch", str(tmp_path / "t.jsonl"), "--out", str(p),
+                            "--compliance"]) == 0
+    assert json.loads(p.read_text())["model_comparison"]["supported"]
+    capsys.readouterr()
+    rc = app_module.main(["params", "export", str(p), "--urdf", str(tmp_path / "c.urdf")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "a compliant calibration (c2" in err and err.count("\n") == 1, err
+    assert "batch without --compliance" in err and not (tmp_path / "c.urdf").exists()
