@@ -21,6 +21,7 @@ from PySide6.QtWidgets import (QGroupBox, QHBoxLayout, QLabel, QListWidget, QMes
                                QVBoxLayout, QWidget)
 
 from calibration import iso9283
+from station.gui import fault_dialog
 from station.gui.pages.base import Page, error_text
 from station.gui.tables import ContentTable
 from station.gui.widgets import BAD_COLOR, OK_COLOR, WARN_COLOR, note
@@ -303,33 +304,15 @@ class AccuracyPage(Page):
     # -- a device fault: Retry / Skip the cycle / Abort --------------------------------------------
     def ask_fault(self, request) -> None:
         where = request.pose
-        box = QMessageBox(self)
-        box.setObjectName("accuracyFault")
-        box.setIcon(QMessageBox.Icon.Warning)
-        box.setWindowTitle("Device fault")
-        box.setText(f"{where} could not be measured (attempt {request.attempt + 1}).")
-        box.setInformativeText(
-            f"{error_text(request.error)}\n\nRetry: the devices recovered, the pose approached "
-            f"again from the one before it.\nSkip the cycle: leave the rest of cycle "
-            f"{where.cycle} out of the figures and go on with the next.\nAbort: stop the "
-            "test; nothing is written.")
-        retry = box.addButton("&Retry", QMessageBox.ButtonRole.AcceptRole)
-        skip = box.addButton("S&kip the cycle", QMessageBox.ButtonRole.ActionRole)
-        abort = box.addButton("&Abort", QMessageBox.ButtonRole.RejectRole)
-        box.setDefaultButton(retry)
-        box.setEscapeButton(abort)
-        answers = {retry: "retry", skip: "skip", abort: "abort"}
-        box.answer_buttons = {v: k for k, v in answers.items()}
-
-        def clicked(button):
-            self.faults.answer(request, answers.get(button, "abort"))
-            self.fault_box = None
-
-        box.buttonClicked.connect(clicked)
-        box.rejected.connect(lambda: request.event.is_set()
-                             or self.faults.answer(request, "abort"))
-        self.fault_box = box
-        box.open()
+        fault_dialog.ask(
+            self, request, self.faults.answer, name="accuracyFault",
+            text=f"{where} could not be measured (attempt {request.attempt + 1}).",
+            informative=(
+                f"{error_text(request.error)}\n\nRetry: the devices recovered, the pose "
+                f"approached again from the one before it.\nSkip the cycle: leave the rest "
+                f"of cycle {where.cycle} out of the figures and go on with the next.\n"
+                "Abort: stop the test; nothing is written."),
+            skip_label="S&kip the cycle")
 
     def open_page(self) -> None:
         s = self.session

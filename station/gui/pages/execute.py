@@ -12,6 +12,7 @@ from PySide6.QtGui import QColor
 from PySide6.QtWidgets import (QGroupBox, QHBoxLayout, QListWidget, QListWidgetItem,
                                QMessageBox, QProgressBar, QPushButton, QVBoxLayout)
 
+from station.gui import fault_dialog
 from station.gui.pages.base import Page, error_text
 from station.gui.widgets import (BAD_COLOR, OK_COLOR, WARN_COLOR, ReadingsPanel,
                                  marker_channels, markers_text, note, target_coords)
@@ -274,11 +275,6 @@ class ExecutePage(Page):
         """The worker waits for the answer; the dialog is window-modal, not blocking."""
         self.faults_asked += 1
         pose = request.pose
-        box = QMessageBox(self)
-        box.setObjectName("faultDialog")
-        box.setIcon(QMessageBox.Icon.Warning)
-        box.setWindowTitle("Device fault")
-        box.setText(f"Pose {pose.index} could not be measured (attempt {request.attempt + 1}).")
         lost = self.controller.devices_lost
         gone = ""
         if self.controller.simulate:
@@ -306,33 +302,23 @@ class ExecutePage(Page):
                 "the pose is likely out of this robot's reach (a limit switch, the floor, "
                 "an obstacle) rather than a flaky device. Skip is suggested."
                 if repeated else "")
-        box.setInformativeText(
+        informative = (
             f"{gone}{text}\n\n{retry_text}\nSkip: leave this pose out and go "
             "on.\nAbort: stop here; the recorded poses stay in the trace and you can "
             f"continue later.{hint}")
-        retry = box.addButton("&Retry", QMessageBox.ButtonRole.AcceptRole)
-        skip = box.addButton("S&kip pose", QMessageBox.ButtonRole.ActionRole)
-        abort = box.addButton("&Abort", QMessageBox.ButtonRole.RejectRole)
-        box.setDefaultButton(skip if repeated else retry)
-        box.suggested = "skip" if repeated else "retry"
-        box.setEscapeButton(abort)
-        answers = {retry: "retry", skip: "skip", abort: "abort"}
-        box.answer_buttons = {v: k for k, v in answers.items()}
 
-        def clicked(button):
-            answer = answers.get(button, "abort")
-            if answer == "retry" and self.controller.devices_lost:
+        def answer(req, choice):
+            if choice == "retry" and self.controller.devices_lost:
                 # the session cannot reconnect to devices that are gone: it stops, the
                 # devices are connected anew and measuring goes on from this pose
-                self._restart, answer = True, "reconnect"
-            self.controller.faults.answer(request, answer)
-            self.fault_box = None
+                self._restart, choice = True, "reconnect"
+            self.controller.faults.answer(req, choice)
 
-        box.buttonClicked.connect(clicked)
-        box.rejected.connect(lambda: request.event.is_set()
-                             or self.controller.faults.answer(request, "abort"))
-        self.fault_box = box
-        box.open()
+        fault_dialog.ask(self, request, answer, name="faultDialog",
+                         text=f"Pose {pose.index} could not be measured "
+                              f"(attempt {request.attempt + 1}).",
+                         informative=informative, skip_label="S&kip pose",
+                         suggested="skip" if repeated else "retry")
 
     # -- what the session reports ----------------------------------------------------------------
     def _progress(self, p) -> None:
