@@ -68,12 +68,12 @@ SIM_INCL_RATE = 20.0            # SimInclinometer's default frame rate, Hz
 
 def serve_station(conn, config_path, incl_rate) -> None:
     """Simulator process: the simulated AGEBOT SM and its three devices
-    (:class:`drivers.sim.server.SimStation`, shaped by the station config).
+    (:class:`drivers.sim.sim_station.SimStation`, shaped by the station config).
 
     Sends ``("ready", endpoints)`` (cli.md format), then serves ``("incl_rate", hz)``
     and ``("stop",)`` until stop or EOF.
     """
-    from drivers.sim.server import SimStation
+    from drivers.sim.sim_station import SimStation
     from drivers.sim.truth import load_truth
 
     station = SimStation(load_truth(TRUTH), load_station_config(config_path), seed=1,

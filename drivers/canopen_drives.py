@@ -11,9 +11,10 @@ in units/s, accelerations in units/s^2, times in seconds.
 
 Layout: this module holds the drives (:class:`CanopenActuators`) and
 :func:`canopen_device`; the common node handling is in
-:mod:`drivers.canopen_nodes`, the encoders in :mod:`drivers.canopen_encoders`,
-the object dictionary and code tables in :mod:`drivers.canopen_od`. Their
-public names are importable from here as well.
+:mod:`drivers.canopen_nodes` (its bus in :mod:`drivers.canopen_bus`, its SDO and
+SYNC + TPDO exchanges in :mod:`drivers.canopen_exchanges`), the encoders in
+:mod:`drivers.canopen_encoders`, the object dictionary and code tables in
+:mod:`drivers.canopen_od`. Their public names are importable from here as well.
 """
 from __future__ import annotations
 

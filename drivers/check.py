@@ -65,7 +65,7 @@ def _config(args):
     if args.config is None and not args.endpoints:
         raise ConfigError("give --config FILE (the station config), or --simulate to check "
                           "the simulated station")
-    from drivers.sim.server import default_config_path
+    from drivers.sim.station_files import default_config_path
 
     path = args.config
     endpoints = load_endpoints(args.endpoints) if args.endpoints else None
@@ -132,7 +132,7 @@ def main(args: argparse.Namespace) -> int:
         from drivers.sim.server import SimulatorProcess
 
         from drivers.robot_file import is_robot_file
-        from drivers.sim.server import truth_of
+        from drivers.sim.station_files import truth_of
 
         truth = getattr(args, "truth", None)
         if is_robot_file(args.robot):       # its truth (a URDF robot needs one): one line

@@ -25,11 +25,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from drivers.config_reader import KeyReader
+from drivers.config_reader import MAX_TIMEOUT_S, KeyReader
 
 DEFAULT_PORT = 22223
-#: the longest timeout of one frame (s), as :data:`drivers.config.MAX_TIMEOUT_S`
-MAX_TIMEOUT_S = 60.0
 MAX_FRAMES = 1000
 
 Vec3 = tuple[float, float, float]

@@ -4,8 +4,9 @@
 error is a :class:`ConfigError` naming the file and the key path, e.g.
 ``stations/sim.toml: drawwire.port: expected an integer``; unknown keys are
 errors, missing required keys are named. Used by the station config
-(:mod:`drivers.config`), the endpoints merge (:mod:`drivers.endpoints`) and the
-simulator's truth files (:mod:`drivers.sim.truth`).
+(:mod:`drivers.config` and its sections), the endpoints merge (:mod:`drivers.endpoints`)
+and the simulator's truth files (:mod:`drivers.sim.truth`); the bounds on the durations
+a station config may set (:data:`MAX_TIMEOUT_S`, ...) are here for every section.
 """
 from __future__ import annotations
 
@@ -18,6 +19,11 @@ from calibration.errors import ConfigError
 
 PLACEHOLDER = "@endpoints"
 _REQUIRED = object()
+#: the longest timeout of one request or read, one motion, and one period (s) a station
+#: config sets: a longer one is a typing slip that would hang a command as good as for ever
+MAX_TIMEOUT_S = 60.0
+MAX_MOVE_S = 3600.0
+MAX_PERIOD_S = 10.0
 
 
 def frozen_map(d: Mapping) -> Mapping:

@@ -66,7 +66,7 @@ class Controller(QObject):
         self.config_path = config_path
         self.endpoints_path = endpoints_path
         self.sim_seed = sim_seed
-        self.sim = None                 # drivers.sim.server.SimulatorProcess
+        self.sim = None                 # drivers.sim.simulator_process.SimulatorProcess
         self.sim_robot: str | None = None
         self.config = None              # drivers.config.StationConfig (resolved)
         self.session = None             # station.session.session.Session

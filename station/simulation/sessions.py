@@ -3,7 +3,7 @@
 The Monte Carlo of issue 10 (``bench/bench_sessions.py``, the slow session
 tests): a robot drawn around the nominal (:func:`drivers.sim.truth.draw_truth`)
 with the noise real devices have, the simulator in its own process
-(:class:`drivers.sim.server.SimulatorProcess`), one unattended
+(:class:`drivers.sim.simulator_process.SimulatorProcess`), one unattended
 :meth:`station.session.session.Session.run`, and the result compared with the truth
 *in the frame the session captured*: for sm-distance-tilt the base origin is
 where the true end effector was at the reference (the draw-wire anchor), and

@@ -15,9 +15,7 @@ def simulated_station(robot: str, truth: str | None, sim_seed: int | None):
     needs one), the simulator's seed (:func:`simulator_seed`) and the trace header's
     ``station`` record of them."""
     from drivers.sim.serial_robot import is_robot_file
-    from drivers.sim.server import default_truth_path
-
-    from drivers.sim.server import truth_of
+    from drivers.sim.station_files import default_truth_path, truth_of
 
     if is_robot_file(robot) and not truth:
         from drivers.robot_file import split_urdf_ref
@@ -55,7 +53,7 @@ def engineer_measurements(robot: str, method: str, truth: str | None, given: dic
     """Simulated station: the values an engineer measures before a guided-touching
     session (:data:`station.planning.request.MUST_KNOW`), read from the simulator's truth file;
     those ``given`` (``--nominal``) are kept."""
-    from drivers.sim.server import default_truth_path
+    from drivers.sim.station_files import default_truth_path
     from drivers.sim.truth import load_truth
 
     t = load_truth(truth or default_truth_path(robot))

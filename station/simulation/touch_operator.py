@@ -5,7 +5,7 @@ At a real station an operator jogs the tool tip until it touches: the plane
 (``app.py run --simulate``) nobody watches, so :class:`SimulatedOperator` plays
 that part: it is a session's ``touch`` callback that sees the contact through
 the simulator's control port (``{"contact": true}``: the true tool tip and its
-signed distance from the truth's plane, :mod:`drivers.sim.server`) and moves
+signed distance from the truth's plane, :mod:`drivers.sim.sim_station`) and moves
 the robot only as an operator can, with :meth:`Session.move_to` (multi-axis
 jogs in actuator units) from the approach pose. It chooses jog directions with
 the session's start model (the nominal Jacobian), which is all an operator's
@@ -44,7 +44,7 @@ log = logging.getLogger("station.simulation.touch_operator")
 class SimulatedOperator:
     """A ``touch(session, pose)`` callback for a simulated station.
 
-    control:   a :class:`drivers.sim.server.SimControl` of the running simulator.
+    control:   a :class:`drivers.sim.control.SimControl` of the running simulator.
     tol:       contact tolerance, m (plane distance; pair: |x, y| from the mark).
     max_moves: jogs per contact before giving up (TouchFailed).
     step:      largest predicted tip travel per jog, m.

@@ -289,11 +289,11 @@ def test_a_bus_that_never_comes_up_is_a_timeout(monkeypatch):
     """python-can's connect has no timeout of its own: the station bounds it."""
     import canopen
 
-    from drivers import canopen_nodes
+    from drivers import canopen_bus, canopen_nodes
     from drivers.errors import DeviceTimeout
 
     gate = threading.Event()
-    monkeypatch.setattr(canopen_nodes, "CONNECT_TIMEOUT_S", 0.3)
+    monkeypatch.setattr(canopen_bus, "CONNECT_TIMEOUT_S", 0.3)
     monkeypatch.setattr(canopen.Network, "connect", lambda self, **kw: gate.wait(30))
     nodes = canopen_nodes.CanopenNodes([1], 1.0, interface="virtual", channel="x",
                                        timeout=0.1)

@@ -17,7 +17,7 @@ HAYATI = os.path.join(ROOT, "fixtures", "robots", "ur5-like-hayati.toml")
 
 
 def test_truth_draw_around_a_robot_file(tmp_path):
-    from drivers.sim.server import truth_of
+    from drivers.sim.station_files import truth_of
 
     out = tmp_path / "truth.json"
     r = app("truth", "draw", "--robot", HAYATI, "--seed", "5", "--out", str(out))

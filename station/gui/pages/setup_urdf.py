@@ -255,7 +255,7 @@ class UrdfChoice:
             truth = self.truth.text().strip()
             if not truth:
                 return None
-            from drivers.sim.server import load_sim_config, truth_of
+            from drivers.sim.station_files import load_sim_config, truth_of
 
             truth_of(self.robot_key, truth)           # of this robot and chain, or said
             return load_sim_config(self.robot_key, config, truth)
