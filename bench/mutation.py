@@ -47,7 +47,7 @@ from pathlib import Path
 from scipy.stats import binomtest
 
 ROOT = Path(__file__).resolve().parent.parent
-COPY = ("calibration", "drivers", "station", "tests", "fixtures", "app.py")
+COPY = ("calibration", "cli", "drivers", "station", "tests", "fixtures", "app.py")
 
 # module -> (files to mutate (globs), tests to run (paths), mutant-name globs or None = all)
 MODULES = {
@@ -164,7 +164,7 @@ def run_module(name: str, work: Path, jobs: int, keep: bool, sample: int = 0, se
                   base, flags=re.M)
     (scratch / "pyproject.toml").write_text(
         base + "\n[tool.mutmut]\n"
-        f'source_paths = ["calibration", "drivers", "station", "app.py"]\n'
+        f'source_paths = ["calibration", "cli", "drivers", "station", "app.py"]\n'
         f"only_mutate = {_toml_list(files)}\n"
         f'also_copy = ["fixtures"]\n'
         f"pytest_add_cli_args_test_selection = {_toml_list(tests)}\n"

@@ -30,7 +30,7 @@ def _source():
     """The station's source and fixtures a user reads (tests and benches excepted:
     developers' tools may read public data from ../shared/data)."""
     files = [ROOT / "app.py"]
-    for folder in ("calibration", "drivers", "station", "fixtures"):
+    for folder in ("calibration", "cli", "drivers", "station", "fixtures"):
         for ext in ("py", "toml", "json", "j2"):
             files += sorted((ROOT / folder).rglob(f"*.{ext}"))
     return files

@@ -1,5 +1,5 @@
 """The packages' import graph, read from the source with :mod:`ast`: no cycle anywhere in
-calibration/, drivers/ and station/, and the layers point one way.
+calibration/, drivers/, station/ and cli/, and the layers point one way.
 
 Every ``import``/``from ... import`` counts, at module level and inside functions alike (a
 function-level import hides a cycle from Python's loader, not from a reader). A module is a
@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("calibration", "drivers", "station")
+PACKAGES = ("calibration", "drivers", "station", "cli")
 
 
 def module_files():
@@ -134,7 +134,7 @@ def describe(found):
 def room(module):
     """The room a module lives in: its package below ``station`` (``station.planning``), a
     module directly in station/ (``station.headless``), or its top-level package
-    (``calibration``, ``drivers``, ``station`` for station/__init__)."""
+    (``calibration``, ``drivers``, ``cli``, ``station`` for station/__init__)."""
     parts = module.split(".")
     if parts[0] == "station" and len(parts) >= 2:
         return ".".join(parts[:2])
@@ -193,11 +193,15 @@ STATION_ROOMS["station.doctor"] = {"calibration", "drivers", "station.outputs"} 
 STATION_ROOMS["station.headless"] = set(_BELOW)                        # app.py run
 STATION_ROOMS["station.accuracy"] = set(_BELOW)                        # app.py accuracy
 STATION_ROOMS["station.gui"] = set(_BELOW) | {"station.doctor"}        # the wizard
+#: the command line (app.py's commands) sits on top of everything: any room of station/,
+#: drivers and calibration; nothing imports it
+CLI_ROOMS = {"station"} | set(STATION_ROOMS) | {"calibration", "drivers"}
 
 
 def test_layers_point_one_way():
     """calibration imports neither drivers nor station; drivers never import station; each
-    room of station/ imports only the rooms below it (:data:`STATION_ROOMS`)."""
+    room of station/ imports only the rooms below it (:data:`STATION_ROOMS`); cli/ imports
+    any of them (:data:`CLI_ROOMS`) and none of them imports cli/."""
     wrong = []
     for module, targets in sorted(import_graph().items()):
         here = room(module)
@@ -207,7 +211,11 @@ def test_layers_point_one_way():
                 continue
             if here == "calibration" or (here == "drivers" and there.startswith("station")):
                 wrong.append(f"{module} -> {target}")
+            elif there == "cli":
+                wrong.append(f"{module} -> {target}")
             elif here in STATION_ROOMS and there not in STATION_ROOMS[here]:
+                wrong.append(f"{module} -> {target}")
+            elif here == "cli" and there not in CLI_ROOMS:
                 wrong.append(f"{module} -> {target}")
     assert not wrong, "imports against the layers:\n" + "\n".join(wrong)
 
@@ -218,3 +226,15 @@ def test_station_modules_sit_in_rooms():
     loose = [m for m in import_graph() if m.startswith("station.")
              and room(m) not in STATION_ROOMS]
     assert not loose, f"station/ modules outside a room: {loose}"
+
+
+def test_the_command_line_is_a_package_of_its_own():
+    """app.py is the entry point only: it imports cli/ (and the standard library), and
+    cli/ is in the graph the tests above read."""
+    tree = ast.parse((ROOT / "app.py").read_text(encoding="utf-8"))
+    asked = {n.split(".")[0] for node in ast.walk(tree)
+             if isinstance(node, (ast.Import, ast.ImportFrom))
+             for n in _imported(node, "app", False)}
+    assert asked & set(PACKAGES) == {"cli"}, asked
+    graph = import_graph()
+    assert {"cli", "cli.common", "cli.parser"} <= set(graph)

@@ -1,4 +1,4 @@
-"""No module of station/ over :data:`MAX_LINES` lines: a module a reader takes in whole
+"""No module of station/ or cli/ over :data:`MAX_LINES` lines: a module a reader takes in whole
 (the house style's 100-300, docs/architecture.md). A module that must be longer goes in
 :data:`ALLOWED` with the reason."""
 from pathlib import Path
@@ -12,7 +12,7 @@ ALLOWED: dict[str, str] = {}
 
 def test_station_modules_are_short():
     long = {}
-    for path in sorted((ROOT / "station").rglob("*.py")):
+    for path in sorted([*(ROOT / "station").rglob("*.py"), *(ROOT / "cli").rglob("*.py")]):
         rel = path.relative_to(ROOT).as_posix()
         n = len(path.read_text(encoding="utf-8").splitlines())
         if n > MAX_LINES and rel not in ALLOWED:
