@@ -122,7 +122,8 @@ class Chain:
         vals[plan.joint_factors] += q[:, plan.joint_of].T
         return vals
 
-    def _sweep(self, qm: np.ndarray, xi: np.ndarray, *, whole: bool = False, tau=None):
+    def _sweep(self, qm: np.ndarray, xi: np.ndarray, *, whole: bool = False, tau=None,
+               columns: bool = True):
         """Forward kinematics of all poses at once, one step per factor.
 
         A frame is kept as its three axes and its origin, each ``(3, m)`` (the
@@ -134,8 +135,9 @@ class Chain:
         order (translations first), with each translation's axis (the tool's
         displacement per unit value; the rotations' rows are filled by
         :meth:`_columns`); ``w (R, m, 3)`` each rotation's axis and ``o (R, m,
-        3)`` the origin of the frame it acts in. With ``whole`` also the four
-        columns of the frame before every factor."""
+        3)`` the origin of the frame it acts in (``columns`` False: None each, not
+        made: the frames alone, as :meth:`fk` needs them). With ``whole`` also the
+        four columns of the frame before every factor."""
         plan = self._plan()
         q = self.joints(qm, xi, tau)
         m = q.shape[0]
@@ -145,19 +147,23 @@ class Chain:
         eye = np.eye(3)
         axes = [np.broadcast_to(eye[:, i, None], (3, m)) for i in range(3)]
         origin = np.zeros((3, m))
-        dp = np.empty((len(self.factors), m, 3))
-        w = np.empty((len(plan.rot_factors), m, 3))
-        o = np.empty((len(plan.rot_factors), m, 3))
+        dp = w = o = None
+        if columns:
+            dp = np.empty((len(self.factors), m, 3))
+            w = np.empty((len(plan.rot_factors), m, 3))
+            o = np.empty((len(plan.rot_factors), m, 3))
         kept = []
         for j, (t, a, k, slot) in enumerate(plan.steps):
             if whole:
                 kept.append((*axes, origin))
             if t:  # T <- T Trans(axis, v): the origin moves along the frame's axis
-                dp[slot] = axes[a].T
+                if columns:
+                    dp[slot] = axes[a].T
                 origin = origin + axes[a] * vals[j]
             else:  # T <- T Rot(axis, v): the two other axes turn about it
-                w[k] = axes[a].T
-                o[k] = origin.T
+                if columns:
+                    w[k] = axes[a].T
+                    o[k] = origin.T
                 c, s = cos[k], sin[k]
                 b1, b2 = _TURNS[a]
                 x, y = axes[b1], axes[b2]
@@ -184,7 +190,7 @@ class Chain:
         product of all factors before it).
         """
         xi = np.asarray(xi, dtype=float)
-        axes, origin, *_cols, kept = self._sweep(qm, xi, whole=True, tau=tau)
+        axes, origin, *_cols, kept = self._sweep(qm, xi, whole=True, tau=tau, columns=False)
         m, nf = origin.shape[1], len(self.factors)
         before = np.zeros((m, nf, 4, 4))
         for i in range(4):  # (F, 3, m) -> (m, F, 3)
@@ -195,7 +201,8 @@ class Chain:
     def fk(self, qm: np.ndarray, xi: np.ndarray, tau=None) -> np.ndarray:
         """Tool frames ``(m, 4, 4)`` in the base frame (``tau``: the loads of a chain
         with compliance, ``(m, n)``)."""
-        axes, origin, *_cols = self._sweep(qm, np.asarray(xi, dtype=float), tau=tau)
+        axes, origin, *_cols = self._sweep(qm, np.asarray(xi, dtype=float), tau=tau,
+                                           columns=False)
         return self._tool(axes, origin)
 
     # -- generalized Jacobian ------------------------------------------------

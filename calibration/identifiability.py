@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import lapack
 
+from calibration import rowblocks
+
 IDENTIFIABLE = "identifiable"
 NO_INFLUENCE = "no influence"
 INFLUENCES = "influences the model"
@@ -110,18 +112,21 @@ def zero_floor(norms, rank_tol: float, candidates=None, rg=None, kappa: float = 
 
 
 def column_floor(Wg, rank_tol: float, candidates=None, rg=None,
-                 kappa: float = 0.0) -> tuple[np.ndarray, float]:
-    """The column norms of the weighted matrix ``Wg`` and their :func:`zero_floor`."""
-    norms = np.sqrt(np.einsum("ij,ij->j", Wg, Wg))
+                 kappa: float = 0.0, row_scale=None) -> tuple[np.ndarray, float]:
+    """The column norms of the weighted matrix ``Wg`` (``row_scale``: of ``G Wg``, ``G``
+    its diagonal, a float or one per row, without forming it) and their
+    :func:`zero_floor`."""
+    norms = rowblocks.column_norms(Wg, g=row_scale)
     return norms, zero_floor(norms, rank_tol, candidates, rg, kappa)
 
 
 def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
              candidates: np.ndarray | None = None, residual: np.ndarray | None = None,
              rank_tol: float = 1e-8, kappa: float = 3.0, return_r: bool = False,
-             order=None):
+             order=None, row_scale=None):
     """:func:`analyze` as arrays ``(identifiable, influences, r_diag, column_norm)``,
-    each ``(N,)``; ``W`` may also be given already weighted (``weights`` None).
+    each ``(N,)``; ``W`` may also be given already weighted (``weights`` None), or
+    with its rows' scale ``row_scale`` (``sqrt(weights)``: a float, or one per row).
     ``return_r``: append the triangle ``R`` of the QR of the unit columns of
     the identifiable parameters (in order), or None where some candidate
     column was dependent (then no single QR covers them).
@@ -136,50 +141,103 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
     after dependent columns work on its ``(q, q)`` triangle (same distances).
     ``order``: judge the columns in this order instead (:func:`analyze`); ``R`` is
     then None.
+
+    The weighted, ordered unit columns are never formed whole: a large ``W`` is
+    taken a block of rows at a time (:mod:`calibration.rowblocks`), the triangle of
+    their QR made from the blocks' (the same numbers where ``W`` is one block).
     """
     W = np.asarray(W, dtype=float)
-    if order is not None and not np.array_equal(order, np.arange(W.shape[1])):
-        perm = np.asarray(order, dtype=np.intp)
-        inv = np.argsort(perm)
-        out = classify(W[:, perm], weights=weights,
-                       candidates=None if candidates is None else np.asarray(candidates)[perm],
-                       residual=residual, rank_tol=rank_tol, kappa=kappa)
-        out = tuple(a[inv] for a in out)
-        return (*out, None) if return_r else out
     n = W.shape[1]
-    if weights is None:
-        g, Wg = None, W
-    else:
+    perm = None
+    if order is not None and not np.array_equal(order, np.arange(n)):
+        perm = np.asarray(order, dtype=np.intp)
+    if weights is not None:
         g = np.sqrt(np.asarray(weights, dtype=float))
-        Wg = W * g[:, None]
+    elif row_scale is not None:
+        g = row_scale if isinstance(row_scale, float) else np.asarray(row_scale, dtype=float)
+    else:
+        g = None
     cand = None if candidates is None else np.asarray(candidates, bool)
+    if perm is not None and cand is not None:
+        cand = cand[perm]
     rg = None
     if residual is not None:
         rg = np.asarray(residual, dtype=float) if g is None else g * residual
-    norms, floor = column_floor(Wg, rank_tol, cand, rg, kappa)
+    out = _classify(W, g, perm, cand, rg, rank_tol, kappa, return_r and perm is None)
+    if perm is not None:
+        inv = np.argsort(perm)
+        out = tuple(a[inv] for a in out[:4])
+        return (*out, None) if return_r else out
+    return out if return_r else out[:4]
+
+
+def _classify(W, g, perm, cand, rg, rank_tol, kappa, return_r):
+    """:func:`classify` of the columns ``perm`` (None: all, in order) of ``G W``
+    (``g``: the diagonal of ``G``, None: 1); ``cand``, ``rg`` in that order and
+    weighted: ``(identifiable, influences, r_diag, column_norm, R)``."""
+    rows, n = W.shape
+    blocks = rowblocks.spans(rows, n)
+    whole = None  # the one block of a matrix taken whole
+
+    def block(lo, hi):
+        if perm is None:
+            B = W[lo:hi]
+            if g is None:
+                return B
+            return B * g if isinstance(g, float) else B * g[lo:hi, None]
+        B = W[lo:hi][:, perm]  # (a copy, as W[:, perm] lays it out; scaled in place)
+        if g is not None:
+            B *= g if isinstance(g, float) else g[lo:hi, None]
+        return B
+
+    if len(blocks) == 1:
+        whole = block(0, rows)
+        norms, floor = column_floor(whole, rank_tol, cand, rg, kappa)
+    else:
+        ss = np.zeros(n)
+        for lo, hi in blocks:
+            B = block(lo, hi)
+            ss += np.einsum("ij,ij->j", B, B)
+        norms = np.sqrt(ss)
+        floor = zero_floor(norms, rank_tol, cand, rg, kappa)
     use = norms > floor if cand is None else cand & (norms > floor)
     rdiag = np.zeros(n)
     dep = np.zeros(n, bool)
     R = None
-    # T in Fortran order, as LAPACK takes it (the same values, no copy on the way)
     if use.all():
         idx, nidx = np.arange(n), norms
-        T = np.divide(Wg, norms, out=np.empty(Wg.shape, order="F"))
     else:
         idx = np.flatnonzero(use)
         nidx = norms[idx]
-        T = np.divide(Wg[:, idx], nidx, out=np.empty((Wg.shape[0], idx.size), order="F"))
-    if T.shape[0] > T.shape[1] > 0:
+
+    def unit(B):
+        # the unit columns in Fortran order, as LAPACK takes them (no copy on the way;
+        # in place where B is a Fortran-ordered copy of W's rows: the same numbers)
+        if use.all():
+            own = B.flags.f_contiguous and not np.may_share_memory(B, W)
+            return np.divide(B, norms, out=B if own else np.empty(B.shape, order="F"))
+        return np.divide(B[:, idx], nidx, out=np.empty((B.shape[0], idx.size), order="F"))
+
+    if rows > idx.size > 0:
         # distances and projections do not change under an orthogonal map of
         # the rows: the triangle of one QR of T stands for T (no dependent
         # column: its diagonal is the answer; else each restart below works
         # on q rows, not on all of them)
-        q = T.shape[1]
-        T = lapack.dgeqrf(T)[0][:q] * _upper(q)
+        q = idx.size
+        if whole is not None:
+            U1, whole = unit(whole), None
+            T = rowblocks.stacked_qr(lambda lo, hi: U1, blocks, q)[0][:q] * _upper(q)
+            del U1
+        else:
+            T = rowblocks.stacked_qr(lambda lo, hi: unit(block(lo, hi)), blocks, q)[0]
+            T = T[:q] * _upper(q)
         tri = True  # T is its own R (a QR of it would give it back unchanged)
-    else:  # not tall (rare): restarts below on T as it always was, in C order
-        T = np.ascontiguousarray(T)
+    elif idx.size:  # not tall (rare, and small): restarts below on T as it always was
+        T = np.ascontiguousarray(unit(whole if whole is not None else block(0, rows)))
         tri = False
+    else:  # no column to judge
+        T, tri = np.empty((rows, 0)), False
+    del whole
     T0, idx0, tri0 = T, idx, tri  # (for the checks below: T0 is its triangle where tri0)
     basis = None  # orthonormal basis of the kept columns before idx[0], once one was dropped
     while idx.size:
@@ -214,9 +272,7 @@ def classify(W: np.ndarray, *, weights: np.ndarray | None = None,
             use[j] = False
             dep[j] = True
             R = None
-    if return_r:
-        return use, dep, rdiag, norms, R
-    return use, dep, rdiag, norms
+    return use, dep, rdiag, norms, R
 
 
 #: a dependent column takes the place of a kept one whose coefficient in it is this many
@@ -361,19 +417,41 @@ def absorbed(W: np.ndarray, weights: np.ndarray | None, identifiable, influences
     combination's. Returns ``{j: [h, ...]}`` for the identifiable j with ``|c_j| >
     tol`` in unit-scaled columns (indices into the columns of ``W``)."""
     W = np.asarray(W, dtype=float)
-    if weights is not None:
-        W = W * np.sqrt(np.asarray(weights, dtype=float))[:, None]
     ident = np.flatnonzero(np.asarray(identifiable, bool))
     held = np.flatnonzero(np.asarray(influences, bool) & ~np.asarray(identifiable, bool))
     out: dict[int, list[int]] = {}
     if not ident.size or not held.size:
         return out
-    norms = np.linalg.norm(W, axis=0)
-    A = W[:, ident] / np.where(norms[ident] > 0, norms[ident], 1.0)
-    B = W[:, held] / np.where(norms[held] > 0, norms[held], 1.0)
-    C = np.linalg.lstsq(A, B, rcond=None)[0]           # (identifiable, held)
+    if len(rowblocks.spans(*W.shape)) == 1:
+        if weights is not None:
+            W = W * np.sqrt(np.asarray(weights, dtype=float))[:, None]
+        norms = np.linalg.norm(W, axis=0)
+        A = W[:, ident] / np.where(norms[ident] > 0, norms[ident], 1.0)
+        B = W[:, held] / np.where(norms[held] > 0, norms[held], 1.0)
+        C = np.linalg.lstsq(A, B, rcond=None)[0]           # (identifiable, held)
+    else:
+        C = _absorbed_by_blocks(W, weights, ident, held)
     for a, j in enumerate(ident):
         hs = [int(held[b]) for b in np.flatnonzero(np.abs(C[a]) > tol)]
         if hs:
             out[int(j)] = hs
     return out
+
+
+def _absorbed_by_blocks(W, weights, ident, held) -> np.ndarray:
+    """The coefficients of :func:`absorbed` from the triangle of the QR of the unit
+    columns ``[A B]`` (``A`` the identifiable ones, ``B`` the held), made a block of
+    rows at a time: with ``A = Q1 R11``, ``B = Q1 R12 + Q2 R22`` the least-squares
+    (minimum-norm) solution of ``A C ~ B`` is that of ``R11 C ~ R12``, with the same
+    singular values and so the same cut-off."""
+    cols = np.r_[ident, held]
+    g = None if weights is None else np.sqrt(np.asarray(weights, dtype=float))
+    rows, k = W.shape[0], len(ident)
+    blocks = rowblocks.spans(rows, len(cols))
+    norms = rowblocks.column_norms(W, cols, g)
+    norms = np.where(norms > 0, norms, 1.0)
+    R = rowblocks.triangle(lambda lo, hi: np.divide(
+        rowblocks.scaled_rows(W, lo, hi, cols, g), norms,
+        out=np.empty((hi - lo, len(cols)), order="F")), blocks, len(cols))
+    rcond = np.finfo(float).eps * max(rows, k)  # (lstsq's default for A itself)
+    return np.linalg.lstsq(R[:k, :k], R[:k, k:], rcond=rcond)[0]

@@ -26,11 +26,13 @@ Pure numerics (no I/O); :mod:`station.fitting.batch` runs the gate with them.
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import special
 
+from calibration import rowblocks
 from calibration.errors import CalibrationError
 
 # Family-wise false-alarm probability of the outlier test on a clean trace.
@@ -74,9 +76,15 @@ class Outlier:
     threshold: float
 
 
-def _scaled_svd(W: np.ndarray, weights: np.ndarray, active: np.ndarray):
+def _scaled_svd(W: np.ndarray, weights: np.ndarray, active: np.ndarray, basis: bool = True,
+                into=None):
     """Column norms and the thin SVD (rank from the singular values) of the
-    weighted, column-scaled ``A = sqrt(w) W_R / norms``."""
+    weighted, column-scaled ``A = sqrt(w) W_R / norms``: ``(norms, U, sv, Vt)``
+    (``basis`` False: ``U`` None where ``A`` is large; ``into``: ``W`` itself, where
+    a large one's ``U`` may be written, see :func:`_large_svd`)."""
+    active = np.asarray(active, bool)
+    if len(rowblocks.spans(W.shape[0], int(active.sum()))) > 1:
+        return _large_svd(W, weights, active, basis, into)
     A = W[:, active] * np.sqrt(weights)[:, None]
     norms = np.linalg.norm(A, axis=0)
     norms = np.where(norms > 0, norms, 1.0)
@@ -85,13 +93,58 @@ def _scaled_svd(W: np.ndarray, weights: np.ndarray, active: np.ndarray):
     return norms, U[:, keep], sv[keep], Vt[keep]
 
 
+def _large_svd(W, weights, active, basis: bool, into=None):
+    """:func:`_scaled_svd` of a matrix of many blocks of rows (:mod:`calibration.rowblocks`),
+    never formed whole: ``sv`` and ``Vt`` from the SVD of the triangle ``R`` of the QR of
+    ``A`` (``A = Q R``, ``R = U_R S V^T``: ``A``'s own), ``U = A V S^-1`` (the kept
+    columns only) block by block where ``basis``, else None (its error is round-off
+    times the condition number of the kept ``A``). ``into`` (``W``, C order): ``U`` is
+    written over the first columns of its rows, each block after it was read."""
+    g = np.sqrt(np.asarray(weights, dtype=float))
+    n = int(active.sum())
+    blocks = rowblocks.spans(W.shape[0], n)
+    norms = rowblocks.column_norms(W, active, g)
+    norms = np.where(norms > 0, norms, 1.0)
+
+    def unit(lo, hi):
+        return np.divide(rowblocks.scaled_rows(W, lo, hi, active, g), norms,
+                         out=np.empty((hi - lo, n), order="F"))
+
+    R = rowblocks.triangle(unit, blocks, n)
+    sv, Vt = np.linalg.svd(R, full_matrices=False)[1:]
+    keep = sv > sv[0] * 1e-10 if sv.size and sv[0] > 0 else np.zeros(sv.size, bool)
+    sv, Vt = sv[keep], Vt[keep]
+    U = None
+    if basis:
+        M = Vt.T / sv
+        if into is not None and into.flags.c_contiguous and into.shape[1] >= len(sv):
+            U = into[:, :len(sv)]
+        else:
+            U = np.empty((W.shape[0], len(sv)))
+        for lo, hi in blocks:
+            U[lo:hi] = unit(lo, hi) @ M
+    return norms, U, sv, Vt
+
+
 def leverage(W: np.ndarray, weights: np.ndarray, active: np.ndarray) -> np.ndarray:
     """Diagonal of the weighted hat matrix ``A (A^T A)^+ A^T``, ``A = sqrt(w) W_R``
     (columns scaled first; rank from the singular values)."""
     if not np.any(active):
         return np.zeros(W.shape[0])
-    U = _scaled_svd(W, weights, active)[1]
-    return np.einsum("ij,ij->i", U, U)
+    active = np.asarray(active, bool)
+    blocks = rowblocks.spans(W.shape[0], int(active.sum()))
+    if len(blocks) == 1:
+        U = _scaled_svd(W, weights, active)[1]
+        return np.einsum("ij,ij->i", U, U)
+    # U's rows' squared norms a block at a time, U never whole
+    g = np.sqrt(np.asarray(weights, dtype=float))
+    norms, _, sv, Vt = _scaled_svd(W, weights, active, basis=False)
+    M = Vt.T / sv
+    h = np.empty(W.shape[0])
+    for lo, hi in blocks:
+        Z = (rowblocks.scaled_rows(W, lo, hi, active, g) / norms) @ M
+        h[lo:hi] = np.einsum("ij,ij->i", Z, Z)
+    return h
 
 
 def prediction_leverage(W: np.ndarray, weights: np.ndarray, active: np.ndarray,
@@ -103,18 +156,21 @@ def prediction_leverage(W: np.ndarray, weights: np.ndarray, active: np.ndarray,
     W_new = np.atleast_2d(np.asarray(W_new, dtype=float))
     if not np.any(active):
         return np.zeros(W_new.shape[0])
-    norms, _, sv, Vt = _scaled_svd(W, weights, active)
+    norms, _, sv, Vt = _scaled_svd(W, weights, active, basis=False)
     B = W_new[:, active] * np.sqrt(weights_new)[:, None] / norms
     Z = (B @ Vt.T) / sv
     return np.einsum("ij,ij->i", Z, Z)
 
 
-def hat_basis(W: np.ndarray, weights: np.ndarray, active: np.ndarray) -> np.ndarray:
+def hat_basis(W: np.ndarray, weights: np.ndarray, active: np.ndarray, *,
+              overwrite: bool = False) -> np.ndarray:
     """Orthonormal basis ``U (rows, rank)`` of the weighted, scaled identifiable columns:
-    the weighted hat matrix is ``U U^T`` (its diagonal :func:`leverage`)."""
+    the weighted hat matrix is ``U U^T`` (its diagonal :func:`leverage`).
+    ``overwrite``: ``W`` (C order) is not needed after this; a large one then holds
+    ``U`` in its first columns (a view of it, no second matrix of its rows)."""
     if not np.any(active):
         return np.zeros((W.shape[0], 0))
-    return _scaled_svd(W, weights, active)[1]
+    return _scaled_svd(W, weights, active, into=W if overwrite else None)[1]
 
 
 def _group_rows(groups) -> tuple[np.ndarray, int]:
@@ -191,7 +247,7 @@ def prediction_blocks(model, result, W_new, row_channel_new, groups_new):
     W_new = np.atleast_2d(np.asarray(W_new, dtype=float))
     w_new = row_weights(rc, channels, result.sigma)
     if np.any(active):
-        norms, _, sv, Vt = _scaled_svd(W, w, active)
+        norms, _, sv, Vt = _scaled_svd(W, w, active, basis=False)
         B = W_new[:, active] * np.sqrt(w_new)[:, None] / norms
         Z = ((B @ Vt.T) / sv)[rows]                          # (G, k, rank)
         Hn = np.einsum("gir,gjr->gij", Z, Z)
@@ -455,7 +511,7 @@ def robust_worst_row(model, x0, sigma_stated: dict | None = None, *, free=None,
     return Outlier(row, channels[rc[row]], res, float(z[i]), thr), x
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class PoseBlock:
     """A pose's rows judged as one block (every point it read: issue 42). ``deleted`` is
     the deleted residual ``(I - H_ii)^-1 r_i``, the pose's error from the fit made
@@ -491,9 +547,17 @@ def pose_blocks(r, U, weights, row_pose, *, alpha: float = OUTLIER_ALPHA) -> lis
     rp = np.asarray(row_pose)
     dof = len(r) - float(np.einsum("ij,ij->", U, U))
     rss = float(rw @ rw)
-    found = []
-    for i in np.unique(rp):
-        rows = np.flatnonzero(rp == i)
+    # the testable poses: their rows and deleted residuals, and (compactly: a motion
+    # capture has 100 000 poses) pose, size, t^2, rows and leverage
+    rows_of, deleted = [], []
+    found = {"pose": array("q"), "size": array("d"), "t2": array("d"), "k": array("q"),
+             "lev": array("d")}
+    # each pose's rows (in row order, as flatnonzero(rp == i) has them): one sort
+    order = np.argsort(rp, kind="stable")
+    poses, starts = np.unique(rp[order], return_index=True)
+    ends = np.r_[starts[1:], len(order)]
+    for i, lo, hi in zip(poses.tolist(), starts.tolist(), ends.tolist()):
+        rows = order[lo:hi]
         k = len(rows)
         H = U[rows] @ U[rows].T
         lev = float(np.linalg.eigvalsh(H).max()) if k else 0.0
@@ -502,14 +566,22 @@ def pose_blocks(r, U, weights, row_pose, *, alpha: float = OUTLIER_ALPHA) -> lis
         ew = np.linalg.solve(np.eye(k) - H, rw[rows])
         qi = float(rw[rows] @ ew)
         s2 = max((rss - qi) / (dof - k), rss / dof * 1e-12 + 1e-300)
-        t2 = max(qi, 0.0) / s2
-        found.append((int(i), rows, ew / np.sqrt(w[rows]),
-                      math.sqrt(max(qi, 0.0) / float(np.sum(w[rows]))), t2, k, lev))
-    n = len(found)
-    return [PoseBlock(i, rows, e, size, math.sqrt(t2),
-                      math.sqrt(k * _f_isf(alpha / n, k, dof - k)),
-                      float(fdtrc(k, dof - k, t2 / k)), lev)
-            for i, rows, e, size, t2, k, lev in found]
+        rows_of.append(rows)
+        deleted.append(ew / np.sqrt(w[rows]))
+        for key, v in (("pose", int(i)), ("size", math.sqrt(max(qi, 0.0) /
+                                                            float(np.sum(w[rows])))),
+                       ("t2", max(qi, 0.0) / s2), ("k", k), ("lev", lev)):
+            found[key].append(v)
+    n = len(rows_of)
+    threshold: dict[int, float] = {}  # (per block size: Bonferroni over the n poses)
+    out = []
+    for i, rows, e, size, t2, k, lev in zip(found["pose"], rows_of, deleted, found["size"],
+                                            found["t2"], found["k"], found["lev"]):
+        if k not in threshold:
+            threshold[k] = math.sqrt(k * _f_isf(alpha / n, k, dof - k))
+        out.append(PoseBlock(i, rows, e, size, math.sqrt(t2), threshold[k],
+                             float(fdtrc(k, dof - k, t2 / k)), lev))
+    return out
 
 
 def _noise_log_upper(k: int) -> float:

@@ -95,8 +95,20 @@ class Markers(RobotMethod):
         self.identify_order = np.array(base + list(range(self.nr, len(self.names))) + rest)
 
     def predict(self, x):
-        """``(points (m, M, 3), T (m, 4, 4), psi (m, 6, N_robot))`` at ``x``."""
-        T, psi = self.robot.spatial_jacobian(self.qm, np.asarray(x)[:self.nr])
+        """``(points (m, M, 3), T (m, 4, 4), psi (m, 6, N_robot))`` at ``x`` (made
+        :data:`POSE_BLOCK` poses at a time: the chain's temporaries stay small)."""
+        m = len(self.qm)
+        xr = np.asarray(x)[:self.nr]
+        if m <= POSE_BLOCK:
+            T, psi = self.robot.spatial_jacobian(self.qm, xr)
+        else:
+            T = psi = None
+            for lo in range(0, m, POSE_BLOCK):
+                hi = min(lo + POSE_BLOCK, m)
+                Tb, pb = self.robot.spatial_jacobian(self.qm[lo:hi], xr)
+                if T is None:
+                    T, psi = np.empty((m,) + Tb.shape[1:]), np.empty((m,) + pb.shape[1:])
+                T[lo:hi], psi[lo:hi] = Tb, pb
         u = np.asarray(x[self.nr:], dtype=float).reshape(self.n_markers, 3)
         arm = np.einsum("mij,kj->mki", T[:, :3, :3], u)       # R_e u_j
         return T[:, None, :3, 3] + arm, T, psi, arm
@@ -117,13 +129,15 @@ class Markers(RobotMethod):
         lo_s = 0
         for b, hi_s in enumerate(ends.tolist()):
             lo = b * POSE_BLOCK
-            r[3 * lo_s:3 * hi_s], W[3 * lo_s:3 * hi_s] = self._rows(
-                x, lo, min(lo + POSE_BLOCK, m), lo_s, hi_s)
+            # (the block's rows of W written in place: no block-sized copy on the way)
+            r[3 * lo_s:3 * hi_s] = self._rows(x, lo, min(lo + POSE_BLOCK, m), lo_s, hi_s,
+                                              out=W[3 * lo_s:3 * hi_s])[0]
             lo_s = hi_s
         return r, W
 
-    def _rows(self, x, lo: int, hi: int, lo_s: int, hi_s: int):
-        """The rows of poses ``lo:hi``, whose seen points are ``lo_s:hi_s``."""
+    def _rows(self, x, lo: int, hi: int, lo_s: int, hi_s: int, out=None):
+        """The rows of poses ``lo:hi``, whose seen points are ``lo_s:hi_s`` (their rows
+        of W written into ``out`` where given)."""
         T, psi = self.robot.spatial_jacobian(self.qm[lo:hi], x[:self.nr])
         u = x[self.nr:].reshape(self.n_markers, 3)
         arm = np.einsum("mij,kj->mki", T[:, :3, :3], u)       # R_e u_j
@@ -136,7 +150,11 @@ class Markers(RobotMethod):
                           dw[:, 2] * a[:, 0, None] - dw[:, 0] * a[:, 2, None],
                           dw[:, 0] * a[:, 1, None] - dw[:, 1] * a[:, 0, None]], axis=1)
         s = len(i)
-        W = np.zeros((s, 3, self.nr + 3 * self.n_markers))
+        if out is None:
+            W = np.zeros((s, 3, self.nr + 3 * self.n_markers))
+        else:
+            W = out.reshape(s, 3, -1)
+            W[:, :, self.nr:] = 0.0
         W[:, :, :self.nr] = dp + cross
         cols = self.nr + 3 * k[:, None] + np.arange(3)            # (s, 3)
         W[np.arange(s)[:, None, None], np.arange(3)[None, :, None], cols[:, None, :]] = \

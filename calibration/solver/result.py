@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibration import identifiability as ident
-from calibration.solver.step import Iteration, formed_condition, geqrf, gesvd, masks, trtri
+from calibration import rowblocks
+from calibration.solver.step import Iteration, formed_condition, gesvd, masks, trtri
 
 
 @dataclass(frozen=True)
@@ -142,10 +143,11 @@ def _covariance(run, sigma, w, need_cond=True, need_cov=True):
     choose between the two); ``need_cov`` False: only the condition number is
     asked for (the covariance returned may then be None)."""
     scale = run.opt.scale_columns
-    WA = run.W if run.all_active else run.W.take(run.active_idx, axis=1)
-    rows, n = WA.shape
+    # W_R, the calibrated columns, is taken a block of rows at a time (rowblocks)
+    W, cols = run.W, None if run.all_active else run.active_idx
+    rows, n = W.shape[0], run.n_active
     F = run.last_factor
-    if F is not None and F.W is run.W and F.svd is None and F.Rinv is not None:
+    if F is not None and F.key is run.W_key and F.svd is None and F.Rinv is not None:
         # weights of the last iteration: a constant times w?
         g = F.g
         if isinstance(g, float):
@@ -159,8 +161,15 @@ def _covariance(run, sigma, w, need_cond=True, need_cov=True):
             if F.cond_below(math.sqrt(_PINV_SAFE) / spread):  # w = c g^2: G W_R H = sqrt(c) A
                 Rh = F.Rinv * h[:, None]
                 return (Rh @ Rh.T) * (1.0 / c), F.cond_or_triangle
-    norms = np.sqrt(np.einsum("ij,ij->j", WA, WA))
+    norms = rowblocks.column_norms(W, cols)
     h = 1.0 / norms if scale else np.ones(n)
+    blocks = rowblocks.spans(rows, n)
+    sw = np.sqrt(w)
+
+    def scaled(lo, hi):  # rows lo:hi of G W_R H, in Fortran order
+        return np.multiply(rowblocks.rows_of(W, lo, hi, cols) * h, sw[lo:hi, None],
+                           out=np.empty((hi - lo, n), order="F"))
+
     if n and rows > n and norms.min() > 0:
         chk = run.last_check
         if (chk is not None and chk.R is not None and chk.saw(run, sigma)
@@ -169,8 +178,7 @@ def _covariance(run, sigma, w, need_cond=True, need_cov=True):
             # with S = diag(||G W_R[:, j]|| h_j), so R S is the triangle of G W_R H
             R = chk.R * (chk.cls[3][run.active_idx] * h)
         else:
-            Ag = np.multiply(WA * h, np.sqrt(w)[:, None], out=np.empty(WA.shape, order="F"))
-            qr, _tau, _work, info = geqrf(Ag)
+            qr, _tau, _work, info = rowblocks.stacked_qr(scaled, blocks, n)
             R = qr[:n, :n] * masks(n)[0][:, :n] if info == 0 else None
         if R is not None and not need_cond:
             # ||R||_F ||R^-1||_F >= cond(R): where that bound (with a factor 2 to
@@ -196,8 +204,13 @@ def _covariance(run, sigma, w, need_cond=True, need_cov=True):
                     if info == 0:
                         Rh = Rinv * h[:, None]
                         return Rh @ Rh.T, cond
-    cov = np.linalg.pinv(WA.T @ (WA * w[:, None]))
-    sv = np.linalg.svd((WA * h) * np.sqrt(w)[:, None], compute_uv=False)
+    if len(blocks) == 1:
+        WA = rowblocks.rows_of(W, 0, rows, cols)
+        cov = np.linalg.pinv(WA.T @ (WA * w[:, None]))
+        sv = np.linalg.svd((WA * h) * np.sqrt(w)[:, None], compute_uv=False)
+    else:  # (the singular values of G W_R H are those of its triangle)
+        cov = np.linalg.pinv(rowblocks.gram(W, cols, w))
+        sv = np.linalg.svd(rowblocks.triangle(scaled, blocks, n), compute_uv=False)
     cond = float(sv[0] / sv[-1]) if sv.size and sv[-1] > 0 else np.inf
     return cov, cond
 

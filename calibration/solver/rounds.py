@@ -25,19 +25,20 @@ from calibration.solver.weighting import Weighting
 
 class Check:
     """An identifiability check at a solution (:meth:`Algorithm2.recheck`):
-    its inputs, its classification ``(identifiable, influences, r_diag,
-    column_norm)`` and the triangle ``R`` of its QR (or None)."""
+    its inputs (``key``: the observation matrix's, :attr:`Algorithm2.W_key`), its
+    classification ``(identifiable, influences, r_diag, column_norm)`` and the
+    triangle ``R`` of its QR (or None)."""
 
-    __slots__ = ("R", "W", "candidates", "cls", "r", "sigma", "weights")
+    __slots__ = ("R", "candidates", "cls", "key", "r", "sigma", "weights")
 
-    def __init__(self, W, r, sigma, weights, candidates, cls, R):
-        self.W, self.r, self.sigma, self.weights = W, r, sigma, weights
+    def __init__(self, key, r, sigma, weights, candidates, cls, R):
+        self.key, self.r, self.sigma, self.weights = key, r, sigma, weights
         self.candidates, self.cls, self.R = candidates, cls, R
 
     def saw(self, run, sigma) -> bool:
         """Did this check see the final solution of ``run``, weighted by ``sigma``
         (None: unweighted)?"""
-        return (self.W is run.W and self.r is run.r
+        return (self.key is run.W_key and self.r is run.r
                 and (self.sigma == sigma if sigma is not None and self.sigma is not None
                      else np.array_equal(self.weights, run.row_weights(sigma) if sigma else
                                          np.ones(run.rows))))
@@ -87,6 +88,9 @@ class Algorithm2(Weighting, Stepping):
                              and self.stated_uniform() != bool(other_path))
         self.mode = ("known" if self.all_known and not self.pooled_first else "pooled")
         self.r, self.W = model.evaluate(self.x)
+        # the observation matrix's identity (the point it was evaluated at: a large one
+        # let go and evaluated there again is the same, Stepping.iterate) and that point
+        self.W_key, self.W_at = object(), self.x
         self.nfev = 1
         self.rows = len(self.r)
         if not (math.isfinite(float(self.r.sum()) + float(self.W.sum()))
@@ -122,11 +126,10 @@ class Algorithm2(Weighting, Stepping):
         twin = model.consistent_twin(self.x)
         if twin is model:
             g = self.g  # the first iteration's weights (L = I, or the trace's sigma)
-            Wg = self.W * g if isinstance(g, float) else self.W * g[:, None]
-            cls = self._first_factor_status(Wg)
+            cls = self._first_factor_status(g)
             if cls is None:
-                cls = ident.classify(Wg, candidates=self.candidates, rank_tol=opt.rank_tol,
-                                     order=model.identify_order)
+                cls = ident.classify(self.W, row_scale=g, candidates=self.candidates,
+                                     rank_tol=opt.rank_tol, order=model.identify_order)
         else:
             r_t, W_t = twin.evaluate(self.x)
             self.nfev += 1
@@ -153,7 +156,7 @@ class Algorithm2(Weighting, Stepping):
         order = self.model.identify_order
         return order is None or np.array_equal(order, np.arange(len(order)))
 
-    def _first_factor_status(self, Wg):
+    def _first_factor_status(self, g):
         """The start classification from the first iteration's factorization:
         ``(identifiable, influences)`` where the candidates' columns above
         classify's zero floor are all clearly identifiable there
@@ -166,12 +169,14 @@ class Algorithm2(Weighting, Stepping):
         The QR of ``[G W_R H, G r]`` the first iteration makes holds that of the
         unit columns the classification factors (the same matrix up to a column
         scaling). Its column norms and zero floor are classify's own (the floor
-        over the candidates' columns); ``Wg``: the weighted matrix it classifies."""
+        over the candidates' columns); ``g``: the weights' square roots it classifies
+        with (a float, or one per row)."""
         if not self._natural_order():
             return None
         cand = self.candidates
         every = bool(cand.all())
-        norms, floor = ident.column_floor(Wg, self.opt.rank_tol, None if every else cand)
+        norms, floor = ident.column_floor(self.W, self.opt.rank_tol, None if every else cand,
+                                          row_scale=g)
         use = norms > floor
         if not every:
             use &= cand
@@ -197,7 +202,7 @@ class Algorithm2(Weighting, Stepping):
         there (:func:`~calibration.solver.step.clearly_identifiable`, with
         classify's column norms and zero floor at the solution); else None."""
         F = self.last_factor
-        if (F is None or F.W is not self.W or F.Rinv is None or F.svd is not None
+        if (F is None or F.key is not self.W_key or F.Rinv is None or F.svd is not None
                 or not isinstance(F.g, float) or F.n != self.n_active
                 or (sigma is not None and len(set(sigma.values())) > 1)
                 or cand.tobytes() != self.active.tobytes() or not self._natural_order()):
@@ -205,14 +210,15 @@ class Algorithm2(Weighting, Stepping):
         opt = self.opt
         # classify's column norms and zero floor
         gw = np.sqrt(weights)
-        norms, floor = ident.column_floor(self.W * gw[:, None], opt.rank_tol, cand, gw * r, opt.kappa)
+        norms, floor = ident.column_floor(self.W, opt.rank_tol, cand, gw * r, opt.kappa,
+                                          row_scale=gw)
         d = clearly_identifiable(F, opt.rank_tol, norms[self.active_idx], float(floor))
         if d is None:
             return None
         rdiag = np.zeros(len(cand))
         rdiag[self.active_idx] = d
         cls = (cand.copy(), np.zeros(len(cand), bool), rdiag, norms)
-        return Check(self.W, r, sigma, weights, cand, cls, None)
+        return Check(self.W_key, r, sigma, weights, cand, cls, None)
 
     def _set_active(self, mask):
         self.active = np.asarray(mask, bool)
@@ -237,7 +243,7 @@ class Algorithm2(Weighting, Stepping):
             sigma, weights = None, np.ones(self.rows)
         cand = self.active & self.candidates
         chk = self.last_check
-        if not (chk is not None and chk.W is self.W and chk.r is r and chk.sigma == sigma
+        if not (chk is not None and chk.key is self.W_key and chk.r is r and chk.sigma == sigma
                 and chk.candidates.tobytes() == cand.tobytes()):  # (bool masks)
             # (a round that ended where it began, e.g. after the per-channel
             # weights of a noise-free fit changed at round-off: the same check)
@@ -246,7 +252,7 @@ class Algorithm2(Weighting, Stepping):
                 *cls, R = ident.classify(self.W, weights=weights, candidates=cand, residual=r,
                                          rank_tol=opt.rank_tol, kappa=opt.kappa, return_r=True,
                                          order=self.model.identify_order)
-                chk = Check(self.W, r, sigma, weights, cand, cls, R)
+                chk = Check(self.W_key, r, sigma, weights, cand, cls, R)
             self.last_check = chk
         cls = chk.cls
         new_active = cls[0] & self.active
@@ -268,11 +274,13 @@ class Algorithm2(Weighting, Stepping):
         self.settled = False
         x = self.x.copy()
         x[mask] = self.x0[mask]
+        self._let_go()  # (a new matrix either way)
         try:
             self.r, self.W = self.evaluate(x)
             self.x = x
         except CalibrationError:
             self.r, self.W = self.evaluate(self.x)
+        self.W_key, self.W_at = object(), self.x
 
 
 def solve(model: MeasurementModel, options: SolverOptions | None = None,
@@ -305,10 +313,12 @@ def solve(model: MeasurementModel, options: SolverOptions | None = None,
     # data that do not fit. Once more on the other path (a first round pooled, or
     # weighted by the stated sigma from the first step: Algorithm2); the lower of the
     # two minima is the result.
+    pooled_first = run.pooled_first
+    del run  # (its observation matrix is let go before the restart makes its own)
     alt, failed = _restarted(model, opt, callback, t_start)
     nfev = res.nfev + (alt.nfev if alt is not None else 0)
     its = res.iterations + (alt.iterations if alt is not None else 0)
-    other = ("weighted by the stated noise from its first step" if run.pooled_first
+    other = ("weighted by the stated noise from its first step" if pooled_first
              else "with its first round pooled, as without a stated noise")
     if alt is not None and alt.converged and (not res.converged
                                               or alt.cost < res.cost * (1 - RESTART_GAIN)):

@@ -14,6 +14,7 @@ import math
 import numpy as np
 from scipy.linalg import lapack
 
+from calibration import rowblocks
 from calibration.errors import CalibrationError
 
 # Early switch to per-channel weights (see :func:`calibration.solver.rounds.solve`). The pooled round of a
@@ -60,6 +61,12 @@ EXACT_MARGIN = 0.1
 #: undamped triangle: one LAPACK call instead of a second QR)
 ROUNDOFF_DAMPING = 2.0 ** -53
 
+#: an observation matrix larger than this (bytes) is let go before the model is
+#: evaluated at a trial point, and evaluated again at the current one where the step is
+#: rejected (:meth:`Stepping.iterate`): one matrix of the fit's size alive, not two
+#: (a 100 000-pose motion capture's is 460 MB)
+RELEASE_BYTES = 64 << 20
+
 geqrf, gesvd, trtrs, trtri = lapack.dgeqrf, lapack.dgesvd, lapack.dtrtrs, lapack.dtrtri
 _MASKS: dict[int, tuple] = {}
 
@@ -105,19 +112,27 @@ class Scaled:
     (eq. 52) the row norms of ``R^-1``, the condition number the singular values
     of ``R`` (those of ``A``). Where ``R`` is numerically singular, or ``A`` not
     tall, the same quantities come from an SVD with the singular values below
-    ``1e-15 s_max`` cut (a pseudo-inverse), as the normal equations would."""
+    ``1e-15 s_max`` cut (a pseudo-inverse), as the normal equations would.
 
-    __slots__ = ("R", "Rc", "Rinv", "W", "_sv", "cost", "g", "h", "n", "r", "rf2", "rinv2",
-                 "sigma", "svd", "vs")
+    ``key`` identifies the matrix factored (the run's observation matrix, which this
+    does not keep); ``A`` is made from ``WA``'s columns ``cols`` (None: all) a block of
+    rows at a time (:mod:`calibration.rowblocks`), never whole."""
 
-    def __init__(self, W, sigma, WA, h, g, r):
-        rows, n = WA.shape
-        self.W, self.sigma, self.h, self.g, self.n, self.r = W, sigma, h, g, n, r
+    __slots__ = ("R", "Rc", "Rinv", "_sv", "cost", "g", "h", "key", "n", "r", "rf2", "rinv2",
+                 "rows", "sigma", "stated", "svd", "vs")
+
+    def __init__(self, key, sigma, WA, h, g, r, cols=None):
+        rows = WA.shape[0]
+        n = WA.shape[1] if cols is None else len(cols)
+        self.key, self.sigma, self.h, self.g, self.n, self.r = key, sigma, h, g, n, r
+        self.rows = rows
+        self.stated = None  # this point factored at the stated sigma (Stepping._record)
         scalar = isinstance(g, float)
         self.svd = self.Rinv = self.vs = self._sv = None
         self.rinv2 = math.inf  # ||R^-1||_F^2 (>= 1 / s_min^2) where known
         self.rf2 = math.inf  # ||R||_F^2 (>= s_max^2) where that is
         if rows <= n:
+            WA = rowblocks.rows_of(WA, 0, rows, cols)
             A = WA * (h * g) if scalar else (WA * h) * g[:, None]
             b = r * g
             self.cost = 0.5 * float(b @ b)
@@ -125,15 +140,21 @@ class Scaled:
             self._sv, self.svd = sv, (Vt, U.T @ b)
             self.Rc = self.R = None
             return
-        Ab = np.empty((rows, n + 1), order="F")
-        if scalar:
-            np.multiply(WA, h * g, out=Ab[:, :n])
-        else:
-            np.multiply(WA, h, out=Ab[:, :n])
-            Ab[:, :n] *= g[:, None]
-        b = np.multiply(r, g, out=Ab[:, n])
+        b = np.multiply(r, g)
         self.cost = 0.5 * float(b @ b)
-        qr = geqrf(Ab, overwrite_a=1)[0]
+
+        def block(lo, hi):
+            Ab = np.empty((hi - lo, n + 1), order="F")
+            A = rowblocks.rows_of(WA, lo, hi, cols)
+            if scalar:
+                np.multiply(A, h * g, out=Ab[:, :n])
+            else:
+                np.multiply(A, h, out=Ab[:, :n])
+                Ab[:, :n] *= g[lo:hi, None]
+            Ab[:, n] = b[lo:hi]
+            return Ab
+
+        qr = rowblocks.stacked_qr(block, rowblocks.spans(rows, n + 1), n + 1)[0]
         # [R c] with R upper triangular and c = Q^T b (Fortran order: R contiguous)
         Rc = self.Rc = qr[:n] * masks(n)[0]
         R = self.R = Rc[:, :n]
@@ -419,15 +440,37 @@ class Stepping:
         """The iteration's scaled, weighted problem (:class:`Scaled`), or the
         mask of active columns that vanished."""
         W = self.W
-        WA = W if self.all_active else W.take(self.active_idx, axis=1)
-        norms = np.sqrt(np.einsum("ij,ij->j", WA, WA))
+        cols = None if self.all_active else self.active_idx
+        norms = rowblocks.column_norms(W, cols)
         nl = norms.tolist()  # (a few columns: Python's max and min are faster than numpy's)
         tol = self.opt.rank_tol * max(nl)
         total = sum(nl)
         if min(nl) <= tol and total == total:  # (a NaN norm: on to the QR, as numpy's NaN max did)
             return norms <= tol
         h = 1.0 / norms if self.opt.scale_columns else np.ones(len(norms))
-        return Scaled(W, self.sigma, WA, h, self.g, self.r)
+        return Scaled(self.W_key, self.sigma, W, h, self.g, self.r, cols)
+
+    def _records_stated(self) -> bool:
+        """Does :meth:`_record` record this round's iterations at the stated sigma with
+        weights other than the round's (:meth:`_stated_factor`)?"""
+        return (self.mode == "pooled" and self.all_known and bool(self.opt.weight_errors)
+                and not self.stated_uniform())
+
+    def _stated_factor(self, F):
+        """``F``'s point factored at the stated weights (made once, while the run's
+        matrix is still ``F``'s)."""
+        if F.stated is None:
+            F.stated = Scaled(F.key, self.known, self.W, F.h, self.sqrt_weights(self.known),
+                              F.r, None if self.all_active else self.active_idx)
+        return F.stated
+
+    def _let_go(self) -> bool:
+        """Let the observation matrix go before the model is evaluated at another point
+        where it is large (:data:`RELEASE_BYTES`); True if it was."""
+        if self.W.nbytes <= RELEASE_BYTES:
+            return False
+        self.W = None
+        return True
 
     def _record(self, F, step, cost):
         """History entry: variance of the estimate at this iteration (eq. 52,
@@ -439,8 +482,7 @@ class Stepping:
         if stated and not self.stated_uniform():
             # weights other than the round's (the restart's path): the same iteration
             # factored at the stated weights
-            F = Scaled(F.W, self.known, F.W if idx is None else F.W.take(idx, axis=1), F.h,
-                       self.sqrt_weights(self.known), F.r)
+            F = self._stated_factor(F)
             factor, cost = 1.0, F.cost
         elif self.mode == "pooled" or not self.opt.weight_errors:
             g = F.g
@@ -475,7 +517,7 @@ class Stepping:
         gradient vanishes and so does that decrease, whatever the damping; a step
         made small only by the damping (the edge of a model's domain, a PM that
         cannot assemble beyond it) is not convergence."""
-        dof = F.W.shape[0] - F.n
+        dof = F.rows - F.n
         if dof <= 0 or F.cost <= 0:
             return False
         z0 = F.step(self.lam ** 2)
@@ -581,9 +623,13 @@ class Stepping:
         lin_err = self.lin_err if resumed else None  # (r - r_lin, ||z||^2) of the last step
         if self.settled:  # the last round ended on a step not evaluated: evaluate it now
             self.settled = False
+            released = self._let_go()
             try:
                 self.r, self.W = self.evaluate(self.x)
+                self.W_key, self.W_at = object(), self.x
             except CalibrationError as e:
+                if released:  # (the matrix of the point before, as it was)
+                    self.W = self.model.evaluate(self.W_at)[1]
                 return False, f"the model cannot be evaluated at the solution ({e})"
             self.next_factor = None
             self._reweighed()
@@ -631,8 +677,8 @@ class Stepping:
             last = self.can_settle and not rejected and step * step <= eps and bool(taken)
             r_lin = None  # the residual this step predicts (where needed)
             if early or watch or last:
-                WA = self.W if self.all_active else self.W.take(self.active_idx, axis=1)
-                r_lin = self.r - WA @ d
+                r_lin = self.r - rowblocks.matvec(self.W, d, None if self.all_active
+                                                  else self.active_idx)
             if early:
                 zn = math.sqrt(z @ z)
                 if pred is not None and pred[1] > 0:
@@ -691,6 +737,9 @@ class Stepping:
             else:
                 x_try = self.x.copy()
                 x_try[self.active_idx] += d
+            if self._records_stated():  # (its record needs this point's matrix)
+                self._stated_factor(F)
+            released = self._let_go()
             try:
                 r_try, W_try = self.evaluate(x_try)
                 g = F.g
@@ -705,6 +754,9 @@ class Stepping:
             except CalibrationError:  # e.g. the PM cannot assemble there
                 ok, r_try, W_try = False, None, None
             if not ok or cost_try > cost * (1 + 1e-12):
+                if released and (adaptive or not ok):  # rejected: the matrix here again
+                    W_try = None
+                    self.W = self.model.evaluate(self.W_at)[1]
                 if adaptive:
                     rejected += 1
                     if rejected > 30:
@@ -739,6 +791,8 @@ class Stepping:
                 e = r_try - r_lin
                 pred = (r_lin, zn, math.sqrt(e @ e))
             self.x, self.r, self.W = x_try, r_try, W_try
+            self.W_key, self.W_at = object(), x_try
+            W_try = None  # (the run's own now: no other reference, _let_go)
             self.k += 1
             self._reweighed(rss if isinstance(F.g, float) else None)
             self._record(F, step, cost)

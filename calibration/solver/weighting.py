@@ -14,6 +14,8 @@ import numpy as np
 from scipy import special
 from scipy.linalg import lapack
 
+from calibration import rowblocks
+
 geqrf, orgqr = lapack.dgeqrf, lapack.dorgqr
 
 # The smallest sigma an estimate takes (the residual's SI units; a zero one would
@@ -130,6 +132,12 @@ class Weighting:
         W = self.W
         if nch < 2 or not n_active or W.shape[0] <= n_active:
             return [None] * nch
+        cols = None if self.all_active else self.active_idx
+        if len(rowblocks.spans(W.shape[0], n_active)) > 1:
+            h = _leverage_by_blocks(W, cols, self.g)
+            if h is None:
+                return [None] * nch
+            return np.bincount(self.row_channel, weights=h, minlength=nch).tolist()
         A = W if self.all_active else W.take(self.active_idx, axis=1)
         g = self.g
         A = A * g if isinstance(g, float) else A * g[:, None]
@@ -263,3 +271,29 @@ def _homogeneous(rss_dof) -> bool:
     t = nu * math.log(sp) - sum(d * math.log(rc / d) for rc, d in rd)
     t /= 1 + (sum(1 / d for _, d in rd) - 1 / nu) / (3 * (k - 1))
     return float(special.chdtrc(k - 1, t)) > HOMOGENEITY_ALPHA  # chi2.sf(t, k - 1)
+
+
+def _leverage_by_blocks(W, cols, g):
+    """The diagonal of the hat matrix of ``A = G W[:, cols]`` (``g``: a float, or one per
+    row) a block of rows at a time: ``Q = A D R^-1`` (``D`` the unit columns' scaling,
+    ``R`` the triangle of their QR, :mod:`calibration.rowblocks`), its rows' squared
+    norms; None where a column is zero or the triangle singular."""
+    rows = W.shape[0]
+    n = W.shape[1] if cols is None else len(cols)
+    norms = rowblocks.column_norms(W, cols, g)
+    if not norms.min() > 0:  # (also where NaN)
+        return None
+    blocks = rowblocks.spans(rows, n)
+
+    def unit(lo, hi):
+        return np.divide(rowblocks.scaled_rows(W, lo, hi, cols, g), norms,
+                         out=np.empty((hi - lo, n), order="F"))
+
+    Rinv, info = lapack.dtrtri(rowblocks.triangle(unit, blocks, n))
+    if info != 0:
+        return None
+    h = np.empty(rows)
+    for lo, hi in blocks:
+        Q = unit(lo, hi) @ Rinv
+        h[lo:hi] = np.einsum("ij,ij->i", Q, Q)
+    return h

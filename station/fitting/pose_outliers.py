@@ -48,7 +48,8 @@ def _blocks(model, result):
     r, W = model.evaluate(result.x)
     active = np.array([s.identifiable for s in result.status])
     w = q.row_weights(model.row_channel, model.channels, result.sigma)
-    U = q.hat_basis(W, w, active)
+    U = q.hat_basis(W, w, active, overwrite=True)    # U in W's own rows (a large fit)
+    del W
     return r, w, q.pose_blocks(r, U, w, model.row_pose), np.einsum("ij,ij->i", U, U)
 
 
