@@ -3,7 +3,7 @@ seen (issue 42), from one fit.
 
 Leaving a pose out and fitting again moves the solution by what the pose's rows pulled;
 to first order the pose's error under that fit is its *deleted residual*
-``(I - H_ii)^-1 r_i`` (:func:`calibration.quality.pose_blocks`), so leave-one-pose-out
+``(I - H_ii)^-1 r_i`` (:func:`calibration.pose_quality.pose_blocks`), so leave-one-pose-out
 cross-validation costs one factorization, not one fit per pose. Two models of the same
 poses (a rigid arm and a compliant one) are compared pose by pose:
 :func:`compare_models` tests whether one predicts the poses it has not seen better,
@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calibration import pose_quality as pq
 from calibration import quality as q
 
 #: a model is preferred where the signed-rank test's one-sided p is below this
@@ -33,7 +34,7 @@ def unseen_errors(r, W, weights, active, row_pose) -> dict[int, tuple[float, flo
     w = np.asarray(weights, dtype=float)
     U = q.hat_basis(W, w, np.asarray(active, bool))
     out = {}
-    for b in q.pose_blocks(r, U, w, row_pose):
+    for b in pq.pose_blocks(r, U, w, row_pose):
         e = b.deleted
         out[b.pose] = (float(e @ (w[b.rows] * e)), float(e @ e), len(b.rows))
     return out

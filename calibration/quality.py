@@ -22,18 +22,22 @@ Pure numerics (no I/O); :mod:`station.fitting.batch` runs the gate with them.
 * Consistency: per channel with a stated sigma, ``RSS_c / sigma_c^2`` against
   chi-square with ``dof_c`` degrees of freedom (upper tail).
 * Spread: the number of distinct poses (actuator values).
+
+The hat matrix itself (leverages, its basis) is :mod:`calibration.hat_matrix`; a pose's
+rows judged as one block and the level real residuals show, :mod:`calibration.pose_quality`;
+the robust fit that names a gross reading where least squares does not converge,
+:mod:`calibration.robust_fit`.
 """
 from __future__ import annotations
 
 import math
-from array import array
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import special
 
-from calibration import rowblocks
 from calibration.errors import CalibrationError
+from calibration.hat_matrix import _scaled_svd, hat_basis, leverage, prediction_leverage  # noqa: F401 (q.leverage ...)
 
 # Family-wise false-alarm probability of the outlier test on a clean trace.
 OUTLIER_ALPHA = 1e-3
@@ -74,103 +78,6 @@ class Outlier:
     residual: float
     t: float
     threshold: float
-
-
-def _scaled_svd(W: np.ndarray, weights: np.ndarray, active: np.ndarray, basis: bool = True,
-                into=None):
-    """Column norms and the thin SVD (rank from the singular values) of the
-    weighted, column-scaled ``A = sqrt(w) W_R / norms``: ``(norms, U, sv, Vt)``
-    (``basis`` False: ``U`` None where ``A`` is large; ``into``: ``W`` itself, where
-    a large one's ``U`` may be written, see :func:`_large_svd`)."""
-    active = np.asarray(active, bool)
-    if len(rowblocks.spans(W.shape[0], int(active.sum()))) > 1:
-        return _large_svd(W, weights, active, basis, into)
-    A = W[:, active] * np.sqrt(weights)[:, None]
-    norms = np.linalg.norm(A, axis=0)
-    norms = np.where(norms > 0, norms, 1.0)
-    U, sv, Vt = np.linalg.svd(A / norms, full_matrices=False)
-    keep = sv > sv[0] * 1e-10 if sv.size and sv[0] > 0 else np.zeros(sv.size, bool)
-    return norms, U[:, keep], sv[keep], Vt[keep]
-
-
-def _large_svd(W, weights, active, basis: bool, into=None):
-    """:func:`_scaled_svd` of a matrix of many blocks of rows (:mod:`calibration.rowblocks`),
-    never formed whole: ``sv`` and ``Vt`` from the SVD of the triangle ``R`` of the QR of
-    ``A`` (``A = Q R``, ``R = U_R S V^T``: ``A``'s own), ``U = A V S^-1`` (the kept
-    columns only) block by block where ``basis``, else None (its error is round-off
-    times the condition number of the kept ``A``). ``into`` (``W``, C order): ``U`` is
-    written over the first columns of its rows, each block after it was read."""
-    g = np.sqrt(np.asarray(weights, dtype=float))
-    n = int(active.sum())
-    blocks = rowblocks.spans(W.shape[0], n)
-    norms = rowblocks.column_norms(W, active, g)
-    norms = np.where(norms > 0, norms, 1.0)
-
-    def unit(lo, hi):
-        return np.divide(rowblocks.scaled_rows(W, lo, hi, active, g), norms,
-                         out=np.empty((hi - lo, n), order="F"))
-
-    R = rowblocks.triangle(unit, blocks, n)
-    sv, Vt = np.linalg.svd(R, full_matrices=False)[1:]
-    keep = sv > sv[0] * 1e-10 if sv.size and sv[0] > 0 else np.zeros(sv.size, bool)
-    sv, Vt = sv[keep], Vt[keep]
-    U = None
-    if basis:
-        M = Vt.T / sv
-        if into is not None and into.flags.c_contiguous and into.shape[1] >= len(sv):
-            U = into[:, :len(sv)]
-        else:
-            U = np.empty((W.shape[0], len(sv)))
-        for lo, hi in blocks:
-            U[lo:hi] = unit(lo, hi) @ M
-    return norms, U, sv, Vt
-
-
-def leverage(W: np.ndarray, weights: np.ndarray, active: np.ndarray) -> np.ndarray:
-    """Diagonal of the weighted hat matrix ``A (A^T A)^+ A^T``, ``A = sqrt(w) W_R``
-    (columns scaled first; rank from the singular values)."""
-    if not np.any(active):
-        return np.zeros(W.shape[0])
-    active = np.asarray(active, bool)
-    blocks = rowblocks.spans(W.shape[0], int(active.sum()))
-    if len(blocks) == 1:
-        U = _scaled_svd(W, weights, active)[1]
-        return np.einsum("ij,ij->i", U, U)
-    # U's rows' squared norms a block at a time, U never whole
-    g = np.sqrt(np.asarray(weights, dtype=float))
-    norms, _, sv, Vt = _scaled_svd(W, weights, active, basis=False)
-    M = Vt.T / sv
-    h = np.empty(W.shape[0])
-    for lo, hi in blocks:
-        Z = (rowblocks.scaled_rows(W, lo, hi, active, g) / norms) @ M
-        h[lo:hi] = np.einsum("ij,ij->i", Z, Z)
-    return h
-
-
-def prediction_leverage(W: np.ndarray, weights: np.ndarray, active: np.ndarray,
-                        W_new: np.ndarray, weights_new: np.ndarray) -> np.ndarray:
-    """For rows not in the fit (held out, or left out of it): ``w J (A^T A)^+ J^T``
-    with ``A = sqrt(w) W_R`` of the fit's rows, the variance of the row's prediction
-    from the fitted parameters in units of the row's own noise variance. A fit
-    row's leverage ``h`` is this ``h / (1 - h)`` from the fit without it."""
-    W_new = np.atleast_2d(np.asarray(W_new, dtype=float))
-    if not np.any(active):
-        return np.zeros(W_new.shape[0])
-    norms, _, sv, Vt = _scaled_svd(W, weights, active, basis=False)
-    B = W_new[:, active] * np.sqrt(weights_new)[:, None] / norms
-    Z = (B @ Vt.T) / sv
-    return np.einsum("ij,ij->i", Z, Z)
-
-
-def hat_basis(W: np.ndarray, weights: np.ndarray, active: np.ndarray, *,
-              overwrite: bool = False) -> np.ndarray:
-    """Orthonormal basis ``U (rows, rank)`` of the weighted, scaled identifiable columns:
-    the weighted hat matrix is ``U U^T`` (its diagonal :func:`leverage`).
-    ``overwrite``: ``W`` (C order) is not needed after this; a large one then holds
-    ``U`` in its first columns (a view of it, no second matrix of its rows)."""
-    if not np.any(active):
-        return np.zeros((W.shape[0], 0))
-    return _scaled_svd(W, weights, active, into=W if overwrite else None)[1]
 
 
 def _group_rows(groups) -> tuple[np.ndarray, int]:
@@ -414,203 +321,3 @@ def distinct_poses(qm: np.ndarray) -> int:
         return 0
     scale = max(float(np.max(np.abs(qm))), 1.0)
     return len(np.unique(np.round(qm / (scale * 1e-6)), axis=0))
-
-
-def robust_worst_row(model, x0, sigma_stated: dict | None = None, *, free=None,
-                     alpha: float = OUTLIER_ALPHA) -> tuple[Outlier | None, np.ndarray | None]:
-    """Where least squares is thrown off by a gross reading (it does not converge),
-    the reading a robust fit rejects: ``scipy.optimize.least_squares`` with the
-    soft-L1 loss from ``x0``, scaled per channel by the stated sigma or the
-    residual's median absolute deviation (refitted once with it). Only the ``free``
-    parameters move (a bool mask; default all): the fixed and the not identifiable
-    ones keep their values, as in every fit of the station. A model whose rows come
-    in groups read together (``row_group``: a point's x, y, z) is judged per group,
-    on the norm of its residual. The row (a group's first) with the largest
-    residual in robust sigmas, if beyond the Bonferroni threshold of the normal (a
-    group: chi) distribution, else None; and the robust solution (None if the
-    robust fit fails), a start for the refit without that reading."""
-    from scipy.optimize import least_squares
-    from scipy.special import chdtri, ndtri
-
-    channels = tuple(model.channels)
-    rc = np.asarray(model.row_channel)
-    stated = sigma_stated or {}
-    x_start = np.asarray(x0, dtype=float)
-    mask = np.ones(len(x_start), bool) if free is None else np.asarray(free, bool)
-    groups = getattr(model, "row_group", None)
-    if groups is not None:
-        rows, k = _group_rows(groups)
-        gch = rc[rows[:, 0]]
-        med_chi = math.sqrt(float(chdtri(k, 0.5)))
-    else:
-        rows, k, gch, med_chi = None, 1, rc, 1.0
-
-    def unit(r):   # per reading: |r| (a group: its norm)
-        return np.abs(r) if rows is None else np.linalg.norm(r[rows], axis=1)
-
-    def scales(r):
-        u = unit(r)
-        s = np.ones(len(channels))
-        for c, ch in enumerate(channels):
-            uc = u[gch == c]
-            mad = float(np.median(uc)) / (med_chi if rows is not None else 1 / 1.4826) \
-                if uc.size else 1.0
-            s[c] = float(stated[ch]) if stated.get(ch) else max(mad, ROUNDOFF)
-        return s[gch]
-
-    def full(v):
-        x = x_start.copy()
-        x[mask] = v
-        return x
-
-    def per_row(s):   # a group's scale on each of its rows
-        if rows is None:
-            return s
-        out = np.empty(len(rc))
-        out[rows] = s[:, None]
-        return out
-
-    # the fit itself on the rows: the norm of a group's residual is a poor linear model
-    # where it is near the noise (its curvature is 1 / norm), and the steps on it
-    # crawled (2323 evaluations on a marker trace whose fit on the rows takes 4); the
-    # groups are judged below
-    def fun(v, s):
-        return model.evaluate(full(v))[0] / s
-
-    def jac(v, s):
-        return -model.evaluate(full(v))[1][:, mask] / s[:, None]
-
-    if not mask.any():
-        return None, None
-    v = x_start[mask]
-    try:
-        r0 = model.evaluate(x_start)[0]
-        s = scales(r0)
-        for _ in range(2):
-            sol = least_squares(fun, v, jac=jac, args=(per_row(s),), loss="soft_l1",
-                                x_scale="jac", method="trf", tr_solver="exact",
-                                max_nfev=200 * (len(v) + 1))
-            v = sol.x
-            r = model.evaluate(full(v))[0]
-            if all(stated.get(ch) for ch in channels):
-                break
-            s = scales(r)
-    except (ValueError, np.linalg.LinAlgError, FloatingPointError, CalibrationError):
-        return None, None
-    x = full(v)
-    z = unit(r) / s
-    z[unit(r) <= ROUNDOFF] = 0.0
-    i = int(np.argmax(z))
-    n = len(z)
-    thr = (float(-ndtri(alpha / (2 * n))) if rows is None
-           else math.sqrt(float(chdtri(k, alpha / n))))
-    if not z[i] > thr:
-        return None, x
-    row = i if rows is None else int(rows[i, 0])
-    res = float(r[row]) if rows is None else float(np.linalg.norm(r[rows[i]]))
-    return Outlier(row, channels[rc[row]], res, float(z[i]), thr), x
-
-
-@dataclass(frozen=True, slots=True)
-class PoseBlock:
-    """A pose's rows judged as one block (every point it read: issue 42). ``deleted`` is
-    the deleted residual ``(I - H_ii)^-1 r_i``, the pose's error from the fit made
-    without it (to first order; residual units); ``size`` its Mahalanobis size per row
-    ``sqrt(r_i^T (I - H_ii)^-1 r_i / k)`` in the rows' residual units (whitened, times
-    their sigma), the same whatever the pose's leverage for a reading of pure noise;
-    ``t = sqrt(T^2)`` externally studentized (``T^2 / k ~ F(k, dof - k)``) against the
-    noise-level ``threshold`` (Bonferroni over the poses tested) with its tail ``p``;
-    ``leverage`` the largest eigenvalue of the pose's block ``H_ii`` of the hat matrix."""
-
-    pose: int
-    rows: np.ndarray
-    deleted: np.ndarray
-    size: float
-    t: float
-    threshold: float
-    p: float
-    leverage: float
-
-
-def pose_blocks(r, U, weights, row_pose, *, alpha: float = OUTLIER_ALPHA) -> list[PoseBlock]:
-    """Every testable pose's :class:`PoseBlock` at a solution: ``U`` the hat basis
-    (:func:`hat_basis`) of the weighted, scaled identifiable columns, ``row_pose`` each
-    row's pose (position among the fit's poses). Only the pose's block ``H_ii = U_i
-    U_i^T`` of the hat matrix is formed. A pose is not testable where it alone
-    determines a direction (``H_ii`` has an eigenvalue 1), where its residual is zero
-    or too few degrees of freedom remain without it."""
-    from scipy.special import fdtrc
-
-    r = np.asarray(r, dtype=float)
-    w = np.asarray(weights, dtype=float)
-    rw = r * np.sqrt(w)
-    rp = np.asarray(row_pose)
-    dof = len(r) - float(np.einsum("ij,ij->", U, U))
-    rss = float(rw @ rw)
-    # the testable poses: their rows and deleted residuals, and (compactly: a motion
-    # capture has 100 000 poses) pose, size, t^2, rows and leverage
-    rows_of, deleted = [], []
-    found = {"pose": array("q"), "size": array("d"), "t2": array("d"), "k": array("q"),
-             "lev": array("d")}
-    # each pose's rows (in row order, as flatnonzero(rp == i) has them): one sort
-    order = np.argsort(rp, kind="stable")
-    poses, starts = np.unique(rp[order], return_index=True)
-    ends = np.r_[starts[1:], len(order)]
-    for i, lo, hi in zip(poses.tolist(), starts.tolist(), ends.tolist()):
-        rows = order[lo:hi]
-        k = len(rows)
-        H = U[rows] @ U[rows].T
-        lev = float(np.linalg.eigvalsh(H).max()) if k else 0.0
-        if lev >= MAX_LEVERAGE or dof - k <= 3 or np.linalg.norm(r[rows]) <= ROUNDOFF:
-            continue
-        ew = np.linalg.solve(np.eye(k) - H, rw[rows])
-        qi = float(rw[rows] @ ew)
-        s2 = max((rss - qi) / (dof - k), rss / dof * 1e-12 + 1e-300)
-        rows_of.append(rows)
-        deleted.append(ew / np.sqrt(w[rows]))
-        for key, v in (("pose", int(i)), ("size", math.sqrt(max(qi, 0.0) /
-                                                            float(np.sum(w[rows])))),
-                       ("t2", max(qi, 0.0) / s2), ("k", k), ("lev", lev)):
-            found[key].append(v)
-    n = len(rows_of)
-    threshold: dict[int, float] = {}  # (per block size: Bonferroni over the n poses)
-    out = []
-    for i, rows, e, size, t2, k, lev in zip(found["pose"], rows_of, deleted, found["size"],
-                                            found["t2"], found["k"], found["lev"]):
-        if k not in threshold:
-            threshold[k] = math.sqrt(k * _f_isf(alpha / n, k, dof - k))
-        out.append(PoseBlock(i, rows, e, size, math.sqrt(t2), threshold[k],
-                             float(fdtrc(k, dof - k, t2 / k)), lev))
-    return out
-
-
-def _noise_log_upper(k: int) -> float:
-    """The upper spread of ``log(chi_k)`` (:func:`robust_level`) where the residuals are
-    the noise alone: its upper quartile above its median, in normal sigmas."""
-    m, u = (0.5 * math.log(float(special.chdtri(k, p))) for p in (0.5, 0.25))
-    return (u - m) / UPPER_QUARTILE
-
-
-#: the upper quartile of the normal distribution, in sigmas
-UPPER_QUARTILE = 0.6744897501960817
-
-
-def robust_level(sizes, ks, *, alpha: float = OUTLIER_ALPHA) -> dict:
-    """The poses' own scale (issue 42: real residuals, where what the geometric model
-    cannot describe sets them, not the instrument), on a log scale: the median of the
-    :attr:`PoseBlock.size` s and their upper spread, the median of the deviations above
-    the median (the upper quartile) in normal sigmas (a pose that fits very well does
-    not widen it); ``limit`` the size beyond which a pose stands out of the others
-    (Bonferroni over the poses, normal on the log scale); ``spread`` the upper spread
-    against the one noise alone gives (about 1 for residuals of pure noise)."""
-    from scipy.special import ndtri
-
-    ls = np.log(np.maximum(np.asarray(sizes, dtype=float), ROUNDOFF))
-    med = float(np.median(ls))
-    up = ls[ls > med] - med
-    s_up = float(np.median(up)) / UPPER_QUARTILE if up.size else 0.0
-    n = len(ls)
-    z = float(-ndtri(alpha / max(n, 1)))
-    k = int(np.median(ks)) if len(ks) else 3
-    return {"median": math.exp(med), "limit": math.exp(med + z * s_up),
-            "spread": s_up / _noise_log_upper(k), "poses": n}

@@ -1,18 +1,29 @@
-"""No module of station/ or cli/ over :data:`MAX_LINES` lines: a module a reader takes in whole
-(the house style's 100-300, docs/architecture.md). A module that must be longer goes in
-:data:`ALLOWED` with the reason."""
+"""No module of the project over :data:`MAX_LINES` lines, in any package (calibration/,
+drivers/, station/, cli/) or app.py: a module a reader takes in whole (the house style's
+100-300, docs/architecture.md). A module that must be longer goes in :data:`ALLOWED`
+with the reason."""
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("calibration", "drivers", "station", "cli")
 MAX_LINES = 400
 
 #: path -> why it may be longer (keep this short)
-ALLOWED: dict[str, str] = {}
+ALLOWED: dict[str, str] = {
+    "calibration/solver/step.py": "Algorithm 2's iteration with its measured speed-ups, "
+                                  "not yet taken apart (issue 46, item 1)",
+}
 
 
-def test_station_modules_are_short():
+def modules():
+    yield ROOT / "app.py"
+    for package in PACKAGES:
+        yield from sorted((ROOT / package).rglob("*.py"))
+
+
+def test_every_module_is_short():
     long = {}
-    for path in sorted([*(ROOT / "station").rglob("*.py"), *(ROOT / "cli").rglob("*.py")]):
+    for path in modules():
         rel = path.relative_to(ROOT).as_posix()
         n = len(path.read_text(encoding="utf-8").splitlines())
         if n > MAX_LINES and rel not in ALLOWED:

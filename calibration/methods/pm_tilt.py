@@ -1,14 +1,14 @@
 """pm-tilt: pm-fk with a physical dual-axis inclinometer on the platform.
 
 The sensor reads the direction of gravity in its own frame (roll, pitch of
-:func:`calibration.robots.agebot_pm.gravity_tilt`), not Euler angles, and sits
+:func:`calibration.robots.inclinometer.gravity_tilt`), not Euler angles, and sits
 on the platform with a small unknown rotation ``R_mount = Rx(mount_x) Ry(mount_y)``.
 Trace channel ``tilt`` ``(m, 2)`` = (roll, pitch), rad; model channels ``roll``,
 ``pitch``. Parameters: the robot's 10, then ``mount_x, mount_y``.
 
 Rows per pose: ``tilt_M - gravity_tilt(R(F(Qm, xi)), mount)`` (wrapped); observation
 matrix ``dT/dX Psi^PKU`` for xi and ``dT/dmount`` for the mount
-(:func:`calibration.robots.agebot_pm.tilt_jacobian`). A rotation about the
+(:func:`calibration.robots.inclinometer.tilt_jacobian`). A rotation about the
 vertical is invisible to the sensor (yaw is lost, two rows per pose); with it,
 ``q3_off, k3`` stay compensated (eqs. 112-113) as in pm-fk.
 

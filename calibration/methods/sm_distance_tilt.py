@@ -70,7 +70,7 @@ class InclinometerDistanceTilt(RobotMethod):
     """sm-distance-tilt on a robot file: the distance of the tool origin from the
     reference point (captured at ``reference_qm``, role ``base-origin``) plus a
     physical dual-axis inclinometer on the tool (trace channel ``tilt = [roll,
-    pitch]``, :func:`calibration.robots.agebot_pm.gravity_tilt` of the tool's
+    pitch]``, :func:`calibration.robots.inclinometer.gravity_tilt` of the tool's
     orientation, gravity ``(0, 0, -1)`` of the base frame). Its mounting rotation
     ``R_mount = Rx(mount_x) Ry(mount_y)`` on the tool is calibrated too.
 

@@ -8,7 +8,7 @@ noise, the draw-wire's zero and the encoders are the AGEBOT simulator's
 (inherited); what differs is the pose, the inclinometer and the limits:
 
 * pose ``X = [x, y, z, roll, pitch, yaw]`` of the tool frame in the base frame;
-* the inclinometer reads :func:`calibration.robots.agebot_pm.gravity_tilt` of the
+* the inclinometer reads :func:`calibration.robots.inclinometer.gravity_tilt` of the
   tool's orientation, mounted by the truth's ``inclinometer_mount`` (``Rx Ry``),
   noise channels ``roll``/``pitch`` (``tilt`` where those are not given); yaw 0;
 * repeatability (a truth's ``repeatability``; :mod:`drivers.sim.axis`): the links are

@@ -31,6 +31,7 @@ import numpy as np
 
 from calibration import identifiability as ident
 from calibration import quality as q
+from calibration import robust_fit
 from calibration.errors import CalibrationError
 from station.fitting.gate_checks import (check_explains, check_plausibility, check_poses,
                                          check_validation, people)
@@ -126,13 +127,13 @@ def _free(model, hold) -> np.ndarray:
 def rescue(trace, model, error: NotConverged, *, refit, stated_sigma: dict | None,
            hold=()):
     """A fit that did not converge: leave out the readings a robust fit rejects
-    (:func:`calibration.quality.robust_worst_row`), one at a time, until the fit
+    (:func:`calibration.robust_fit.robust_worst_row`), one at a time, until the fit
     converges. Returns ``(trace, model, result, outliers)``; raises ``error`` (with
     the suspects named) if that does not help."""
     outliers: list[dict] = []
     limit = max_outliers(len(trace.fit_poses))
     while len(outliers) < limit and row_poses(model) is not None:
-        worst, x_robust = q.robust_worst_row(model, model.x0, stated_sigma,
+        worst, x_robust = robust_fit.robust_worst_row(model, model.x0, stated_sigma,
                                              free=_free(model, hold))
         if worst is None:
             break
@@ -207,7 +208,7 @@ def gated_fit(trace, model, *, first, refit, stated_sigma, validate, fixed=(),
     # least squares may spread a gross reading over every residual: ask a robust fit,
     # started where least squares ended (from the bare start values a robot far from
     # its nominal lands in another minimum, where every reading looks gross)
-    worst, x_robust = q.robust_worst_row(model1, got[3].x, stated_sigma,
+    worst, x_robust = robust_fit.robust_worst_row(model1, got[3].x, stated_sigma,
                                          free=_free(model1, hold))
     if worst is None and x_robust is not None:
         # no gross reading: least squares found a local minimum; start again where

@@ -5,13 +5,13 @@ A pose's rows are one block. Its deleted residual ``(I - H_ii)^-1 r_i`` is its e
 from the fit made without it (``H_ii`` its block of the hat matrix of the whitened,
 scaled Jacobian at the solution), so an influential pose is not hidden by the fit it
 distorts; its Mahalanobis size against ``s^2 (I - H_ii)^-1`` is the externally
-studentized statistic of :func:`calibration.quality.pose_blocks`.
+studentized statistic of :func:`calibration.pose_quality.pose_blocks`.
 
 The threshold is the noise's (Bonferroni over the poses) where the residuals are the
 instrument's noise. Where they are not (a channel's fitted sigma far above the stated
 one, or the poses' sizes spread far wider than noise spreads them: real data, where
 what the geometric model cannot describe sets the residuals), a pose must also stand
-out of the level the data show (:func:`calibration.quality.robust_level`), said in one
+out of the level the data show (:func:`calibration.pose_quality.robust_level`), said in one
 line.
 
 A pose beyond the threshold is left out only if the fit without it (refitted once)
@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from calibration import pose_quality as pq
 from calibration import quality as q
 from calibration.errors import CalibrationError
 from station.fitting.verdict import describe, stops_judging
@@ -50,7 +51,7 @@ def _blocks(model, result):
     w = q.row_weights(model.row_channel, model.channels, result.sigma)
     U = q.hat_basis(W, w, active, overwrite=True)    # U in W's own rows (a large fit)
     del W
-    return r, w, q.pose_blocks(r, U, w, model.row_pose), np.einsum("ij,ij->i", U, U)
+    return r, w, pq.pose_blocks(r, U, w, model.row_pose), np.einsum("ij,ij->i", U, U)
 
 
 def _index(trace, b) -> int:
@@ -63,11 +64,11 @@ def _point_3d(v) -> float:
 
 
 def model_error_level(model, r, h, blocks, stated_sigma) -> dict | None:
-    """The level the data show (:func:`calibration.quality.robust_level`, its ``why``)
+    """The level the data show (:func:`calibration.pose_quality.robust_level`, its ``why``)
     where the residuals are not the instrument's noise, else None."""
     if len(blocks) < 5:
         return None
-    level = q.robust_level([b.size for b in blocks], [len(b.rows) for b in blocks])
+    level = pq.robust_level([b.size for b in blocks], [len(b.rows) for b in blocks])
     level["sigma"] = math.sqrt(float(r @ r) / max(len(r) - float(np.sum(h)), 1.0))
     why = []
     for c in q.chi_square(r, h, model.row_channel, model.channels, stated_sigma or {}):

@@ -3,7 +3,7 @@ parameter count of eq. 8, and identifiability with full pose measurement."""
 import numpy as np
 import pytest
 
-from calibration.chain import DHJoint, dh_model
+from calibration.dh_model import DHJoint, dh_model
 from tests.calibration.helpers import assert_columns_close, rotvec_between
 
 

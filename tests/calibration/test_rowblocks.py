@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 
 from calibration import identifiability as ident
+from calibration import pose_quality as pq
 from calibration import quality as q
 from calibration import rowblocks
 from calibration.errors import CalibrationError
 from calibration.model import MeasurementModel
 from calibration.solver import SolverOptions, solve
 from calibration.solver import step
-from calibration.solver.step import Scaled
+from calibration.solver.factored import Scaled
 from tests.calibration.helpers import dataset
 
 #: blocks of this many bytes make the small matrices below many blocks
@@ -136,7 +137,7 @@ def test_pose_blocks_are_those_of_each_poses_rows():
     w = rng.uniform(0.5, 2.0, size=300)
     r = rng.normal(size=300)
     row_pose = rng.permutation(np.repeat(np.arange(100), 3))
-    got = q.pose_blocks(r, U, w, row_pose)
+    got = pq.pose_blocks(r, U, w, row_pose)
     assert [b.pose for b in got] == list(range(100))
     for b in got:
         np.testing.assert_array_equal(b.rows, np.flatnonzero(row_pose == b.pose))

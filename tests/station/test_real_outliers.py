@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 import app as app_module
+from calibration import pose_quality as pq
 from calibration import quality as q
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
@@ -162,7 +163,7 @@ def test_deleted_residual_is_the_error_of_the_fit_without_the_pose():
     r = y - J @ x
     w = np.full(len(y), 4.0)
     U = q.hat_basis(J, w, np.ones(p, bool))
-    blocks = q.pose_blocks(r, U, w, np.repeat(np.arange(n_pose), k))
+    blocks = pq.pose_blocks(r, U, w, np.repeat(np.arange(n_pose), k))
     assert len(blocks) == n_pose
     for b in blocks:
         keep = np.ones(len(y), bool)
@@ -175,16 +176,16 @@ def test_deleted_residual_is_the_error_of_the_fit_without_the_pose():
 
 
 def test_the_level_of_noise_alone_spreads_as_noise_and_model_error_wider():
-    """:func:`calibration.quality.robust_level`: poses of pure noise spread as noise
+    """:func:`calibration.pose_quality.robust_level`: poses of pure noise spread as noise
     spreads them (about 1); a heavy tail (what a geometric model cannot describe) far
     wider, and its limit is the data's own."""
     rng = np.random.default_rng(7)
     k = 9
     noise = np.sqrt(rng.chisquare(k, size=4000) / k)
-    level = q.robust_level(noise, [k] * len(noise))
+    level = pq.robust_level(noise, [k] * len(noise))
     assert level["spread"] == pytest.approx(1.0, abs=0.08)
     heavy = noise * np.exp(rng.normal(scale=0.6, size=len(noise)))
-    wide = q.robust_level(heavy, [k] * len(heavy))
+    wide = pq.robust_level(heavy, [k] * len(heavy))
     assert wide["spread"] > 2.0 and wide["limit"] > 2 * level["limit"]
     assert math.isfinite(wide["median"])
 
