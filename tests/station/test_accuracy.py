@@ -16,7 +16,6 @@ import re
 import numpy as np
 import pytest
 
-import app as app_module
 from calibration import iso9283
 from drivers.sim.serial_robot import SimulatedSerial
 from drivers.sim.truth import load_truth
@@ -24,23 +23,9 @@ from drivers.sim.urdf_truth import true_points
 from station.fitting.batch import calibrate_trace
 from tests.station.iso_helpers import calibrate
 from tests.station.urdf_helpers import ROOT, URDF
+from tests.station.cli_helpers import run, refused
 
 CHAIN = ["--robot", str(URDF), "--base-link", "base_link", "--tip-link", "tool0"]
-
-
-def run(capsys, *args):
-    rc = app_module.main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
-
-
-def refused(capsys, args, *words):
-    rc, out, err = run(capsys, *args)
-    lines = err.strip().splitlines()
-    assert rc == 2 and len(lines) == 1 and lines[0].startswith("error: "), (out, err)
-    for w in words:
-        assert w in lines[0], lines[0]
-    return lines[0]
 
 
 @pytest.fixture(scope="module")

@@ -13,12 +13,12 @@ import re
 import numpy as np
 import pytest
 
-import app as app_module
 from calibration import iso9283
 from drivers.errors import DeviceError
 from station.outputs.iso9283 import PROGRAMS, attained, csv_text, table
 from station.session import iso_run
 from tests.station.iso_helpers import calibrate, made_up_test
+from tests.station.cli_helpers import run, refused
 
 CYCLES = 4
 
@@ -31,21 +31,6 @@ def tested(tmp_path_factory):
     plan, readings = made_up_test(folder, CYCLES)
     (folder / "accuracy.csv").write_text(csv_text(plan.tm, plan.cube, readings, plan.names))
     return folder, plan, readings
-
-
-def run(capsys, *args):
-    rc = app_module.main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
-
-
-def refused(capsys, args, *words):
-    rc, out, err = run(capsys, *args)
-    lines = err.strip().splitlines()
-    assert rc == 2 and len(lines) == 1 and lines[0].startswith("error: "), (out, err)
-    for w in words:
-        assert w in lines[0], lines[0]
-    return lines[0]
 
 
 def _in_memory(plan, readings) -> list[str]:

@@ -14,7 +14,6 @@ import re
 import numpy as np
 import pytest
 
-import app as app_module
 from calibration.compensation import rigid_fit, rotation_error
 from calibration.errors import UnreachablePose
 from drivers.robot_file import load_robot_file
@@ -24,23 +23,9 @@ from station.outputs.compensate import setup
 from station.outputs.params_file import read_params, write_params
 from station.simulation import tracegen_urdf as tg
 from tests.station.urdf_helpers import ROOT, URDF, arm
+from tests.station.cli_helpers import run, refused
 
 HAYATI = ROOT / "fixtures" / "robots" / "ur5-like-hayati.toml"
-
-
-def run(capsys, *args):
-    rc = app_module.main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
-
-
-def refused(capsys, args, *words):
-    rc, _out, err = run(capsys, *args)
-    lines = err.strip().splitlines()
-    assert rc == 2 and len(lines) == 1 and lines[0].startswith("error: "), err
-    for w in words:
-        assert w in lines[0], lines[0]
-    return lines[0]
 
 
 def write_program(path, columns: dict, extra: dict | None = None):

@@ -11,14 +11,9 @@ import pytest
 
 import app as app_module
 from tests.station.urdf_helpers import URDF
+from tests.station.cli_helpers import run
 
 UR5 = URDF.parent / "ur5-like-hayati.toml"
-
-
-def run(capsys, *args):
-    rc = app_module.main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
 
 
 def one_line(err: str) -> str:

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import app as app_module
 from calibration import pose_quality as pq
 from calibration import quality as q
+from tests.station.cli_helpers import run
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 FANUC = DATA / "fanuc"
@@ -41,12 +41,6 @@ version = 1
 urdf = "joint_3"
 terms = { J2 = 1.0, J3 = 1.0 }
 """ + "".join(f'[[joint]]\nurdf = "joint_{j}"\ncolumn = "J{j}"\n' for j in (1, 2, 4, 5, 6))
-
-
-def run(capsys, *args):
-    rc = app_module.main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
 
 
 def _data(folder: Path, probe: str) -> Path:

@@ -13,17 +13,11 @@ from pathlib import Path
 
 import pytest
 
-import app as app_module
 from tests.station.urdf_helpers import URDF, import_args, tracker_case, turned_wrist
+from tests.station.cli_helpers import run
 
 TIAGO = Path(__file__).resolve().parents[3] / "shared" / "data" / "tiago"
 TIAGO_IGNORE = "shipped_row,t_start_robot,t_end_robot,marker_std_mm"
-
-
-def run(capsys, *args):
-    rc = app_module.main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
 
 
 def calibrated(capsys, trace: Path, params: Path) -> tuple[dict, str]:

@@ -11,28 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import app as app_module
 from station.simulation import tracegen_urdf as tg
 from station.fitting.batch import calibrate_trace
 from station.recording.trace import read_trace
 from tests.station.urdf_helpers import URDF, arm, import_args, tracker_case
-
-
-def run(capsys, *args):
-    """``python app.py ARGS`` in this process: ``(rc, stdout, stderr)``."""
-    rc = app_module.main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
-
-
-def refused(capsys, args, *words):
-    rc, out, err = run(capsys, *args)
-    lines = err.strip().splitlines()
-    assert rc == 2 and len(lines) == 1 and lines[0].startswith("error: "), err
-    assert "np.float64" not in lines[0] and "array(" not in lines[0], lines[0]
-    for w in words:
-        assert w in lines[0], lines[0]
-    return lines[0]
+from tests.station.cli_helpers import run, refused
 
 
 def test_a_tracker_s_export_as_it_comes_calibrates_within_its_std(tmp_path, capsys):
