@@ -155,6 +155,7 @@ def prediction_blocks(model, result, W_new, row_channel_new, groups_new):
     w_new = row_weights(rc, channels, result.sigma)
     if np.any(active):
         norms, _, sv, Vt = _scaled_svd(W, w, active, basis=False)
+        del W                          # the fit's Jacobian (a large fit's largest array)
         B = W_new[:, active] * np.sqrt(w_new)[:, None] / norms
         Z = ((B @ Vt.T) / sv)[rows]                          # (G, k, rank)
         Hn = np.einsum("gir,gjr->gij", Z, Z)

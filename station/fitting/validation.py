@@ -160,23 +160,23 @@ def heldout_outlier(outcome: BatchOutcome, model, raw, W, rows=None) -> tuple | 
     rc = np.array([channels.index(model.channels[k]) for k in model.row_channel], dtype=int)
     # the validation model's columns in the fit's order (a parameter it does not
     # free, sm-plane's given plane, adds no uncertainty to the prediction)
-    W_new = np.zeros((len(raw), len(result.names)))
-    for j, name in enumerate(model.names):
-        if name in result.names:
-            W_new[:, result.names.index(name)] = W[:, j]
     keep = np.ones(len(raw), bool) if rows is None else np.asarray(rows, bool)
     if not keep.any():
         return None
     idx = np.flatnonzero(keep)
+    W_new = np.zeros((len(idx), len(result.names)))      # the kept rows only
+    for j, name in enumerate(model.names):
+        if name in result.names:
+            W_new[:, result.names.index(name)] = W[idx, j]
     groups = getattr(model, "row_group", None)
     if groups is not None:
         g = np.asarray(groups)[idx]
         _u, g = np.unique(g, return_inverse=True)
-        cov, grows, dof = q.prediction_blocks(fit, result, W_new[idx], rc[idx], g)
+        cov, grows, dof = q.prediction_blocks(fit, result, W_new, rc[idx], g)
         o, n_test = q.worst_prediction_group(np.asarray(raw)[idx], cov, grows, dof, rc[idx],
                                              channels)
     else:
-        std, dof = q.prediction_std(fit, result, W_new[idx], rc[idx])
+        std, dof = q.prediction_std(fit, result, W_new, rc[idx])
         o, n_test = q.worst_prediction(np.asarray(raw)[idx], std, dof, rc[idx], channels)
     if o is None:
         return None
