@@ -45,7 +45,10 @@ def validation_errors(outcome: BatchOutcome) -> list[dict]:
     rp = _row_pose(model)
     outside = outside_fitted_range(trace, outcome.model, data.qm)
     inside_rows = None if rp is None else ~np.isin(rp, sorted(outside))
-    worst = heldout_outlier(outcome, model, raw, W, rows=inside_rows)
+    idx = np.flatnonzero(np.ones(len(raw), bool) if inside_rows is None else inside_rows)
+    W_fit = in_fit_columns(model, outcome.result, W, idx)
+    del W                   # (a large held-out set: one Jacobian of it alive, not two)
+    worst = heldout_outlier(outcome, model, raw, W_fit, idx)
     try:
         before = _in_metres(trace.method, model.evaluate(x_before)[0], x_before, robot)
         before_note = ""
@@ -145,38 +148,39 @@ def outside_record(model, poses, outside: dict, after, sel) -> dict:
             "rms": float(np.sqrt(np.mean(es ** 2))), "max": float(es.max())}
 
 
-def heldout_outlier(outcome: BatchOutcome, model, raw, W, rows=None) -> tuple | None:
-    """The held-out row (of ``model``, the validation poses' model; ``raw, W`` its
-    residual and Jacobian at the solution) whose prediction error is most
-    significant against its prediction std, if beyond the Bonferroni threshold
-    over the held-out rows: ``(Outlier, rows tested)`` with the row of ``model``;
-    else None. The noise and the parameters' covariance are the fit's. ``rows``: a
-    mask of the rows to test (default all). Rows read together (a point's x, y, z)
-    are judged together."""
-    fit, result = outcome.model, outcome.result
-    channels = tuple(fit.channels)
-    if any(ch not in channels for ch in model.channels):
-        return None
-    rc = np.array([channels.index(model.channels[k]) for k in model.row_channel], dtype=int)
-    # the validation model's columns in the fit's order (a parameter it does not
-    # free, sm-plane's given plane, adds no uncertainty to the prediction)
-    keep = np.ones(len(raw), bool) if rows is None else np.asarray(rows, bool)
-    if not keep.any():
-        return None
-    idx = np.flatnonzero(keep)
-    W_new = np.zeros((len(idx), len(result.names)))      # the kept rows only
+def in_fit_columns(model, result, W, idx) -> np.ndarray:
+    """The rows ``idx`` of ``W`` (of ``model``, the validation poses' model) in the fit's
+    columns: a parameter the validation model does not free (sm-plane's given plane)
+    adds no uncertainty to the prediction."""
+    out = np.zeros((len(idx), len(result.names)))
     for j, name in enumerate(model.names):
         if name in result.names:
-            W_new[:, result.names.index(name)] = W[idx, j]
+            out[:, result.names.index(name)] = W[idx, j]
+    return out
+
+
+def heldout_outlier(outcome: BatchOutcome, model, raw, W_fit, idx) -> tuple | None:
+    """The held-out row (of ``model``, the validation poses' model; ``raw`` its residual
+    at the solution) whose prediction error is most significant against its prediction
+    std, if beyond the Bonferroni threshold over the rows tested: ``(Outlier, rows
+    tested)`` with the row of ``model``; else None. ``idx``: the rows tested, ``W_fit``
+    their Jacobian in the fit's columns (:func:`in_fit_columns`). The noise and the
+    parameters' covariance are the fit's. Rows read together (a point's x, y, z) are
+    judged together."""
+    fit, result = outcome.model, outcome.result
+    channels = tuple(fit.channels)
+    if any(ch not in channels for ch in model.channels) or not len(idx):
+        return None
+    rc = np.array([channels.index(model.channels[k]) for k in model.row_channel], dtype=int)
     groups = getattr(model, "row_group", None)
     if groups is not None:
         g = np.asarray(groups)[idx]
         _u, g = np.unique(g, return_inverse=True)
-        cov, grows, dof = q.prediction_blocks(fit, result, W_new, rc[idx], g)
+        cov, grows, dof = q.prediction_blocks(fit, result, W_fit, rc[idx], g)
         o, n_test = q.worst_prediction_group(np.asarray(raw)[idx], cov, grows, dof, rc[idx],
                                              channels)
     else:
-        std, dof = q.prediction_std(fit, result, W_new, rc[idx])
+        std, dof = q.prediction_std(fit, result, W_fit, rc[idx])
         o, n_test = q.worst_prediction(np.asarray(raw)[idx], std, dof, rc[idx], channels)
     if o is None:
         return None
