@@ -275,7 +275,7 @@ def profile_ours(prob, n):
 
     solver_dir = os.path.join("calibration", "solver", "")
     in_solver = lambda k: solver_dir in k[0]  # noqa: E731
-    in_step = lambda k: k[0].endswith(os.path.join("solver", "step.py"))  # noqa: E731
+    in_step = lambda k: k[0].endswith(os.path.join("solver", "factored.py"))  # noqa: E731
     in_ident = lambda k: k[0].endswith("identifiability.py")  # noqa: E731
     groups = [
         ("model.evaluate (r and W)", cum(lambda k: k[2] == "evaluate"

@@ -20,8 +20,13 @@ non-identifiable there return to their start values and the iteration resumes
 without them. Convergence is reported in the result, never raised.
 
 Modules: :mod:`~calibration.solver.options` (the settings),
-:mod:`~calibration.solver.step` (scaled problem, damped step, adaptive
-damping), :mod:`~calibration.solver.weighting` (sigma and L, eq. 51),
+:mod:`~calibration.solver.step` (the iteration, as the report writes
+Algorithm 2: scale, classify, step, damp, stop), its speed-ups each in a module
+named for what it saves (:mod:`~calibration.solver.factored`: the factorization
+of the scaled system and its solves; :mod:`~calibration.solver.stopping`: the
+predicted last step and the early switch; :mod:`~calibration.solver.retries`:
+the damping's safeguard; :mod:`~calibration.solver.history`: the record formed
+when read), :mod:`~calibration.solver.weighting` (sigma and L, eq. 51),
 :mod:`~calibration.solver.rounds` (:func:`solve`: rounds and identifiability),
 :mod:`~calibration.solver.result` (the result, final covariance and status).
 
@@ -39,10 +44,11 @@ iterating the pooled fit to epsilon.
 """
 from __future__ import annotations
 
+from calibration.solver.history import Iteration
 from calibration.solver.options import SolverOptions
 from calibration.solver.result import CalibrationResult
 from calibration.solver.rounds import solve
-from calibration.solver.step import EARLY_SWITCH, Iteration
+from calibration.solver.stopping import EARLY_SWITCH
 from calibration.solver.weighting import SIGMA_CHANGE, SIGMA_FLOOR
 
 __all__ = ["EARLY_SWITCH", "SIGMA_CHANGE", "SIGMA_FLOOR", "CalibrationResult", "Iteration",

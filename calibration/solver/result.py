@@ -12,7 +12,8 @@ import numpy as np
 
 from calibration import identifiability as ident
 from calibration import rowblocks
-from calibration.solver.step import Iteration, formed_condition, gesvd, masks, trtri
+from calibration.solver.factored import formed_condition, gesvd, masks, trtri
+from calibration.solver.history import Iteration
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,7 @@ def _covariance(run, sigma, w, need_cond=True, need_cov=True):
     ill-conditioned that a pseudo-inverse would cut singular values it is that
     pseudo-inverse, as eq. 52 reads. The condition number is returned as the
     last iteration's triangle where that QR serves and its singular values were
-    not needed to choose (:func:`~calibration.solver.step.formed_condition` forms
+    not needed to choose (:func:`~calibration.solver.factored.formed_condition` forms
     it). ``need_cond`` False: the condition number
     is not asked for (the second value is then NaN where it was not needed to
     choose between the two); ``need_cov`` False: only the condition number is

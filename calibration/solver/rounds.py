@@ -1,10 +1,8 @@
-"""The rounds of Algorithm 2 and identifiability: :func:`solve`.
-
-Identifiability is analysed at the start (structural dependencies) and again
-at the solution (:mod:`calibration.identifiability`): parameters found
+"""The rounds of Algorithm 2 and identifiability (:func:`solve`), and its restart on the
+other path. Identifiability is analysed at the start (structural dependencies) and
+again at the solution (:mod:`calibration.identifiability`): parameters found
 non-identifiable there return to their start values and the iteration resumes
-without them; the per-channel weights are re-estimated at each solution.
-"""
+without them; the per-channel weights are re-estimated at each solution."""
 from __future__ import annotations
 
 import math
@@ -17,9 +15,10 @@ from scipy import special
 from calibration import identifiability as ident
 from calibration.errors import CalibrationError
 from calibration.model import MeasurementModel
+from calibration.solver.factored import Scaled, clearly_identifiable
 from calibration.solver.options import SolverOptions
 from calibration.solver.result import CalibrationResult, make_result
-from calibration.solver.step import Iteration, Scaled, Stepping, clearly_identifiable
+from calibration.solver.step import Iteration, Stepping
 from calibration.solver.weighting import Weighting
 
 
@@ -160,7 +159,7 @@ class Algorithm2(Weighting, Stepping):
         """The start classification from the first iteration's factorization:
         ``(identifiable, influences)`` where the candidates' columns above
         classify's zero floor are all clearly identifiable there
-        (:func:`~calibration.solver.step.clearly_identifiable`; the other
+        (:func:`~calibration.solver.factored.clearly_identifiable`; the other
         candidates have no influence, and the parameters fixed by the options
         are neither, as classify reports them), the factorization kept for the
         first iteration (:attr:`next_factor`); else None (then
@@ -199,7 +198,7 @@ class Algorithm2(Weighting, Stepping):
         factorization, where its weights and the check's are both the same for
         every row (one channel, or channels whose sigmas agree): a
         :class:`Check`, where every active parameter is clearly identifiable
-        there (:func:`~calibration.solver.step.clearly_identifiable`, with
+        there (:func:`~calibration.solver.factored.clearly_identifiable`, with
         classify's column norms and zero floor at the solution); else None."""
         F = self.last_factor
         if (F is None or F.key is not self.W_key or F.Rinv is None or F.svd is not None

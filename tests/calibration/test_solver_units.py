@@ -17,8 +17,8 @@ from calibration import identifiability as ident
 from calibration.errors import CalibrationError
 from calibration.model import MeasurementModel
 from calibration.solver import SolverOptions, solve
-from calibration.solver import step
-from calibration.solver.step import Scaled, masks
+from calibration.solver import factored, step, stopping
+from calibration.solver.factored import Scaled, masks
 from calibration.solver.weighting import HOMOGENEITY_ALPHA, _homogeneous
 
 
@@ -523,7 +523,7 @@ def test_a_model_evaluated_everywhere_ends_on_a_predicted_step(noise, seed):
     assert res.converged and "predicted for the step after the last" in res.message
     assert res.nfev == res.iterations  # the start, and every step but the last
     steps = [h.step for h in res.history]
-    assert steps[-1] < 1e-5 and steps[-1] < step.SETTLED_CONTRACTION * steps[-2]
+    assert steps[-1] < 1e-5 and steps[-1] < stopping.SETTLED_CONTRACTION * steps[-2]
     assert _gauss_newton_step(model, res) < 1e-10
     np.testing.assert_allclose(model.evaluate(res.x)[0], res.residual, rtol=0, atol=1e-12)
     ref = solve(Exponential(t, y, [1.0, 0.0]))
@@ -654,7 +654,7 @@ def test_scaled_singular_uses_the_pseudo_inverse():
 
 
 def test_masks(monkeypatch):
-    monkeypatch.setattr(step, "_MASKS", {})  # (filled by earlier tests: made anew here)
+    monkeypatch.setattr(factored, "_MASKS", {})  # (filled by earlier tests: made anew here)
     tri, aug = masks(3)
     np.testing.assert_array_equal(tri, np.triu(np.ones((3, 4))))
     want = np.zeros((6, 4))
