@@ -180,10 +180,12 @@ def is_robot_file(robot: str) -> bool:
     return robot not in ROBOTS
 
 
-#: the simulated nodes and their socketcand server run in the station's own process, where a
-#: loaded host (the wizard drawing, the CI's two cores) delays their heartbeats by tenths of
-#: a second; a real bus keeps the example's 0.5 s (fixtures/stations/example-real.toml)
+#: the simulated nodes and their socketcand server share the host with the station (the
+#: wizard drawing, the CI's two cores), which delays their heartbeats and SDO answers by
+#: tenths of a second; a real bus keeps the example's 0.5 s for both
+#: (fixtures/stations/example-real.toml)
 SIM_HEARTBEAT_TIMEOUT = 2.0
+SIM_SDO_TIMEOUT = 2.0
 
 
 def sim_config_data(spec, *, velocity: float = VELOCITY,
@@ -204,9 +206,9 @@ def sim_config_data(spec, *, velocity: float = VELOCITY,
         "canopen": {"mode": "cia402", "interface": "socketcand", "channel": "can0",
                     "host": "@endpoints", "port": "@endpoints", "nodes": list(range(1, n + 1)),
                     "increments_per_unit": [131072] * n, "profile_velocity": [velocity] * n,
-                    "profile_acceleration": [acceleration] * n, "sdo_timeout": 0.5,
-                    "move_timeout": 30.0, "heartbeat_period": 0.1, "heartbeat_timeout": SIM_HEARTBEAT_TIMEOUT,
-                    "sync_period": 0.02},
+                    "profile_acceleration": [acceleration] * n, "sdo_timeout": SIM_SDO_TIMEOUT,
+                    "move_timeout": 30.0, "heartbeat_period": 0.1,
+                    "heartbeat_timeout": SIM_HEARTBEAT_TIMEOUT, "sync_period": 0.02},
         "inclinometer": {"port": "@endpoints", "baudrate": 115200, "timeout": 1.0,
                          "axes": {"roll": {"raw": "roll"}, "pitch": {"raw": "pitch"}}},
         "drawwire": {"mode": "tcp", "host": "@endpoints", "port": "@endpoints", "device_id": 1,
