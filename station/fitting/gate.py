@@ -329,10 +329,8 @@ def run_gate(trace, model, result, *, refit, stated_sigma: dict | None,
         try:
             new_model, new_result = refit(new_trace, result.x, hold=hold)
         except CalibrationError as e:
-            quality.check("outliers", False,
-                          f"outliers: {describe(entry)} does not fit "
-                          f"(studentized residual {worst.t:.3g} > {worst.threshold:.3g}) and the "
-                          f"fit without it fails: {e}", next=entry)
+            quality.check("outliers", False, f"outliers: {describe(entry)} does not fit "
+                          f"({said}) and the fit without it fails: {e}", next=entry)
             break
         if restarts < MAX_RESTARTS and not _confirmed(model, new_model, new_result, worst):
             # the reading fits the fit made without it: the first fit was in a local
